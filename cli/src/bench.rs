@@ -1,0 +1,81 @@
+//! `tessera bench`: paths/s and rays/s on a scene, median over several runs.
+
+use crate::render_cmd::{init_threads, load_scene, RenderFlags};
+use anyhow::Result;
+use clap::Args;
+use renderer::Counters;
+use std::path::PathBuf;
+use std::sync::atomic::Ordering;
+use std::time::Instant;
+
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    /// Scene file (default: the built-in Cornell box).
+    pub scene: Option<PathBuf>,
+    /// Number of timed runs (after one warm-up).
+    #[arg(long, default_value_t = 5)]
+    pub runs: usize,
+    #[command(flatten)]
+    pub flags: RenderFlags,
+    #[arg(long)]
+    pub threads: Option<usize>,
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 {
+        return f64::NAN;
+    }
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+pub fn run(args: BenchArgs) -> Result<()> {
+    init_threads(args.threads)?;
+    let scene = load_scene(args.scene.as_deref())?;
+    let settings = args.flags.settings(&scene)?;
+    let paths = settings.width as f64 * settings.height as f64 * settings.spp as f64;
+    println!(
+        "scene {} | {}x{} {} spp | integrator {:?} sampler {:?} | {} threads",
+        args.scene
+            .as_ref()
+            .map_or("built-in cornell".to_string(), |p| p.display().to_string()),
+        settings.width,
+        settings.height,
+        settings.spp,
+        settings.integrator,
+        settings.sampler,
+        rayon::current_num_threads()
+    );
+    let (mut times, mut path_rates, mut ray_rates) = (Vec::new(), Vec::new(), Vec::new());
+    for run in 0..=args.runs {
+        let counters = Counters::default();
+        let t = Instant::now();
+        renderer::render(&scene, &settings, &counters, |_| {});
+        let secs = t.elapsed().as_secs_f64();
+        let rays = counters.rays.load(Ordering::Relaxed) as f64;
+        if run == 0 {
+            println!("warm-up: {secs:.3}s");
+            continue;
+        }
+        println!(
+            "run {run}: {secs:.3}s  {:.3} Mpaths/s  {:.3} Mrays/s",
+            paths / secs / 1e6,
+            rays / secs / 1e6
+        );
+        times.push(secs);
+        path_rates.push(paths / secs);
+        ray_rates.push(rays / secs);
+    }
+    println!(
+        "median: {:.3}s  {:.3} Mpaths/s  {:.3} Mrays/s",
+        median(times),
+        median(path_rates) / 1e6,
+        median(ray_rates) / 1e6
+    );
+    Ok(())
+}

@@ -1,0 +1,213 @@
+//! `tessera render`: load a scene, render it with all cores, write EXR (+ optional PNG preview).
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use renderer::image_io::FinalImage;
+use renderer::sampler::SamplerKind;
+use renderer::{Counters, IntegratorKind, MisHeuristic, PixelFilter, RenderSettings, Scene};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+
+/// The Cornell box shipped inside the binary, rendered when no scene is given.
+pub const EMBEDDED_CORNELL: &[u8] = include_bytes!("../../scenes/cornell/cornell.gltf");
+
+/// Flags shared by every command that describes a render (render, bench; later submit).
+#[derive(Args, Clone, Debug)]
+pub struct RenderFlags {
+    /// Samples per pixel.
+    #[arg(long, default_value_t = 64)]
+    pub spp: u32,
+    /// Image width (default: 640, or from --height and the camera's aspect ratio).
+    #[arg(long)]
+    pub width: Option<u32>,
+    /// Image height (default: from the width and the camera's aspect ratio).
+    #[arg(long)]
+    pub height: Option<u32>,
+    /// Index of the glTF camera to render through (default: the first, or a framing view).
+    #[arg(long)]
+    pub camera: Option<usize>,
+    /// Light transport: mis (NEE + BSDF sampling), nee, or bsdf (BSDF sampling only).
+    #[arg(long, default_value = "mis")]
+    pub integrator: IntegratorKind,
+    /// MIS weighting: power or balance heuristic.
+    #[arg(long, default_value = "power")]
+    pub mis_heuristic: MisHeuristic,
+    /// Sample generator: sobol (Owen-scrambled) or independent (PCG).
+    #[arg(long, default_value = "sobol")]
+    pub sampler: SamplerKind,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Maximum number of bounces (0 = emission only, 1 = direct lighting).
+    #[arg(long, default_value_t = 64)]
+    pub max_depth: u32,
+    /// Bounce from which Russian roulette may end paths.
+    #[arg(long, default_value_t = 5)]
+    pub rr_depth: u32,
+    /// Pixel filter, importance-sampled: box or tent.
+    #[arg(long, default_value = "box")]
+    pub filter: PixelFilter,
+    /// Samples per pass, the unit of accumulation (part of the image's identity: see ARCHITECTURE.md).
+    #[arg(long, default_value_t = 16)]
+    pub pass_spp: u32,
+}
+
+impl RenderFlags {
+    /// Settings for `scene`, with the image size derived from the camera's aspect ratio when not given.
+    pub fn settings(&self, scene: &Scene) -> Result<RenderSettings> {
+        let aspect = match scene.camera(self.camera) {
+            Ok(c) => c
+                .aspect_ratio
+                .filter(|a| a.is_finite() && *a > 0.0)
+                .unwrap_or(640.0 / 480.0),
+            Err((i, n)) => bail!("the scene has no camera {i} (it has {n})"),
+        };
+        let (width, height) = match (self.width, self.height) {
+            (Some(w), Some(h)) => (w, h),
+            (Some(w), None) => (w, ((w as f32 / aspect).round() as u32).max(1)),
+            (None, Some(h)) => (((h as f32 * aspect).round() as u32).max(1), h),
+            (None, None) => (640, ((640.0 / aspect).round() as u32).max(1)),
+        };
+        let s = RenderSettings {
+            width,
+            height,
+            spp: self.spp,
+            pass_spp: self.pass_spp,
+            integrator: self.integrator,
+            mis_heuristic: self.mis_heuristic,
+            sampler: self.sampler,
+            seed: self.seed,
+            max_depth: self.max_depth,
+            rr_depth: self.rr_depth,
+            camera: self.camera,
+            filter: self.filter,
+        };
+        s.validate().map_err(anyhow::Error::msg)?;
+        Ok(s)
+    }
+}
+
+#[derive(Args, Debug)]
+pub struct RenderArgs {
+    /// Scene file (.glb or .gltf). Without it, the built-in Cornell box is rendered.
+    pub scene: Option<PathBuf>,
+    /// Output OpenEXR file.
+    #[arg(short, long, default_value = "render.exr")]
+    pub output: PathBuf,
+    #[command(flatten)]
+    pub flags: RenderFlags,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Also write a tone-mapped sRGB PNG preview here.
+    #[arg(long)]
+    pub preview: Option<PathBuf>,
+    /// Preview exposure in stops.
+    #[arg(long, default_value_t = 0.0)]
+    pub exposure: f32,
+}
+
+pub fn load_scene(path: Option<&Path>) -> Result<Scene> {
+    match path {
+        Some(p) => Ok(renderer::gltf_loader::load(p)?),
+        None => Ok(renderer::gltf_loader::load_from_bytes(
+            Path::new("<built-in cornell.gltf>"),
+            EMBEDDED_CORNELL,
+        )?),
+    }
+}
+
+pub fn init_threads(threads: Option<usize>) -> Result<()> {
+    if let Some(t) = threads {
+        if t == 0 {
+            bail!("--threads must be at least 1");
+        }
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(t)
+            .build_global()
+            .context("cannot start the thread pool")?;
+    }
+    Ok(())
+}
+
+pub fn run(args: RenderArgs) -> Result<()> {
+    init_threads(args.threads)?;
+    let t0 = Instant::now();
+    let scene = load_scene(args.scene.as_deref())?;
+    let settings = args.flags.settings(&scene)?;
+    let load_time = t0.elapsed();
+    let counters = Counters::default();
+    let total = settings.width as u64 * settings.height as u64 * settings.spp as u64;
+    let bar = indicatif::ProgressBar::new(total);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{spinner} [{elapsed_precise}] {bar:30} {percent:>3}% spp {msg} ETA {eta}",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let pixels = settings.width as u64 * settings.height as u64;
+    let start = Instant::now();
+    let done = std::sync::atomic::AtomicBool::new(false);
+    let (image, _) = std::thread::scope(|s| {
+        s.spawn(|| {
+            while !done.load(Ordering::Relaxed) {
+                let samples = counters.samples.load(Ordering::Relaxed);
+                let rays = counters.rays.load(Ordering::Relaxed) as f64
+                    / start.elapsed().as_secs_f64().max(1e-3);
+                bar.set_position(samples);
+                bar.set_message(format!(
+                    "{}/{} | {:.2} Mrays/s",
+                    samples / pixels.max(1),
+                    settings.spp,
+                    rays / 1e6
+                ));
+                std::thread::sleep(Duration::from_millis(100));
+            }
+        });
+        let r = renderer::render(&scene, &settings, &counters, |_| {});
+        done.store(true, Ordering::Relaxed);
+        r
+    });
+    let elapsed = start.elapsed().as_secs_f64();
+    bar.finish_and_clear();
+    let final_image = FinalImage::from_sums(&image);
+    let settings_json = serde_json_lite(&settings);
+    final_image.write_exr(
+        &args.output,
+        &[
+            ("tessera.settings", settings_json),
+            ("tessera.version", env!("CARGO_PKG_VERSION").to_string()),
+        ],
+    )?;
+    if let Some(p) = &args.preview {
+        final_image.write_png(p, args.exposure)?;
+    }
+    let rays = counters.rays.load(Ordering::Relaxed) as f64;
+    let nonfinite = counters.nonfinite.load(Ordering::Relaxed);
+    eprintln!(
+        "rendered {}x{} at {} spp in {:.2}s (scene load {:.2}s): {:.3} Mpaths/s, {:.3} Mrays/s -> {}",
+        settings.width,
+        settings.height,
+        settings.spp,
+        elapsed,
+        load_time.as_secs_f64(),
+        total as f64 / elapsed / 1e6,
+        rays / elapsed / 1e6,
+        args.output.display()
+    );
+    if nonfinite > 0 {
+        tracing::warn!(
+            nonfinite,
+            "samples with non-finite radiance were replaced by zero"
+        );
+    }
+    Ok(())
+}
+
+/// Settings as a compact `key=value` list for the EXR header (readable without a JSON parser).
+fn serde_json_lite(s: &RenderSettings) -> String {
+    format!(
+        "width={} height={} spp={} pass_spp={} integrator={:?} mis_heuristic={:?} sampler={:?} seed={} max_depth={} rr_depth={} camera={:?} filter={:?}",
+        s.width, s.height, s.spp, s.pass_spp, s.integrator, s.mis_heuristic, s.sampler, s.seed, s.max_depth, s.rr_depth, s.camera, s.filter
+    )
+}

@@ -1,0 +1,273 @@
+//! The glTF metallic-roughness BSDF: Lambert diffuse under a GGX dielectric coat, mixed with a GGX
+//! conductor by `metallic` (glTF 2.0 spec, Appendix B, with KHR_materials_specular and
+//! KHR_materials_ior):
+//!
+//! ```text
+//! f = (1 − m) · [ (1 − s·max(F_d)) · base/π + s · F_d · S ] + m · F_m · S
+//! S = D(h) G2(wo, wi) / (4 |cos θo| |cos θi|),  F_x(c) = F0_x + (1 − F0_x)(1 − c)^5,  c = |wo·h|
+//! F0_d = min(((ior − 1)/(ior + 1))² · specularColor, 1),  F0_m = base
+//! ```
+//!
+//! Sampling picks the specular lobe (GGX visible normals) or the diffuse lobe (cosine) with weights
+//! estimated at `wo`; `pdf()` evaluates exactly the same mixture, so `sample()` and `pdf()` agree.
+//! When alpha is below [`Ggx::DELTA_ALPHA`] the specular lobe is a mirror: it is only reachable by
+//! `sample()` (flagged `delta`), contributes nothing to `eval()`/`pdf()`, and takes no MIS weight.
+
+use crate::math::{
+    cosine_hemisphere_pdf, luminance, reflect, sample_cosine_hemisphere, Vec2, Vec3, INV_PI,
+};
+use crate::microfacet::Ggx;
+
+/// Material parameters resolved at one shading point (after textures).
+#[derive(Clone, Copy, Debug)]
+pub struct Bsdf {
+    pub base_color: Vec3,
+    pub metallic: f32,
+    pub ggx: Ggx,
+    /// KHR_materials_specular `specular` weight (0 = pure Lambert dielectric).
+    pub specular: f32,
+    /// Dielectric F0 (already multiplied by specularColor and clamped to 1).
+    pub f0_dielectric: Vec3,
+}
+
+#[derive(Clone, Copy, Debug)]
+pub struct BsdfSample {
+    pub wi: Vec3,
+    /// BSDF value f(wo, wi) (for a delta event: the lobe's reflectance, with the delta removed).
+    pub f: Vec3,
+    /// Solid-angle pdf; for a delta event, the discrete probability of choosing the mirror lobe.
+    pub pdf: f32,
+    pub delta: bool,
+}
+
+impl BsdfSample {
+    /// The path-throughput multiplier f·|cos θi|/pdf (delta: f/pdf).
+    #[inline]
+    pub fn weight(&self) -> Vec3 {
+        if self.delta {
+            self.f / self.pdf
+        } else {
+            self.f * self.wi.z.abs() / self.pdf
+        }
+    }
+}
+
+#[inline]
+fn schlick(f0: Vec3, c: f32) -> Vec3 {
+    let m = (1.0 - c).clamp(0.0, 1.0);
+    let m2 = m * m;
+    f0 + (Vec3::ONE - f0) * (m2 * m2 * m)
+}
+
+impl Bsdf {
+    /// Dielectric F0 from an index of refraction and KHR_materials_specular's color.
+    pub fn f0_from_ior(ior: f32, specular_color: Vec3) -> Vec3 {
+        let r = (ior - 1.0) / (ior + 1.0);
+        (specular_color * (r * r)).min(Vec3::ONE)
+    }
+
+    /// Probability of choosing the specular lobe for this `wo` (local, upper hemisphere).
+    #[inline]
+    fn specular_probability(&self, cos_o: f32) -> f32 {
+        let fd = schlick(self.f0_dielectric, cos_o);
+        let fm = schlick(self.base_color, cos_o);
+        let spec =
+            self.metallic * luminance(fm) + (1.0 - self.metallic) * self.specular * luminance(fd);
+        let diff = (1.0 - self.metallic)
+            * luminance(self.base_color)
+            * (1.0 - self.specular * fd.max_element());
+        let (spec, diff) = (spec.max(0.0), diff.max(0.0));
+        if spec + diff <= 0.0 {
+            return 0.0;
+        }
+        spec / (spec + diff)
+    }
+
+    /// Fresnel-weighted specular color at half-vector cosine `c`: (1 − m)·s·F_d + m·F_m.
+    #[inline]
+    fn specular_tint(&self, c: f32) -> Vec3 {
+        (1.0 - self.metallic) * self.specular * schlick(self.f0_dielectric, c)
+            + self.metallic * schlick(self.base_color, c)
+    }
+
+    #[inline]
+    fn diffuse_scale(&self, c: f32) -> f32 {
+        (1.0 - self.metallic) * (1.0 - self.specular * schlick(self.f0_dielectric, c).max_element())
+    }
+
+    /// f(wo, wi) without delta lobes. Both in the local frame; reflection only (`wo.z`, `wi.z` > 0).
+    pub fn eval(&self, wo: Vec3, wi: Vec3) -> Vec3 {
+        if wo.z <= 0.0 || wi.z <= 0.0 {
+            return Vec3::ZERO;
+        }
+        let h = (wo + wi).normalize_or_zero();
+        if h == Vec3::ZERO {
+            return Vec3::ZERO;
+        }
+        let c = wo.dot(h).abs();
+        let mut f = self.base_color * (self.diffuse_scale(c) * INV_PI);
+        if !self.ggx.is_delta() {
+            let s = self.ggx.d(h) * self.ggx.g2(wo, wi) / (4.0 * wo.z * wi.z);
+            f += self.specular_tint(c) * s;
+        }
+        f
+    }
+
+    /// Solid-angle pdf of `sample()` producing `wi` (non-delta part).
+    pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
+        if wo.z <= 0.0 || wi.z <= 0.0 {
+            return 0.0;
+        }
+        let ps = self.specular_probability(wo.z);
+        let mut pdf = (1.0 - ps) * cosine_hemisphere_pdf(wi.z);
+        if ps > 0.0 && !self.ggx.is_delta() {
+            let h = (wo + wi).normalize_or_zero();
+            let woh = wo.dot(h);
+            if woh > 0.0 {
+                pdf += ps * self.ggx.visible_d(wo, h) / (4.0 * woh);
+            }
+        }
+        pdf
+    }
+
+    /// Samples wi given wo. `u_lobe` picks the lobe, `u` the direction within it.
+    pub fn sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
+        if wo.z <= 0.0 {
+            return None;
+        }
+        let ps = self.specular_probability(wo.z);
+        if u_lobe < ps {
+            if self.ggx.is_delta() {
+                let wi = Vec3::new(-wo.x, -wo.y, wo.z);
+                return Some(BsdfSample {
+                    wi,
+                    f: self.specular_tint(wo.z),
+                    pdf: ps,
+                    delta: true,
+                });
+            }
+            let h = self.ggx.sample_visible_normal(wo, u);
+            let wi = reflect(wo, h);
+            if wi.z <= 0.0 {
+                return None;
+            }
+            self.finish(wo, wi)
+        } else {
+            let wi = sample_cosine_hemisphere(u);
+            if wi.z <= 0.0 {
+                return None;
+            }
+            self.finish(wo, wi)
+        }
+    }
+
+    fn finish(&self, wo: Vec3, wi: Vec3) -> Option<BsdfSample> {
+        let pdf = self.pdf(wo, wi);
+        if !(pdf > 0.0) || !pdf.is_finite() {
+            return None;
+        }
+        Some(BsdfSample {
+            wi,
+            f: self.eval(wo, wi),
+            pdf,
+            delta: false,
+        })
+    }
+
+    /// True when no part of this BSDF can be evaluated for NEE (pure mirror, or black).
+    pub fn is_delta_only(&self) -> bool {
+        self.ggx.is_delta() && self.diffuse_scale(1.0) * luminance(self.base_color) <= 0.0
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    pub fn lambert(albedo: f32) -> Bsdf {
+        Bsdf {
+            base_color: Vec3::splat(albedo),
+            metallic: 0.0,
+            ggx: Ggx::from_roughness(1.0),
+            specular: 0.0,
+            f0_dielectric: Vec3::splat(0.04),
+        }
+    }
+
+    pub fn metal(roughness: f32) -> Bsdf {
+        Bsdf {
+            base_color: Vec3::ONE,
+            metallic: 1.0,
+            ggx: Ggx::from_roughness(roughness),
+            specular: 1.0,
+            f0_dielectric: Vec3::splat(0.04),
+        }
+    }
+
+    pub fn plastic(roughness: f32) -> Bsdf {
+        Bsdf {
+            base_color: Vec3::new(0.8, 0.3, 0.1),
+            metallic: 0.0,
+            ggx: Ggx::from_roughness(roughness),
+            specular: 1.0,
+            f0_dielectric: Bsdf::f0_from_ior(1.5, Vec3::ONE),
+        }
+    }
+
+    #[test]
+    fn lambert_is_albedo_over_pi() {
+        let b = lambert(0.5);
+        let f = b.eval(
+            Vec3::new(0.0, 0.6, 0.8),
+            Vec3::new(0.3, 0.0, 0.954).normalize(),
+        );
+        assert!((f - Vec3::splat(0.5 * INV_PI)).abs().max_element() < 1e-6);
+    }
+
+    #[test]
+    fn sample_weight_equals_f_cos_over_pdf() {
+        let wo = Vec3::new(0.4, -0.2, 0.7).normalize();
+        for b in [
+            lambert(0.7),
+            metal(0.3),
+            plastic(0.5),
+            metal(0.0),
+            plastic(0.0),
+        ] {
+            for i in 0..2000 {
+                let u = Vec2::new(
+                    ((i * 7919) % 1000) as f32 / 1000.0,
+                    ((i * 104729) % 997) as f32 / 997.0,
+                );
+                let ul = ((i * 31) % 101) as f32 / 101.0;
+                if let Some(s) = b.sample(wo, ul, u) {
+                    let w = s.weight();
+                    assert!(w.is_finite());
+                    if !s.delta {
+                        let expect = b.eval(wo, s.wi) * s.wi.z / b.pdf(wo, s.wi);
+                        assert!(
+                            (w - expect).abs().max_element()
+                                <= 1e-4 * expect.max_element().max(1.0),
+                            "{w:?} vs {expect:?}"
+                        );
+                        assert!((s.pdf - b.pdf(wo, s.wi)).abs() <= 1e-5 * s.pdf);
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn reciprocity() {
+        let a = Vec3::new(0.3, 0.5, 0.81).normalize();
+        let c = Vec3::new(-0.6, 0.1, 0.79).normalize();
+        for b in [lambert(0.7), metal(0.3), metal(1.0)] {
+            let f1 = b.eval(a, c);
+            let f2 = b.eval(c, a);
+            assert!(
+                (f1 - f2).abs().max_element() <= 1e-5 * f1.max_element().max(1e-3),
+                "{f1:?} {f2:?}"
+            );
+        }
+    }
+}

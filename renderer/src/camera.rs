@@ -1,0 +1,111 @@
+//! Pinhole perspective camera with glTF conventions: looks down its local −Z, +Y up, `yfov` is the
+//! full vertical field of view. The horizontal extent follows the *image* aspect ratio (as Blender
+//! and Mitsuba with `fov_axis = y` do), so a `--width/--height` that differs from the file's
+//! `aspectRatio` widens or narrows the view instead of stretching it.
+
+use crate::math::{Mat4, Vec2, Vec3};
+
+#[derive(Clone, Copy, Debug)]
+pub struct Camera {
+    pub origin: Vec3,
+    /// Orthonormal camera axes in world space.
+    pub right: Vec3,
+    pub up: Vec3,
+    pub forward: Vec3,
+    pub yfov: f32,
+    /// aspectRatio from the file, if any (used only to choose a default image size).
+    pub aspect_ratio: Option<f32>,
+}
+
+impl Camera {
+    /// From a node's world matrix (scale is removed: glTF says camera nodes should not be scaled,
+    /// and a scaled one must not skew rays).
+    pub fn from_matrix(world: Mat4, yfov: f32, aspect_ratio: Option<f32>) -> Option<Self> {
+        let origin = world.w_axis.truncate();
+        let right = world.x_axis.truncate().normalize_or_zero();
+        let up0 = world.y_axis.truncate();
+        let forward = (-world.z_axis.truncate()).normalize_or_zero();
+        if right == Vec3::ZERO || forward == Vec3::ZERO || !origin.is_finite() {
+            return None;
+        }
+        // Re-orthogonalize so a slightly sheared matrix still yields an orthonormal basis.
+        let up = (up0 - forward * forward.dot(up0)).normalize_or_zero();
+        let up = if up == Vec3::ZERO {
+            right.cross(forward)
+        } else {
+            up
+        };
+        let right = forward.cross(up);
+        if !(yfov > 0.0 && yfov < std::f32::consts::PI) {
+            return None;
+        }
+        Some(Camera {
+            origin,
+            right,
+            up,
+            forward,
+            yfov,
+            aspect_ratio,
+        })
+    }
+
+    /// A default view of a bounding box: from +Z (the glTF "front"), slightly above, framing the
+    /// bounding sphere with a 40° vertical field of view.
+    pub fn framing(min: Vec3, max: Vec3) -> Self {
+        let center = (min + max) * 0.5;
+        let radius = ((max - min).length() * 0.5).max(1e-3);
+        let yfov = 40f32.to_radians();
+        let dist = radius / (yfov * 0.5).sin() * 1.05;
+        let dir = Vec3::new(0.0, 0.25, 1.0).normalize();
+        let origin = center + dir * dist;
+        let forward = (center - origin).normalize();
+        let right = forward.cross(Vec3::Y).normalize();
+        let up = right.cross(forward);
+        Camera {
+            origin,
+            right,
+            up,
+            forward,
+            yfov,
+            aspect_ratio: None,
+        }
+    }
+
+    /// Primary ray direction (unit) through film position `film` in pixels, (0,0) = top-left corner.
+    #[inline]
+    pub fn ray_direction(&self, film: Vec2, width: u32, height: u32) -> Vec3 {
+        let tan_half = (self.yfov * 0.5).tan();
+        let aspect = width as f32 / height as f32;
+        let x = (2.0 * film.x / width as f32 - 1.0) * tan_half * aspect;
+        let y = (1.0 - 2.0 * film.y / height as f32) * tan_half;
+        (self.forward + self.right * x + self.up * y).normalize()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn centre_pixel_looks_forward_and_corners_match_fov() {
+        let cam = Camera::from_matrix(Mat4::IDENTITY, 90f32.to_radians(), None).unwrap();
+        let d = cam.ray_direction(Vec2::new(50.0, 50.0), 100, 100);
+        assert!((d - Vec3::new(0.0, 0.0, -1.0)).length() < 1e-6);
+        let top = cam.ray_direction(Vec2::new(50.0, 0.0), 100, 100);
+        assert!(
+            (top.y - top.z.abs()).abs() < 1e-5,
+            "45° half angle: {top:?}"
+        );
+        let left = cam.ray_direction(Vec2::new(0.0, 50.0), 200, 100);
+        assert!(
+            (left.x + 2.0 * left.z.abs()).abs() < 1e-5,
+            "aspect 2: {left:?}"
+        );
+    }
+
+    #[test]
+    fn framing_sees_the_box_centre() {
+        let cam = Camera::framing(Vec3::splat(-1.0), Vec3::splat(1.0));
+        assert!((cam.forward - (-cam.origin).normalize()).length() < 1e-4);
+    }
+}

@@ -1,0 +1,222 @@
+//! Partial radiance sums: the currency of the farm. A tile's `PartialSums` over a sample range holds,
+//! per pixel, the f64 sum of RGB radiance, the f64 sum of squared luminance and the sample count.
+//! Merging is elementwise addition; the *order* of merges is fixed by the determinism rule
+//! (ARCHITECTURE.md), which is what makes a distributed image bit-identical to a local one.
+
+use crate::math::Vec3;
+use serde::{Deserialize, Serialize};
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Rect {
+    pub x0: u32,
+    pub y0: u32,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl Rect {
+    pub fn pixels(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+
+    /// Splits a `width × height` image into tiles of at most `size × size`, row-major.
+    pub fn tiles(width: u32, height: u32, size: u32) -> Vec<Rect> {
+        let size = size.max(1);
+        let mut out = Vec::new();
+        for y0 in (0..height).step_by(size as usize) {
+            for x0 in (0..width).step_by(size as usize) {
+                out.push(Rect {
+                    x0,
+                    y0,
+                    width: size.min(width - x0),
+                    height: size.min(height - y0),
+                });
+            }
+        }
+        out
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PartialSums {
+    pub rect: Rect,
+    /// Per pixel, row-major within `rect`.
+    pub sum_rgb: Vec<[f64; 3]>,
+    pub sum_lum_sq: Vec<f64>,
+    pub count: Vec<u32>,
+}
+
+impl PartialSums {
+    pub fn new(rect: Rect) -> Self {
+        let n = rect.pixels();
+        PartialSums {
+            rect,
+            sum_rgb: vec![[0.0; 3]; n],
+            sum_lum_sq: vec![0.0; n],
+            count: vec![0; n],
+        }
+    }
+
+    /// Adds one sample to pixel `i` (index within the rect).
+    #[inline]
+    pub fn add_sample(&mut self, i: usize, l: Vec3) {
+        let s = &mut self.sum_rgb[i];
+        s[0] += l.x as f64;
+        s[1] += l.y as f64;
+        s[2] += l.z as f64;
+        let y = crate::math::luminance(l) as f64;
+        self.sum_lum_sq[i] += y * y;
+        self.count[i] += 1;
+    }
+
+    /// Elementwise `self += other` (same rect).
+    pub fn merge(&mut self, other: &PartialSums) -> Result<(), String> {
+        if self.rect != other.rect {
+            return Err(format!(
+                "cannot merge sums of {:?} into {:?}",
+                other.rect, self.rect
+            ));
+        }
+        for i in 0..self.sum_rgb.len() {
+            for c in 0..3 {
+                self.sum_rgb[i][c] += other.sum_rgb[i][c];
+            }
+            self.sum_lum_sq[i] += other.sum_lum_sq[i];
+            self.count[i] += other.count[i];
+        }
+        Ok(())
+    }
+
+    /// Adds a tile's sums into this (larger) rect at the tile's position.
+    pub fn merge_tile(&mut self, tile: &PartialSums) -> Result<(), String> {
+        let (r, t) = (self.rect, tile.rect);
+        if t.x0 < r.x0
+            || t.y0 < r.y0
+            || t.x0 + t.width > r.x0 + r.width
+            || t.y0 + t.height > r.y0 + r.height
+        {
+            return Err(format!("tile {t:?} lies outside {r:?}"));
+        }
+        for ty in 0..t.height {
+            for tx in 0..t.width {
+                let src = (ty * t.width + tx) as usize;
+                let dst = ((t.y0 - r.y0 + ty) * r.width + (t.x0 - r.x0 + tx)) as usize;
+                for c in 0..3 {
+                    self.sum_rgb[dst][c] += tile.sum_rgb[src][c];
+                }
+                self.sum_lum_sq[dst] += tile.sum_lum_sq[src];
+                self.count[dst] += tile.count[src];
+            }
+        }
+        Ok(())
+    }
+
+    /// Validates sums received from elsewhere: sizes match the rect, values finite and non-negative,
+    /// every pixel holds exactly `expected_count` samples.
+    pub fn validate(&self, expected_count: u32) -> Result<(), String> {
+        let n = self.rect.pixels();
+        if self.sum_rgb.len() != n || self.sum_lum_sq.len() != n || self.count.len() != n {
+            return Err(format!(
+                "{} pixels expected for {:?}, got {}/{}/{}",
+                n,
+                self.rect,
+                self.sum_rgb.len(),
+                self.sum_lum_sq.len(),
+                self.count.len()
+            ));
+        }
+        for i in 0..n {
+            let s = self.sum_rgb[i];
+            if !s
+                .iter()
+                .chain(std::iter::once(&self.sum_lum_sq[i]))
+                .all(|v| v.is_finite() && *v >= 0.0)
+            {
+                return Err(format!("pixel {i} holds a non-finite or negative sum"));
+            }
+            if self.count[i] != expected_count {
+                return Err(format!(
+                    "pixel {i} holds {} samples, expected {expected_count}",
+                    self.count[i]
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Mean radiance of pixel `i`.
+    pub fn mean(&self, i: usize) -> [f32; 3] {
+        let n = self.count[i].max(1) as f64;
+        let s = self.sum_rgb[i];
+        [(s[0] / n) as f32, (s[1] / n) as f32, (s[2] / n) as f32]
+    }
+
+    /// Variance of the mean luminance of pixel `i` (unbiased sample variance / n); infinite when
+    /// fewer than two samples make it unknowable.
+    pub fn variance_of_mean(&self, i: usize) -> f32 {
+        let n = self.count[i] as f64;
+        if n < 2.0 {
+            return f32::INFINITY;
+        }
+        let s = self.sum_rgb[i];
+        let mean = (0.2126 * s[0] + 0.7152 * s[1] + 0.0722 * s[2]) / n;
+        let var = ((self.sum_lum_sq[i] - n * mean * mean) / (n - 1.0)).max(0.0);
+        (var / n) as f32
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tiles_cover_image_exactly_once() {
+        let tiles = Rect::tiles(70, 33, 16);
+        let mut hits = vec![0u8; 70 * 33];
+        for t in &tiles {
+            for y in t.y0..t.y0 + t.height {
+                for x in t.x0..t.x0 + t.width {
+                    hits[(y * 70 + x) as usize] += 1;
+                }
+            }
+        }
+        assert!(hits.iter().all(|&h| h == 1));
+    }
+
+    #[test]
+    fn variance_of_mean_matches_definition() {
+        let mut p = PartialSums::new(Rect {
+            x0: 0,
+            y0: 0,
+            width: 1,
+            height: 1,
+        });
+        for v in [1.0f32, 2.0, 3.0, 6.0] {
+            p.add_sample(0, Vec3::splat(v));
+        }
+        // Luminance of grey v is v (weights sum to 1); sample variance of {1,2,3,6} is 14/3.
+        let expect = 14.0 / 3.0 / 4.0;
+        assert!((p.variance_of_mean(0) as f64 - expect).abs() < 1e-5);
+        assert_eq!(p.mean(0), [3.0, 3.0, 3.0]);
+    }
+
+    #[test]
+    fn validate_rejects_bad_sums() {
+        let mut p = PartialSums::new(Rect {
+            x0: 0,
+            y0: 0,
+            width: 2,
+            height: 1,
+        });
+        p.add_sample(0, Vec3::ONE);
+        p.add_sample(1, Vec3::ONE);
+        assert!(p.validate(1).is_ok());
+        assert!(p.validate(2).is_err());
+        let mut q = p.clone();
+        q.sum_rgb[1][0] = f64::NAN;
+        assert!(q.validate(1).is_err());
+        let mut r = p.clone();
+        r.count.pop();
+        assert!(r.validate(1).is_err());
+    }
+}

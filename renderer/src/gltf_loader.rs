@@ -1,0 +1,735 @@
+//! glTF 2.0 loading (`.glb`, `.gltf` with data-URI or sibling-file buffers) into a [`Scene`].
+//!
+//! The file is untrusted input (the farm accepts uploads), so every size is bounded before it is
+//! allocated, every accessor is checked against its buffer before it is read, URIs may not leave the
+//! scene's folder, and anything the renderer does not model is refused with an error naming it
+//! rather than rendered silently wrong.
+
+use crate::camera::Camera;
+use crate::error::SceneError;
+use crate::material::Material;
+use crate::math::{Mat4, Vec2, Vec3, Vec4};
+use crate::mesh::{flags, Mesh, Triangle};
+use crate::scene::Scene;
+use crate::texture::{Texture, TextureRef, Wrap};
+use base64::Engine;
+use gltf::accessor::{DataType, Dimensions};
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+/// Largest scene file or external buffer/image file we read.
+pub const MAX_FILE_BYTES: u64 = 2 << 30;
+/// Largest texture side; larger images are refused before decoding.
+pub const MAX_TEXTURE_SIDE: u32 = 16384;
+/// Deepest node hierarchy we follow (also guards against cyclic node graphs).
+const MAX_NODE_DEPTH: usize = 256;
+
+/// Extensions this renderer implements. Anything else listed in `extensionsUsed` changes how the
+/// scene should look, so it is refused.
+const SUPPORTED_EXTENSIONS: &[&str] = &[
+    "KHR_materials_emissive_strength",
+    "KHR_materials_specular",
+    "KHR_materials_ior",
+];
+/// Extensions that carry only metadata and cannot change the image.
+const HARMLESS_EXTENSIONS: &[&str] = &["KHR_xmp_json_ld", "KHR_xmp"];
+
+/// Loads a scene from a `.glb` or `.gltf` file.
+pub fn load(path: &Path) -> Result<Scene, SceneError> {
+    let bytes = read_bounded(path, path, "scene file")?;
+    load_from_bytes(path, &bytes)
+}
+
+/// Loads a scene from bytes; `path` names the file in errors and anchors relative URIs.
+pub fn load_from_bytes(path: &Path, bytes: &[u8]) -> Result<Scene, SceneError> {
+    let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| SceneError::Parse {
+        path: path.into(),
+        message: e.to_string(),
+    })?;
+    let loader = Loader {
+        path: path.to_path_buf(),
+        dir: path
+            .parent()
+            .map(Path::to_path_buf)
+            .unwrap_or_else(|| PathBuf::from(".")),
+    };
+    loader.check_extensions(&gltf.document)?;
+    let buffers = loader.load_buffers(&gltf.document, gltf.blob.as_deref())?;
+    loader.build(&gltf.document, &buffers)
+}
+
+fn read_bounded(path: &Path, scene: &Path, what: &str) -> Result<Vec<u8>, SceneError> {
+    let meta = std::fs::metadata(path).map_err(|source| SceneError::Io {
+        path: path.into(),
+        source,
+    })?;
+    if meta.len() > MAX_FILE_BYTES {
+        return Err(SceneError::TooLarge {
+            path: scene.into(),
+            what: format!("{what} {}", path.display()),
+            size: meta.len(),
+            limit: MAX_FILE_BYTES,
+        });
+    }
+    std::fs::read(path).map_err(|source| SceneError::Io {
+        path: path.into(),
+        source,
+    })
+}
+
+struct Loader {
+    path: PathBuf,
+    dir: PathBuf,
+}
+
+fn percent_decode(s: &str) -> Option<String> {
+    let b = s.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%' {
+            let hex = std::str::from_utf8(b.get(i + 1..i + 3)?).ok()?;
+            out.push(u8::from_str_radix(hex, 16).ok()?);
+            i += 3;
+        } else {
+            out.push(b[i]);
+            i += 1;
+        }
+    }
+    String::from_utf8(out).ok()
+}
+
+impl Loader {
+    fn invalid(&self, message: impl Into<String>) -> SceneError {
+        SceneError::Invalid {
+            path: self.path.clone(),
+            message: message.into(),
+        }
+    }
+
+    fn unsupported(&self, feature: impl Into<String>) -> SceneError {
+        SceneError::Unsupported {
+            path: self.path.clone(),
+            feature: feature.into(),
+        }
+    }
+
+    fn check_extensions(&self, doc: &gltf::Document) -> Result<(), SceneError> {
+        for ext in doc.extensions_required().chain(doc.extensions_used()) {
+            if !SUPPORTED_EXTENSIONS.contains(&ext) && !HARMLESS_EXTENSIONS.contains(&ext) {
+                return Err(self.unsupported(format!("extension {ext}")));
+            }
+        }
+        Ok(())
+    }
+
+    /// Resolves a URI to bytes: `data:` URIs (base64) or a relative path inside the scene's folder.
+    fn fetch_uri(&self, uri: &str, what: &str) -> Result<Vec<u8>, SceneError> {
+        let forbid = |reason: &str| SceneError::ForbiddenUri {
+            path: self.path.clone(),
+            uri: uri.chars().take(120).collect(),
+            reason: reason.into(),
+        };
+        if let Some(rest) = uri.strip_prefix("data:") {
+            let (header, data) = rest
+                .split_once(',')
+                .ok_or_else(|| forbid("malformed data URI (no ',')"))?;
+            if !header.ends_with(";base64") {
+                return Err(forbid("data URIs must be base64-encoded"));
+            }
+            if data.len() as u64 > MAX_FILE_BYTES * 4 / 3 + 4 {
+                return Err(SceneError::TooLarge {
+                    path: self.path.clone(),
+                    what: format!("{what} data URI"),
+                    size: data.len() as u64,
+                    limit: MAX_FILE_BYTES,
+                });
+            }
+            return base64::engine::general_purpose::STANDARD
+                .decode(data.trim())
+                .map_err(|e| self.invalid(format!("{what}: bad base64 in data URI: {e}")));
+        }
+        if let Some(colon) = uri.find(':') {
+            if !uri[..colon].contains('/') {
+                return Err(forbid(
+                    "only data URIs and relative paths inside the scene's folder are allowed",
+                ));
+            }
+        }
+        let decoded = percent_decode(uri).ok_or_else(|| forbid("bad percent-encoding"))?;
+        if decoded.starts_with('/')
+            || decoded.contains('\\')
+            || decoded.split('/').any(|c| c == "..")
+        {
+            return Err(forbid("path escapes the scene's folder"));
+        }
+        let full = self.dir.join(&decoded);
+        let base = self.dir.canonicalize().map_err(|source| SceneError::Io {
+            path: self.dir.clone(),
+            source,
+        })?;
+        let canon = full.canonicalize().map_err(|source| SceneError::Io {
+            path: full.clone(),
+            source,
+        })?;
+        if !canon.starts_with(&base) {
+            return Err(forbid("path escapes the scene's folder (through a link)"));
+        }
+        read_bounded(&canon, &self.path, what)
+    }
+
+    fn load_buffers(
+        &self,
+        doc: &gltf::Document,
+        blob: Option<&[u8]>,
+    ) -> Result<Vec<Vec<u8>>, SceneError> {
+        let mut out = Vec::new();
+        for buffer in doc.buffers() {
+            let data = match buffer.source() {
+                gltf::buffer::Source::Bin => blob
+                    .ok_or_else(|| {
+                        self.invalid(format!(
+                            "buffer {} refers to the GLB binary chunk, which is missing",
+                            buffer.index()
+                        ))
+                    })?
+                    .to_vec(),
+                gltf::buffer::Source::Uri(uri) => {
+                    self.fetch_uri(uri, &format!("buffer {}", buffer.index()))?
+                }
+            };
+            if data.len() < buffer.length() {
+                return Err(self.invalid(format!(
+                    "buffer {} holds {} bytes but declares {}",
+                    buffer.index(),
+                    data.len(),
+                    buffer.length()
+                )));
+            }
+            out.push(data);
+        }
+        for view in doc.views() {
+            let end = view.offset().checked_add(view.length());
+            let len = out.get(view.buffer().index()).map(Vec::len).unwrap_or(0);
+            if end.is_none_or(|e| e > len) {
+                return Err(self.invalid(format!(
+                    "bufferView {} (offset {}, length {}) runs past its buffer ({} bytes)",
+                    view.index(),
+                    view.offset(),
+                    view.length(),
+                    len
+                )));
+            }
+        }
+        Ok(out)
+    }
+
+    /// Checks an accessor's type and that all of its elements lie inside its buffer view.
+    fn check_accessor(
+        &self,
+        acc: &gltf::Accessor,
+        what: &str,
+        types: &[DataType],
+        dims: Dimensions,
+    ) -> Result<usize, SceneError> {
+        let name = format!("{what} (accessor {})", acc.index());
+        if acc.sparse().is_some() {
+            return Err(self.unsupported(format!("sparse accessor for {name}")));
+        }
+        if !types.contains(&acc.data_type()) || acc.dimensions() != dims {
+            return Err(self.unsupported(format!(
+                "{name} stored as {:?} {:?}",
+                acc.data_type(),
+                acc.dimensions()
+            )));
+        }
+        let view = acc
+            .view()
+            .ok_or_else(|| self.invalid(format!("{name} has no bufferView")))?;
+        let count = acc.count();
+        if count == 0 {
+            return Err(self.invalid(format!("{name} is empty")));
+        }
+        let elem = acc.size();
+        let stride = view.stride().unwrap_or(elem);
+        if stride < elem {
+            return Err(self.invalid(format!(
+                "{name}: byteStride {stride} is smaller than an element ({elem} bytes)"
+            )));
+        }
+        let end = (count - 1)
+            .checked_mul(stride)
+            .and_then(|x| x.checked_add(elem))
+            .and_then(|x| x.checked_add(acc.offset()));
+        if end.is_none_or(|e| e > view.length()) {
+            return Err(self.invalid(format!(
+                "{name}: {count} elements run past bufferView {} ({} bytes)",
+                view.index(),
+                view.length()
+            )));
+        }
+        Ok(count)
+    }
+
+    fn build(&self, doc: &gltf::Document, buffers: &[Vec<u8>]) -> Result<Scene, SceneError> {
+        let mut textures = Vec::new();
+        let mut texture_ids: HashMap<(usize, bool), u32> = HashMap::new();
+        let mut materials = Vec::new();
+        for m in doc.materials() {
+            materials.push(self.material(&m, buffers, &mut textures, &mut texture_ids)?);
+        }
+        let default_material = materials.len() as u32;
+        materials.push(Material::default());
+
+        let mut mesh = Mesh::default();
+        let mut cameras = Vec::new();
+        let roots: Vec<gltf::Node> = match doc.default_scene().or_else(|| doc.scenes().next()) {
+            Some(s) => s.nodes().collect(),
+            None => {
+                // No scene: render every root node (nodes that are nobody's child).
+                let children: std::collections::HashSet<usize> = doc
+                    .nodes()
+                    .flat_map(|n| n.children().map(|c| c.index()))
+                    .collect();
+                doc.nodes()
+                    .filter(|n| !children.contains(&n.index()))
+                    .collect()
+            }
+        };
+        let mut stack: Vec<(gltf::Node, Mat4, usize)> = roots
+            .into_iter()
+            .rev()
+            .map(|n| (n, Mat4::IDENTITY, 0))
+            .collect();
+        let mut visits = 0usize;
+        while let Some((node, parent, depth)) = stack.pop() {
+            visits += 1;
+            if depth > MAX_NODE_DEPTH || visits > doc.nodes().len() * 64 + 1024 {
+                return Err(self.invalid("node hierarchy is too deep or cyclic"));
+            }
+            let local = Mat4::from_cols_array_2d(&node.transform().matrix());
+            let world = parent * local;
+            if !world.is_finite() {
+                return Err(
+                    self.invalid(format!("node {} has a non-finite transform", node.index()))
+                );
+            }
+            if node.skin().is_some() {
+                return Err(self.unsupported(format!(
+                    "skin on node {} (skeletal animation)",
+                    node.index()
+                )));
+            }
+            if let Some(cam) = node.camera() {
+                match cam.projection() {
+                    gltf::camera::Projection::Perspective(p) => {
+                        let c = Camera::from_matrix(world, p.yfov(), p.aspect_ratio()).ok_or_else(
+                            || {
+                                self.invalid(format!(
+                                    "camera on node {} has a degenerate transform or yfov {}",
+                                    node.index(),
+                                    p.yfov()
+                                ))
+                            },
+                        )?;
+                        cameras.push(c);
+                    }
+                    gltf::camera::Projection::Orthographic(_) => {
+                        tracing::warn!(
+                            node = node.index(),
+                            "orthographic camera skipped (not supported)"
+                        );
+                    }
+                }
+            }
+            if let Some(m) = node.mesh() {
+                let weights = node.weights().or(m.weights()).unwrap_or(&[]);
+                if weights.iter().any(|&w| w != 0.0) {
+                    return Err(
+                        self.unsupported(format!("morph target weights on mesh {}", m.index()))
+                    );
+                }
+                for prim in m.primitives() {
+                    self.primitive(
+                        &prim,
+                        world,
+                        buffers,
+                        &mut mesh,
+                        &materials,
+                        default_material,
+                    )?;
+                }
+            }
+            for child in node.children() {
+                stack.push((child, world, depth + 1));
+            }
+        }
+        Ok(Scene::new(mesh, materials, textures, cameras))
+    }
+
+    fn primitive(
+        &self,
+        prim: &gltf::Primitive,
+        world: Mat4,
+        buffers: &[Vec<u8>],
+        mesh: &mut Mesh,
+        materials: &[Material],
+        default_material: u32,
+    ) -> Result<(), SceneError> {
+        use gltf::mesh::Mode;
+        let mode = prim.mode();
+        if matches!(
+            mode,
+            Mode::Points | Mode::Lines | Mode::LineLoop | Mode::LineStrip
+        ) {
+            tracing::warn!(
+                ?mode,
+                "primitive skipped: points and lines have no area to render"
+            );
+            return Ok(());
+        }
+        let get = |b: gltf::Buffer| buffers.get(b.index()).map(Vec::as_slice);
+        let reader = prim.reader(get);
+        let pos_acc = prim
+            .get(&gltf::Semantic::Positions)
+            .ok_or_else(|| self.invalid("primitive without POSITION"))?;
+        let n = self.check_accessor(&pos_acc, "POSITION", &[DataType::F32], Dimensions::Vec3)?;
+        let positions: Vec<[f32; 3]> = reader
+            .read_positions()
+            .ok_or_else(|| self.invalid("POSITION data missing"))?
+            .collect();
+        let normals: Option<Vec<[f32; 3]>> = match prim.get(&gltf::Semantic::Normals) {
+            Some(a) => {
+                self.expect_count(
+                    self.check_accessor(&a, "NORMAL", &[DataType::F32], Dimensions::Vec3)?,
+                    n,
+                    "NORMAL",
+                )?;
+                reader.read_normals().map(Iterator::collect)
+            }
+            None => None,
+        };
+        let tangents: Option<Vec<[f32; 4]>> = match prim.get(&gltf::Semantic::Tangents) {
+            Some(a) => {
+                self.expect_count(
+                    self.check_accessor(&a, "TANGENT", &[DataType::F32], Dimensions::Vec4)?,
+                    n,
+                    "TANGENT",
+                )?;
+                reader.read_tangents().map(Iterator::collect)
+            }
+            None => None,
+        };
+        let uvs: Option<Vec<[f32; 2]>> = match prim.get(&gltf::Semantic::TexCoords(0)) {
+            Some(a) => {
+                self.expect_count(
+                    self.check_accessor(
+                        &a,
+                        "TEXCOORD_0",
+                        &[DataType::F32, DataType::U8, DataType::U16],
+                        Dimensions::Vec2,
+                    )?,
+                    n,
+                    "TEXCOORD_0",
+                )?;
+                if a.data_type() != DataType::F32 && !a.normalized() {
+                    return Err(self.unsupported("non-normalized integer TEXCOORD_0"));
+                }
+                reader.read_tex_coords(0).map(|t| t.into_f32().collect())
+            }
+            None => None,
+        };
+        let indices: Vec<u32> = match prim.indices() {
+            Some(a) => {
+                self.check_accessor(
+                    &a,
+                    "indices",
+                    &[DataType::U8, DataType::U16, DataType::U32],
+                    Dimensions::Scalar,
+                )?;
+                reader
+                    .read_indices()
+                    .ok_or_else(|| self.invalid("index data missing"))?
+                    .into_u32()
+                    .collect()
+            }
+            None => (0..n as u32).collect(),
+        };
+        if let Some(bad) = indices.iter().find(|&&i| i as usize >= n) {
+            return Err(self.invalid(format!("index {bad} out of range for {n} vertices")));
+        }
+        let tris: Vec<[u32; 3]> = match mode {
+            Mode::Triangles => indices
+                .chunks_exact(3)
+                .map(|c| [c[0], c[1], c[2]])
+                .collect(),
+            Mode::TriangleStrip => (0..indices.len().saturating_sub(2))
+                .map(|i| {
+                    if i % 2 == 0 {
+                        [indices[i], indices[i + 1], indices[i + 2]]
+                    } else {
+                        [indices[i + 1], indices[i], indices[i + 2]]
+                    }
+                })
+                .collect(),
+            Mode::TriangleFan => (1..indices.len().saturating_sub(1))
+                .map(|i| [indices[i], indices[i + 1], indices[0]])
+                .collect(),
+            _ => Vec::new(),
+        };
+
+        let material = prim
+            .material()
+            .index()
+            .map_or(default_material, |i| i as u32);
+        let mat = &materials[material as usize];
+        let needs_tangents = mat.normal_texture.is_some();
+        if needs_tangents && uvs.is_none() {
+            return Err(self.invalid(format!(
+                "material '{}' has a normal map but the primitive has no TEXCOORD_0",
+                mat.name
+            )));
+        }
+
+        // World transform: points by M, normals by the inverse transpose, tangents by M's linear part.
+        let linear = glam::Mat3::from_mat4(world);
+        let det = linear.determinant();
+        if det == 0.0 || !det.is_finite() {
+            tracing::warn!("primitive skipped: its node transform is singular");
+            return Ok(());
+        }
+        let normal_m = linear.inverse().transpose();
+        let base = mesh.positions.len() as u32;
+        mesh.positions.extend(
+            positions
+                .iter()
+                .map(|p| world.transform_point3(Vec3::from(*p))),
+        );
+        match &normals {
+            Some(ns) => mesh.normals.extend(
+                ns.iter()
+                    .map(|v| (normal_m * Vec3::from(*v)).normalize_or_zero()),
+            ),
+            None => mesh.normals.extend(std::iter::repeat_n(Vec3::ZERO, n)),
+        }
+        match &tangents {
+            Some(ts) => mesh.tangents.extend(ts.iter().map(|t| {
+                (linear * Vec3::new(t[0], t[1], t[2]))
+                    .normalize_or_zero()
+                    .extend(if t[3] < 0.0 { -1.0 } else { 1.0 })
+            })),
+            None => mesh.tangents.extend(std::iter::repeat_n(Vec4::ZERO, n)),
+        }
+        match &uvs {
+            Some(us) => mesh.uvs.extend(us.iter().map(|u| Vec2::from(*u))),
+            None => mesh.uvs.extend(std::iter::repeat_n(Vec2::ZERO, n)),
+        }
+        let mut f = 0u8;
+        if normals.is_some() {
+            f |= flags::NORMALS;
+        }
+        if tangents.is_some() {
+            f |= flags::TANGENTS;
+        }
+        if uvs.is_some() {
+            f |= flags::UVS;
+        }
+        let first = mesh.triangles.len();
+        for t in tris {
+            // A mirroring transform (negative determinant) flips the winding (glTF spec §3.7.4).
+            let v = if det < 0.0 {
+                [base + t[0], base + t[2], base + t[1]]
+            } else {
+                [base + t[0], base + t[1], base + t[2]]
+            };
+            mesh.triangles.push(Triangle {
+                v,
+                material,
+                flags: f,
+            });
+        }
+        if needs_tangents && tangents.is_none() {
+            mesh.generate_tangents(first..mesh.triangles.len());
+        }
+        Ok(())
+    }
+
+    fn expect_count(&self, got: usize, want: usize, what: &str) -> Result<(), SceneError> {
+        if got != want {
+            return Err(self.invalid(format!("{what} has {got} elements but POSITION has {want}")));
+        }
+        Ok(())
+    }
+
+    fn material(
+        &self,
+        m: &gltf::Material,
+        buffers: &[Vec<u8>],
+        textures: &mut Vec<Texture>,
+        ids: &mut HashMap<(usize, bool), u32>,
+    ) -> Result<Material, SceneError> {
+        let name = m
+            .name()
+            .map(str::to_owned)
+            .unwrap_or_else(|| format!("material {}", m.index().unwrap_or(0)));
+        match m.alpha_mode() {
+            gltf::material::AlphaMode::Opaque => {}
+            other => {
+                return Err(self.unsupported(format!("alphaMode {other:?} (material '{name}')")))
+            }
+        }
+        let pbr = m.pbr_metallic_roughness();
+        let mut tex = |info: Option<gltf::texture::Info>,
+                       srgb: bool|
+         -> Result<Option<TextureRef>, SceneError> {
+            match info {
+                Some(i) => Ok(Some(self.texture_ref(
+                    &i.texture(),
+                    i.tex_coord(),
+                    srgb,
+                    buffers,
+                    textures,
+                    ids,
+                )?)),
+                None => Ok(None),
+            }
+        };
+        let base_color_texture = tex(pbr.base_color_texture(), true)?;
+        let metallic_roughness_texture = tex(pbr.metallic_roughness_texture(), false)?;
+        let emissive_texture = tex(m.emissive_texture(), true)?;
+        let (specular, specular_texture, specular_color, specular_color_texture) =
+            match m.specular() {
+                Some(s) => (
+                    s.specular_factor(),
+                    tex(s.specular_texture(), false)?,
+                    Vec3::from(s.specular_color_factor()),
+                    tex(s.specular_color_texture(), true)?,
+                ),
+                None => (1.0, None, Vec3::ONE, None),
+            };
+        let (normal_texture, normal_scale) = match m.normal_texture() {
+            Some(n) => (
+                Some(self.texture_ref(
+                    &n.texture(),
+                    n.tex_coord(),
+                    false,
+                    buffers,
+                    textures,
+                    ids,
+                )?),
+                n.scale(),
+            ),
+            None => (None, 1.0),
+        };
+        let emissive = Vec3::from(m.emissive_factor()) * m.emissive_strength().unwrap_or(1.0);
+        let checked = |v: f32, what: &str| -> Result<f32, SceneError> {
+            if v.is_finite() {
+                Ok(v)
+            } else {
+                Err(self.invalid(format!("material '{name}': {what} is not finite")))
+            }
+        };
+        for (v, what) in [
+            (emissive.x, "emissive"),
+            (emissive.y, "emissive"),
+            (emissive.z, "emissive"),
+        ] {
+            if checked(v, what)? < 0.0 {
+                return Err(self.invalid(format!("material '{name}': negative emission")));
+            }
+        }
+        Ok(Material {
+            base_color: Vec4::from(pbr.base_color_factor()),
+            base_color_texture,
+            metallic: checked(pbr.metallic_factor(), "metallicFactor")?,
+            roughness: checked(pbr.roughness_factor(), "roughnessFactor")?,
+            metallic_roughness_texture,
+            normal_texture,
+            normal_scale: checked(normal_scale, "normalTexture.scale")?,
+            emissive,
+            emissive_texture,
+            specular: checked(specular, "specularFactor")?,
+            specular_texture,
+            specular_color,
+            specular_color_texture,
+            ior: checked(m.ior().unwrap_or(1.5), "ior")?,
+            double_sided: m.double_sided(),
+            name,
+        })
+    }
+
+    fn texture_ref(
+        &self,
+        t: &gltf::Texture,
+        tex_coord: u32,
+        srgb: bool,
+        buffers: &[Vec<u8>],
+        textures: &mut Vec<Texture>,
+        ids: &mut HashMap<(usize, bool), u32>,
+    ) -> Result<TextureRef, SceneError> {
+        if tex_coord != 0 {
+            return Err(self.unsupported(format!(
+                "texCoord {tex_coord} (only TEXCOORD_0 is supported)"
+            )));
+        }
+        let image = t.source();
+        let key = (image.index(), srgb);
+        let id = match ids.get(&key) {
+            Some(&id) => id,
+            None => {
+                let tex = self.decode_image(&image, srgb, buffers)?;
+                textures.push(tex);
+                let id = textures.len() as u32 - 1;
+                ids.insert(key, id);
+                id
+            }
+        };
+        let wrap = |w: gltf::texture::WrappingMode| match w {
+            gltf::texture::WrappingMode::ClampToEdge => Wrap::ClampToEdge,
+            gltf::texture::WrappingMode::MirroredRepeat => Wrap::MirroredRepeat,
+            gltf::texture::WrappingMode::Repeat => Wrap::Repeat,
+        };
+        let s = t.sampler();
+        Ok(TextureRef {
+            texture: id,
+            wrap_s: wrap(s.wrap_s()),
+            wrap_t: wrap(s.wrap_t()),
+        })
+    }
+
+    fn decode_image(
+        &self,
+        image: &gltf::Image,
+        srgb: bool,
+        buffers: &[Vec<u8>],
+    ) -> Result<Texture, SceneError> {
+        let what = format!("image {}", image.index());
+        let bytes: Vec<u8> = match image.source() {
+            gltf::image::Source::View { view, .. } => {
+                let b = &buffers[view.buffer().index()];
+                b[view.offset()..view.offset() + view.length()].to_vec()
+            }
+            gltf::image::Source::Uri { uri, .. } => self.fetch_uri(uri, &what)?,
+        };
+        let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
+            .with_guessed_format()
+            .map_err(|e| self.invalid(format!("{what}: {e}")))?;
+        let mut limits = image::Limits::default();
+        limits.max_image_width = Some(MAX_TEXTURE_SIDE);
+        limits.max_image_height = Some(MAX_TEXTURE_SIDE);
+        limits.max_alloc = Some(2 << 30);
+        reader.limits(limits);
+        let img = reader
+            .decode()
+            .map_err(|e| self.invalid(format!("{what}: cannot decode: {e}")))?;
+        let rgba = img.to_rgba8();
+        let (width, height) = rgba.dimensions();
+        let texels = rgba.pixels().map(|p| p.0).collect();
+        Ok(Texture {
+            width,
+            height,
+            texels,
+            srgb,
+        })
+    }
+}

@@ -1,0 +1,148 @@
+//! Writing results: OpenEXR (linear radiance, float32 R, G, B plus the per-pixel variance of the
+//! mean luminance and the sample count) and a tone-mapped sRGB PNG preview. Also reading EXRs back
+//! (tests, reference comparisons).
+
+use crate::error::RenderError;
+use crate::film::PartialSums;
+use exr::prelude::*;
+use std::path::Path;
+
+/// Name of the EXR channel holding the variance of each pixel's mean luminance.
+pub const VARIANCE_CHANNEL: &str = "variance";
+/// Name of the EXR channel holding each pixel's sample count.
+pub const SPP_CHANNEL: &str = "spp";
+
+/// A finished image, in the form written to disk.
+pub struct FinalImage {
+    pub width: u32,
+    pub height: u32,
+    pub rgb: Vec<[f32; 3]>,
+    pub variance: Vec<f32>,
+    pub spp: Vec<u32>,
+}
+
+impl FinalImage {
+    pub fn from_sums(sums: &PartialSums) -> Self {
+        let n = sums.rect.pixels();
+        FinalImage {
+            width: sums.rect.width,
+            height: sums.rect.height,
+            rgb: (0..n).map(|i| sums.mean(i)).collect(),
+            variance: (0..n).map(|i| sums.variance_of_mean(i)).collect(),
+            spp: sums.count.clone(),
+        }
+    }
+
+    /// Writes the EXR (ZIP-compressed, lossless). `attributes` become string header attributes.
+    pub fn write_exr(
+        &self,
+        path: &Path,
+        attributes: &[(&str, String)],
+    ) -> std::result::Result<(), RenderError> {
+        let err = |message: String| RenderError::Write {
+            path: path.into(),
+            message,
+        };
+        let plane =
+            |f: &dyn Fn(usize) -> f32| FlatSamples::F32((0..self.rgb.len()).map(f).collect());
+        let channels = AnyChannels::sort(SmallVec::from_vec(vec![
+            AnyChannel::new("R", plane(&|i| self.rgb[i][0])),
+            AnyChannel::new("G", plane(&|i| self.rgb[i][1])),
+            AnyChannel::new("B", plane(&|i| self.rgb[i][2])),
+            AnyChannel::new(VARIANCE_CHANNEL, plane(&|i| self.variance[i])),
+            AnyChannel::new(SPP_CHANNEL, FlatSamples::U32(self.spp.clone())),
+        ]));
+        let mut layer_attributes = LayerAttributes::named("tessera");
+        for (k, v) in attributes {
+            layer_attributes
+                .other
+                .insert(Text::from(*k), AttributeValue::Text(Text::from(v.as_str())));
+        }
+        let layer = Layer::new(
+            (self.width as usize, self.height as usize),
+            layer_attributes,
+            Encoding::SMALL_LOSSLESS,
+            channels,
+        );
+        Image::from_layer(layer)
+            .write()
+            .to_file(path)
+            .map_err(|e| err(e.to_string()))
+    }
+
+    /// Writes an 8-bit sRGB PNG: radiance × 2^exposure, clamped, sRGB-encoded.
+    pub fn write_png(&self, path: &Path, exposure: f32) -> std::result::Result<(), RenderError> {
+        let err = |message: String| RenderError::Write {
+            path: path.into(),
+            message,
+        };
+        let scale = 2f32.powf(exposure);
+        let encode = |v: f32| -> u8 {
+            let v = if v.is_finite() {
+                (v * scale).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            let s = if v <= 0.003_130_8 {
+                12.92 * v
+            } else {
+                1.055 * v.powf(1.0 / 2.4) - 0.055
+            };
+            (s * 255.0 + 0.5) as u8
+        };
+        let data: Vec<u8> = self
+            .rgb
+            .iter()
+            .flat_map(|p| [encode(p[0]), encode(p[1]), encode(p[2])])
+            .collect();
+        let file = std::fs::File::create(path).map_err(|e| err(e.to_string()))?;
+        let mut enc = png::Encoder::new(std::io::BufWriter::new(file), self.width, self.height);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut w = enc.write_header().map_err(|e| err(e.to_string()))?;
+        w.write_image_data(&data).map_err(|e| err(e.to_string()))
+    }
+}
+
+/// An EXR read back: named float channels of the first layer.
+pub struct ExrChannels {
+    pub width: u32,
+    pub height: u32,
+    pub channels: Vec<(String, Vec<f32>)>,
+}
+
+impl ExrChannels {
+    pub fn channel(&self, name: &str) -> Option<&[f32]> {
+        self.channels
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, v)| v.as_slice())
+    }
+}
+
+/// Reads all channels of the first layer of an EXR as f32.
+pub fn read_exr(path: &Path) -> std::result::Result<ExrChannels, RenderError> {
+    let err = |message: String| RenderError::Read {
+        path: path.into(),
+        message,
+    };
+    let image = read_first_flat_layer_from_file(path).map_err(|e| err(e.to_string()))?;
+    let layer = image.layer_data;
+    let (w, h) = (layer.size.width(), layer.size.height());
+    let channels = layer
+        .channel_data
+        .list
+        .iter()
+        .map(|c| {
+            (
+                c.name.to_string(),
+                c.sample_data.values_as_f32().collect::<Vec<f32>>(),
+            )
+        })
+        .collect();
+    Ok(ExrChannels {
+        width: w as u32,
+        height: h as u32,
+        channels,
+    })
+}

@@ -1,0 +1,171 @@
+//! The path tracer: unidirectional paths with BSDF sampling, next-event estimation and multiple
+//! importance sampling between the two (Veach 1997 ch. 9; pbrt-v4 §13.4 `PathIntegrator`).
+//!
+//! Conventions: `depth` counts scattering events; a path with `max_depth = 0` sees only emission,
+//! `max_depth = 1` adds direct lighting. Russian roulette (pbrt-v4 §13.4.3) starts once `depth`
+//! reaches `rr_depth` and is based on the path throughput.
+
+use crate::light::emitted;
+use crate::math::{balance_heuristic, offset_ray_origin, power_heuristic, Frame, Vec3};
+use crate::sampler::{dims, PixelSample};
+use crate::scene::Scene;
+use crate::settings::{IntegratorKind, MisHeuristic, RenderSettings};
+
+#[inline]
+fn mis_weight(h: MisHeuristic, f: f32, g: f32) -> f32 {
+    match h {
+        MisHeuristic::Power => power_heuristic(f, g),
+        MisHeuristic::Balance => balance_heuristic(f, g),
+    }
+}
+
+/// Radiance arriving at `o` from direction `-d`, estimated with one path. Adds the number of rays
+/// traced to `rays`. The caller checks finiteness (a non-finite result is a bug to be counted).
+pub fn radiance(
+    scene: &Scene,
+    settings: &RenderSettings,
+    mut o: Vec3,
+    mut d: Vec3,
+    sampler: &PixelSample,
+    rays: &mut u64,
+) -> Vec3 {
+    let mut l = Vec3::ZERO;
+    let mut beta = Vec3::ONE;
+    // The previous vertex and its BSDF pdf, when the last bounce was not a delta event (camera rays
+    // and mirror bounces leave it None: NEE cannot have sampled what they hit).
+    let mut prev: Option<(Vec3, f32)> = None;
+    let (mesh, materials, textures) = (&scene.mesh, &scene.materials, &scene.textures);
+    let mut depth = 0u32;
+    loop {
+        *rays += 1;
+        let Some(hit) = scene.intersect(o, d, f32::INFINITY) else {
+            break;
+        };
+        let sp = mesh.surface_point(hit.triangle, hit.b1, hit.b2);
+        let material = &materials[mesh.triangles[hit.triangle as usize].material as usize];
+
+        if material.is_emissive() {
+            let le = emitted(mesh, materials, textures, hit.triangle, hit.b1, hit.b2, -d);
+            if le != Vec3::ZERO {
+                match (settings.integrator, prev) {
+                    (_, None) | (IntegratorKind::Bsdf, _) => l += beta * le,
+                    (IntegratorKind::Nee, Some(_)) => {}
+                    (IntegratorKind::Mis, Some((p_prev, bsdf_pdf))) => {
+                        let light_pdf = scene.lights.pdf(hit.triangle, p_prev, sp.p, sp.ng);
+                        l += beta * le * mis_weight(settings.mis_heuristic, bsdf_pdf, light_pdf);
+                    }
+                }
+            }
+        }
+        if depth >= settings.max_depth {
+            break;
+        }
+
+        // Shading frame: normal map first (in the mesh's orientation), then turn both normals to the
+        // side the ray came from, so every surface reflects from both faces.
+        let wo_world = -d;
+        let mut ns = sp.ns;
+        let mut tangent_hint = None;
+        if let Some(t) = sp.tangent {
+            let tan = t.truncate();
+            if let Some(n_ts) = material.tangent_space_normal(textures, sp.uv) {
+                let bitangent = ns.cross(tan) * t.w;
+                let mapped = (tan * n_ts.x + bitangent * n_ts.y + ns * n_ts.z).normalize_or_zero();
+                if mapped != Vec3::ZERO && mapped.is_finite() {
+                    ns = mapped;
+                }
+            }
+            tangent_hint = Some(tan);
+        }
+        let mut ng = sp.ng;
+        if ng.dot(wo_world) < 0.0 {
+            ng = -ng;
+        }
+        if ns.dot(ng) < 0.0 {
+            ns = -ns;
+        }
+        let mut frame = match tangent_hint {
+            Some(t) => Frame::from_normal_tangent(ns, t),
+            None => Frame::from_normal(ns),
+        };
+        let mut wo = frame.to_local(wo_world);
+        if wo.z <= 0.0 {
+            // The shading normal faces away from the viewer: fall back to the true surface.
+            frame = Frame::from_normal(ng);
+            wo = frame.to_local(wo_world);
+            if wo.z <= 0.0 {
+                break;
+            }
+        }
+        let bsdf = material.bsdf(textures, sp.uv);
+        let base = dims::BOUNCE_BASE + dims::BOUNCE_STRIDE * depth;
+        let origin = offset_ray_origin(sp.p, ng);
+
+        // Next-event estimation.
+        if settings.integrator != IntegratorKind::Bsdf
+            && !scene.lights.is_empty()
+            && !bsdf.is_delta_only()
+        {
+            let u_sel = sampler.get_1d(base + dims::LIGHT_SELECT);
+            let u = sampler.get_2d(base + dims::LIGHT_POS);
+            if let Some(ls) = scene
+                .lights
+                .sample(mesh, materials, textures, sp.p, u_sel, u)
+            {
+                let wi = frame.to_local(ls.wi);
+                if ls.le != Vec3::ZERO && wi.z > 0.0 && ls.wi.dot(ng) > 0.0 {
+                    let f = bsdf.eval(wo, wi);
+                    if f != Vec3::ZERO {
+                        let target = offset_ray_origin(ls.p, ls.n);
+                        let to = target - origin;
+                        let dist = to.length();
+                        *rays += 1;
+                        if dist > 0.0 && !scene.occluded(origin, to / dist, dist) {
+                            let w = match settings.integrator {
+                                IntegratorKind::Mis => {
+                                    mis_weight(settings.mis_heuristic, ls.pdf, bsdf.pdf(wo, wi))
+                                }
+                                _ => 1.0,
+                            };
+                            l += beta * f * ls.le * (wi.z * w / ls.pdf);
+                        }
+                    }
+                }
+            }
+        }
+
+        // BSDF sampling for the next segment.
+        let Some(bs) = bsdf.sample(
+            wo,
+            sampler.get_1d(base + dims::BSDF_LOBE),
+            sampler.get_2d(base + dims::BSDF_DIR),
+        ) else {
+            break;
+        };
+        let wi_world = frame.to_world(bs.wi);
+        if wi_world.dot(ng) <= 0.0 {
+            // A shading normal can send a reflected direction under the true surface; that energy is lost.
+            break;
+        }
+        beta *= bs.weight();
+        if !beta.is_finite() || beta == Vec3::ZERO {
+            break;
+        }
+        prev = if bs.delta { None } else { Some((sp.p, bs.pdf)) };
+        o = origin;
+        d = wi_world;
+        depth += 1;
+
+        if depth >= settings.rr_depth {
+            let m = beta.max_element();
+            if m < 1.0 {
+                let q = (1.0 - m).max(0.0);
+                if sampler.get_1d(base + dims::RUSSIAN_ROULETTE) < q {
+                    break;
+                }
+                beta /= 1.0 - q;
+            }
+        }
+    }
+    l
+}

@@ -1,0 +1,31 @@
+//! Tessera's renderer: a CPU path tracer for glTF 2.0 scenes. It has no networking; the farm calls
+//! [`render::render_tile`] and ships the [`film::PartialSums`] it returns.
+//!
+//! One concept per module (pbrt-v4 style): `camera`, `sampler`, `microfacet`, `bsdf`, `light`,
+//! `integrator`, ... See ARCHITECTURE.md at the repository root for the map and the invariants.
+
+pub mod accel;
+pub mod alias;
+pub mod bsdf;
+pub mod camera;
+pub mod error;
+pub mod film;
+pub mod gltf_loader;
+pub mod image_io;
+pub mod integrator;
+pub mod light;
+pub mod material;
+pub mod math;
+pub mod mesh;
+pub mod microfacet;
+pub mod render;
+pub mod sampler;
+pub mod scene;
+pub mod settings;
+pub mod texture;
+
+pub use error::{RenderError, SceneError};
+pub use film::{PartialSums, Rect};
+pub use render::{render, render_tile, Counters};
+pub use scene::Scene;
+pub use settings::{IntegratorKind, MisHeuristic, PixelFilter, RenderSettings};

@@ -1,0 +1,174 @@
+//! Emissive triangles as area lights. A light is chosen in proportion to its power with an alias
+//! table, then a point is sampled uniformly by area and the area pdf is converted to solid angle
+//! (pbrt-v4 §12.2 and §12.5; Veach 1997 §9).
+
+use crate::alias::AliasTable;
+use crate::material::Material;
+use crate::math::{luminance, sample_uniform_triangle, Vec2, Vec3, PI};
+use crate::mesh::Mesh;
+use crate::texture::Texture;
+
+#[derive(Clone, Copy, Debug)]
+pub struct AreaLight {
+    pub triangle: u32,
+    pub area: f32,
+    pub two_sided: bool,
+}
+
+/// A point sampled on a light, seen from a reference point.
+#[derive(Clone, Copy, Debug)]
+pub struct LightSample {
+    pub p: Vec3,
+    /// Geometric normal of the emitter at `p`, oriented to the emitting side facing the reference.
+    pub n: Vec3,
+    /// Unit direction from the reference point to `p`.
+    pub wi: Vec3,
+    pub dist: f32,
+    /// Emitted radiance towards the reference point (zero from a one-sided emitter's back).
+    pub le: Vec3,
+    /// Solid-angle pdf including the light-selection probability.
+    pub pdf: f32,
+}
+
+#[derive(Default)]
+pub struct LightSet {
+    pub lights: Vec<AreaLight>,
+    selection: AliasTable,
+    /// For each scene triangle, its light index or `u32::MAX`.
+    triangle_light: Vec<u32>,
+}
+
+/// Radiance leaving an emissive triangle towards direction `w` (pointing away from the surface).
+/// Emission is one-sided along the winding normal unless the material is double-sided.
+#[inline]
+pub fn emitted(
+    mesh: &Mesh,
+    materials: &[Material],
+    textures: &[Texture],
+    tri: u32,
+    b1: f32,
+    b2: f32,
+    w: Vec3,
+) -> Vec3 {
+    let t = &mesh.triangles[tri as usize];
+    let m = &materials[t.material as usize];
+    if !m.is_emissive() {
+        return Vec3::ZERO;
+    }
+    let sp = mesh.surface_point(tri, b1, b2);
+    if !m.double_sided && sp.ng.dot(w) <= 0.0 {
+        return Vec3::ZERO;
+    }
+    m.emission(textures, sp.uv)
+}
+
+impl LightSet {
+    pub fn build(mesh: &Mesh, materials: &[Material], textures: &[Texture]) -> Self {
+        let mut lights = Vec::new();
+        let mut power = Vec::new();
+        let mut triangle_light = vec![u32::MAX; mesh.triangles.len()];
+        for (i, t) in mesh.triangles.iter().enumerate() {
+            let m = &materials[t.material as usize];
+            if !m.is_emissive() {
+                continue;
+            }
+            let area = mesh.area(i as u32);
+            if !(area > 0.0) || !area.is_finite() {
+                continue;
+            }
+            let mean_tex = m.emissive_texture.map_or(Vec3::ONE, |r| {
+                textures[r.texture as usize].mean().truncate()
+            });
+            let sides = if m.double_sided { 2.0 } else { 1.0 };
+            let p = luminance(m.emissive * mean_tex) * area * PI * sides;
+            if !(p > 0.0) {
+                continue;
+            }
+            triangle_light[i] = lights.len() as u32;
+            lights.push(AreaLight {
+                triangle: i as u32,
+                area,
+                two_sided: m.double_sided,
+            });
+            power.push(p);
+        }
+        let selection = AliasTable::new(&power).unwrap_or_default();
+        LightSet {
+            lights,
+            selection,
+            triangle_light,
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.lights.is_empty()
+    }
+
+    /// Samples a light and a point on it as seen from `reference`.
+    pub fn sample(
+        &self,
+        mesh: &Mesh,
+        materials: &[Material],
+        textures: &[Texture],
+        reference: Vec3,
+        u_select: f32,
+        u: Vec2,
+    ) -> Option<LightSample> {
+        if self.lights.is_empty() {
+            return None;
+        }
+        let (idx, pmf) = self.selection.sample(u_select);
+        let light = &self.lights[idx];
+        let b = sample_uniform_triangle(u);
+        let sp = mesh.surface_point(light.triangle, b.y, b.z);
+        let to = sp.p - reference;
+        let dist2 = to.length_squared();
+        if !(dist2 > 0.0) || !dist2.is_finite() {
+            return None;
+        }
+        let dist = dist2.sqrt();
+        let wi = to / dist;
+        let cos_l = sp.ng.dot(-wi);
+        if cos_l == 0.0 {
+            return None;
+        }
+        let le = emitted(mesh, materials, textures, light.triangle, b.y, b.z, -wi);
+        let pdf = pmf * dist2 / (cos_l.abs() * light.area);
+        if !(pdf > 0.0) || !pdf.is_finite() {
+            return None;
+        }
+        let n = if cos_l > 0.0 { sp.ng } else { -sp.ng };
+        Some(LightSample {
+            p: sp.p,
+            n,
+            wi,
+            dist,
+            le,
+            pdf,
+        })
+    }
+
+    /// Solid-angle pdf with which `sample()` from `reference` would have produced the point `p` on
+    /// triangle `tri` (geometric normal `ng`); 0 for a triangle that is not a light.
+    pub fn pdf(&self, tri: u32, reference: Vec3, p: Vec3, ng: Vec3) -> f32 {
+        let Some(&li) = self.triangle_light.get(tri as usize) else {
+            return 0.0;
+        };
+        if li == u32::MAX {
+            return 0.0;
+        }
+        let light = &self.lights[li as usize];
+        let to = p - reference;
+        let dist2 = to.length_squared();
+        let cos_l = ng.dot(to).abs() / dist2.sqrt();
+        if !(cos_l > 0.0) {
+            return 0.0;
+        }
+        self.selection.pmf(li as usize) * dist2 / (cos_l * light.area)
+    }
+
+    /// The light-selection probability of light `i`.
+    pub fn pmf(&self, i: usize) -> f32 {
+        self.selection.pmf(i)
+    }
+}

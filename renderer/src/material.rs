@@ -1,0 +1,131 @@
+//! glTF metallic-roughness materials and their resolution to a [`Bsdf`] at a shading point.
+
+use crate::bsdf::Bsdf;
+use crate::math::{Vec2, Vec3, Vec4};
+use crate::microfacet::Ggx;
+use crate::texture::{Texture, TextureRef};
+
+#[derive(Clone, Debug)]
+pub struct Material {
+    pub name: String,
+    pub base_color: Vec4,
+    pub base_color_texture: Option<TextureRef>,
+    pub metallic: f32,
+    pub roughness: f32,
+    /// glTF packs roughness in G and metallic in B.
+    pub metallic_roughness_texture: Option<TextureRef>,
+    pub normal_texture: Option<TextureRef>,
+    pub normal_scale: f32,
+    /// emissiveFactor × KHR_materials_emissive_strength.
+    pub emissive: Vec3,
+    pub emissive_texture: Option<TextureRef>,
+    /// KHR_materials_specular.
+    pub specular: f32,
+    pub specular_texture: Option<TextureRef>,
+    pub specular_color: Vec3,
+    pub specular_color_texture: Option<TextureRef>,
+    /// KHR_materials_ior (glTF default 1.5).
+    pub ior: f32,
+    /// glTF `doubleSided`: here it decides whether an emissive surface emits from its back face too.
+    pub double_sided: bool,
+}
+
+impl Default for Material {
+    /// The glTF default material (spec §3.9.6): white, fully metallic, fully rough.
+    fn default() -> Self {
+        Material {
+            name: "default".into(),
+            base_color: Vec4::ONE,
+            base_color_texture: None,
+            metallic: 1.0,
+            roughness: 1.0,
+            metallic_roughness_texture: None,
+            normal_texture: None,
+            normal_scale: 1.0,
+            emissive: Vec3::ZERO,
+            emissive_texture: None,
+            specular: 1.0,
+            specular_texture: None,
+            specular_color: Vec3::ONE,
+            specular_color_texture: None,
+            ior: 1.5,
+            double_sided: false,
+        }
+    }
+}
+
+#[inline]
+fn lookup(textures: &[Texture], r: &Option<TextureRef>, uv: Vec2) -> Option<Vec4> {
+    r.as_ref()
+        .map(|r| textures[r.texture as usize].sample(uv, r))
+}
+
+impl Material {
+    pub fn is_emissive(&self) -> bool {
+        self.emissive.max_element() > 0.0
+    }
+
+    /// Emitted radiance at `uv` (front face; the caller decides sidedness).
+    pub fn emission(&self, textures: &[Texture], uv: Vec2) -> Vec3 {
+        match lookup(textures, &self.emissive_texture, uv) {
+            Some(t) => self.emissive * t.truncate(),
+            None => self.emissive,
+        }
+    }
+
+    /// BSDF parameters at `uv`, with every input clamped to its valid range so that no texture or
+    /// factor can produce NaN or energy gain.
+    pub fn bsdf(&self, textures: &[Texture], uv: Vec2) -> Bsdf {
+        let mut base = self.base_color;
+        if let Some(t) = lookup(textures, &self.base_color_texture, uv) {
+            base *= t;
+        }
+        let (mut metallic, mut roughness) = (self.metallic, self.roughness);
+        if let Some(t) = lookup(textures, &self.metallic_roughness_texture, uv) {
+            roughness *= t.y;
+            metallic *= t.z;
+        }
+        let mut specular = self.specular;
+        if let Some(t) = lookup(textures, &self.specular_texture, uv) {
+            specular *= t.w;
+        }
+        let mut specular_color = self.specular_color;
+        if let Some(t) = lookup(textures, &self.specular_color_texture, uv) {
+            specular_color *= t.truncate();
+        }
+        let sanitize = |x: f32| {
+            if x.is_finite() {
+                x.clamp(0.0, 1.0)
+            } else {
+                0.0
+            }
+        };
+        let base_color = Vec3::new(sanitize(base.x), sanitize(base.y), sanitize(base.z));
+        Bsdf {
+            base_color,
+            metallic: sanitize(metallic),
+            ggx: Ggx::from_roughness(sanitize(roughness)),
+            specular: sanitize(specular),
+            f0_dielectric: Bsdf::f0_from_ior(
+                if self.ior.is_finite() {
+                    self.ior.max(1.0)
+                } else {
+                    1.5
+                },
+                specular_color.max(Vec3::ZERO),
+            ),
+        }
+    }
+
+    /// Tangent-space normal from the normal texture (scaled as the glTF spec defines), or None.
+    pub fn tangent_space_normal(&self, textures: &[Texture], uv: Vec2) -> Option<Vec3> {
+        let t = lookup(textures, &self.normal_texture, uv)?;
+        let n = Vec3::new(
+            (2.0 * t.x - 1.0) * self.normal_scale,
+            (2.0 * t.y - 1.0) * self.normal_scale,
+            2.0 * t.z - 1.0,
+        );
+        let n = n.normalize_or_zero();
+        (n != Vec3::ZERO).then_some(n)
+    }
+}

@@ -1,0 +1,222 @@
+//! Small geometric helpers shared by every part of the renderer: orthonormal frames, luminance and the
+//! self-intersection-free ray offset.
+
+pub use glam::{Mat3, Mat4, Vec2, Vec3, Vec3A, Vec4};
+
+pub const PI: f32 = std::f32::consts::PI;
+pub const INV_PI: f32 = std::f32::consts::FRAC_1_PI;
+
+/// Rec. 709 / sRGB luminance of a linear RGB triple. Used for light power, lobe weights and the
+/// luminance statistics kept in [`crate::film::PartialSums`].
+#[inline]
+pub fn luminance(c: Vec3) -> f32 {
+    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+}
+
+/// An orthonormal basis whose `n` axis is a surface normal; BSDFs work in this local frame where
+/// `cos θ = w.z`.
+#[derive(Clone, Copy, Debug)]
+pub struct Frame {
+    pub s: Vec3,
+    pub t: Vec3,
+    pub n: Vec3,
+}
+
+impl Frame {
+    /// Branchless ONB from a unit normal (Duff et al. 2017, "Building an Orthonormal Basis, Revisited").
+    pub fn from_normal(n: Vec3) -> Self {
+        let sign = 1.0f32.copysign(n.z);
+        let a = -1.0 / (sign + n.z);
+        let b = n.x * n.y * a;
+        let s = Vec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);
+        let t = Vec3::new(b, sign + n.y * n.y * a, -n.y);
+        Frame { s, t, n }
+    }
+
+    /// Frame from a unit normal and an approximate tangent (Gram-Schmidt); falls back to
+    /// [`Frame::from_normal`] when the tangent is degenerate or parallel to the normal.
+    pub fn from_normal_tangent(n: Vec3, tangent: Vec3) -> Self {
+        let s = tangent - n * n.dot(tangent);
+        let len2 = s.length_squared();
+        if !(len2 > 1e-12) || !len2.is_finite() {
+            return Frame::from_normal(n);
+        }
+        let s = s / len2.sqrt();
+        Frame {
+            s,
+            t: n.cross(s),
+            n,
+        }
+    }
+
+    #[inline]
+    pub fn to_local(&self, v: Vec3) -> Vec3 {
+        Vec3::new(v.dot(self.s), v.dot(self.t), v.dot(self.n))
+    }
+
+    #[inline]
+    pub fn to_world(&self, v: Vec3) -> Vec3 {
+        self.s * v.x + self.t * v.y + self.n * v.z
+    }
+}
+
+/// Moves a ray origin off a surface along `n` (pointing to the side the ray leaves towards) by a few
+/// ULPs of the position, so the new ray cannot re-hit the surface it starts on at any distance from the
+/// origin. Wächter & Binder, "A Fast and Robust Method for Avoiding Self-Intersection", Ray Tracing
+/// Gems ch. 6 (2019).
+#[inline]
+pub fn offset_ray_origin(p: Vec3, n: Vec3) -> Vec3 {
+    const ORIGIN: f32 = 1.0 / 32.0;
+    const FLOAT_SCALE: f32 = 1.0 / 65536.0;
+    const INT_SCALE: f32 = 256.0;
+    let of_i = [
+        (INT_SCALE * n.x) as i32,
+        (INT_SCALE * n.y) as i32,
+        (INT_SCALE * n.z) as i32,
+    ];
+    let offset = |p: f32, o: i32| -> f32 {
+        f32::from_bits((p.to_bits() as i32 + if p < 0.0 { -o } else { o }) as u32)
+    };
+    let pi = Vec3::new(
+        offset(p.x, of_i[0]),
+        offset(p.y, of_i[1]),
+        offset(p.z, of_i[2]),
+    );
+    Vec3::new(
+        if p.x.abs() < ORIGIN {
+            p.x + FLOAT_SCALE * n.x
+        } else {
+            pi.x
+        },
+        if p.y.abs() < ORIGIN {
+            p.y + FLOAT_SCALE * n.y
+        } else {
+            pi.y
+        },
+        if p.z.abs() < ORIGIN {
+            p.z + FLOAT_SCALE * n.z
+        } else {
+            pi.z
+        },
+    )
+}
+
+/// Mirror reflection of `w` about `n` (both unit, same hemisphere convention as pbrt: the result
+/// points away from the surface when `w` does).
+#[inline]
+pub fn reflect(w: Vec3, n: Vec3) -> Vec3 {
+    2.0 * w.dot(n) * n - w
+}
+
+/// Power heuristic with β = 2 (Veach 1997, §9.2.4), written so that an infinite pdf (delta) or
+/// 0/0 never produces NaN.
+#[inline]
+pub fn power_heuristic(f: f32, g: f32) -> f32 {
+    let (f2, g2) = (f * f, g * g);
+    if f2.is_infinite() {
+        return 1.0;
+    }
+    if f2 + g2 <= 0.0 {
+        return 0.0;
+    }
+    f2 / (f2 + g2)
+}
+
+/// Balance heuristic (Veach 1997, §9.2.2).
+#[inline]
+pub fn balance_heuristic(f: f32, g: f32) -> f32 {
+    if f.is_infinite() {
+        return 1.0;
+    }
+    if f + g <= 0.0 {
+        return 0.0;
+    }
+    f / (f + g)
+}
+
+/// Cosine-weighted hemisphere sample via Shirley-Chiu concentric mapping (pbrt-v4 §A.5.3).
+#[inline]
+pub fn sample_cosine_hemisphere(u: Vec2) -> Vec3 {
+    let d = sample_uniform_disk_concentric(u);
+    let z = (1.0 - d.x * d.x - d.y * d.y).max(0.0).sqrt();
+    Vec3::new(d.x, d.y, z)
+}
+
+#[inline]
+pub fn cosine_hemisphere_pdf(cos_theta: f32) -> f32 {
+    cos_theta.max(0.0) * INV_PI
+}
+
+/// Shirley-Chiu concentric square-to-disk mapping (pbrt-v4 §A.5.1).
+#[inline]
+pub fn sample_uniform_disk_concentric(u: Vec2) -> Vec2 {
+    let o = 2.0 * u - Vec2::ONE;
+    if o.x == 0.0 && o.y == 0.0 {
+        return Vec2::ZERO;
+    }
+    let (r, theta) = if o.x.abs() > o.y.abs() {
+        (o.x, (PI / 4.0) * (o.y / o.x))
+    } else {
+        (o.y, PI / 2.0 - (PI / 4.0) * (o.x / o.y))
+    };
+    r * Vec2::new(theta.cos(), theta.sin())
+}
+
+/// Uniform barycentrics on a triangle (Heitz 2019, "A Low-Distortion Map Between Triangle and
+/// Square"); returns (b0, b1, b2).
+#[inline]
+pub fn sample_uniform_triangle(u: Vec2) -> Vec3 {
+    let (b0, b1);
+    if u.x < u.y {
+        b0 = u.x / 2.0;
+        b1 = u.y - b0;
+    } else {
+        b1 = u.y / 2.0;
+        b0 = u.x - b1;
+    }
+    Vec3::new(b0, b1, 1.0 - b0 - b1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frame_is_orthonormal_for_all_normals() {
+        for n in [
+            Vec3::Z,
+            -Vec3::Z,
+            Vec3::X,
+            Vec3::new(0.3, -0.4, 0.866).normalize(),
+            Vec3::new(1e-7, 1e-7, -1.0).normalize(),
+        ] {
+            let f = Frame::from_normal(n);
+            assert!((f.s.length() - 1.0).abs() < 1e-5);
+            assert!((f.t.length() - 1.0).abs() < 1e-5);
+            assert!(
+                f.s.dot(f.t).abs() < 1e-5 && f.s.dot(n).abs() < 1e-5 && f.t.dot(n).abs() < 1e-5
+            );
+            let v = Vec3::new(0.2, -0.7, 0.4);
+            assert!((f.to_world(f.to_local(v)) - v).length() < 1e-5);
+        }
+    }
+
+    #[test]
+    fn offset_moves_to_the_requested_side_at_any_scale() {
+        for scale in [0.0f32, 1e-3, 1.0, 1e5, -1e5] {
+            let p = Vec3::splat(scale);
+            let n = Vec3::new(0.0, 1.0, 0.0);
+            let q = offset_ray_origin(p, n);
+            assert!(q.y > p.y, "scale {scale}: {q:?} not above {p:?}");
+            assert_eq!(q.x, p.x);
+        }
+    }
+
+    #[test]
+    fn heuristics_handle_delta_and_zero() {
+        assert_eq!(power_heuristic(f32::INFINITY, 1.0), 1.0);
+        assert_eq!(power_heuristic(0.0, 0.0), 0.0);
+        assert!((power_heuristic(1.0, 1.0) - 0.5).abs() < 1e-6);
+        assert_eq!(balance_heuristic(0.0, 0.0), 0.0);
+    }
+}

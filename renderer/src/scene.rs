@@ -1,0 +1,81 @@
+//! A render-ready scene: flattened world-space mesh, materials, textures, acceleration structure,
+//! lights and cameras. Built once per job; everything here is read-only while rendering.
+
+use crate::accel::{Accel, Hit};
+use crate::camera::Camera;
+use crate::light::LightSet;
+use crate::material::Material;
+use crate::math::Vec3;
+use crate::mesh::Mesh;
+use crate::texture::Texture;
+
+pub struct Scene {
+    pub mesh: Mesh,
+    pub materials: Vec<Material>,
+    pub textures: Vec<Texture>,
+    pub cameras: Vec<Camera>,
+    pub accel: Accel,
+    pub lights: LightSet,
+    pub bounds: (Vec3, Vec3),
+}
+
+impl Scene {
+    /// Builds the acceleration structure and light set. Lights are built only from emissive
+    /// triangles; a scene without emitters gets an empty set and renders black.
+    pub fn new(
+        mesh: Mesh,
+        materials: Vec<Material>,
+        textures: Vec<Texture>,
+        cameras: Vec<Camera>,
+    ) -> Self {
+        let mut min = Vec3::splat(f32::INFINITY);
+        let mut max = Vec3::splat(f32::NEG_INFINITY);
+        for p in &mesh.positions {
+            min = min.min(*p);
+            max = max.max(*p);
+        }
+        if mesh.positions.is_empty() {
+            min = Vec3::splat(-1.0);
+            max = Vec3::splat(1.0);
+        }
+        let accel = Accel::build(&mesh);
+        let lights = LightSet::build(&mesh, &materials, &textures);
+        tracing::debug!(
+            triangles = mesh.triangles.len(),
+            lights = lights.lights.len(),
+            "scene built"
+        );
+        Scene {
+            mesh,
+            materials,
+            textures,
+            cameras,
+            accel,
+            lights,
+            bounds: (min, max),
+        }
+    }
+
+    #[inline]
+    pub fn intersect(&self, o: Vec3, d: Vec3, tmax: f32) -> Option<Hit> {
+        self.accel.intersect(o, d, tmax)
+    }
+
+    #[inline]
+    pub fn occluded(&self, o: Vec3, d: Vec3, tmax: f32) -> bool {
+        self.accel.occluded(o, d, tmax)
+    }
+
+    /// The camera to render through: the file's camera `index`, or a framing default when the file
+    /// has none and no index was asked for.
+    pub fn camera(&self, index: Option<usize>) -> Result<Camera, (usize, usize)> {
+        match index {
+            Some(i) => self.cameras.get(i).copied().ok_or((i, self.cameras.len())),
+            None => Ok(self
+                .cameras
+                .first()
+                .copied()
+                .unwrap_or_else(|| Camera::framing(self.bounds.0, self.bounds.1))),
+        }
+    }
+}

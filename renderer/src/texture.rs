@@ -1,0 +1,168 @@
+//! Image textures: 8-bit RGBA storage (4 bytes a texel keeps 2K PBR texture sets small), decoded to
+//! linear on lookup, bilinear filtering and the glTF wrap modes.
+
+use crate::math::{Vec2, Vec4};
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Wrap {
+    Repeat,
+    ClampToEdge,
+    MirroredRepeat,
+}
+
+/// How a material refers to a texture: which one, and the sampler's wrap modes.
+#[derive(Clone, Copy, Debug)]
+pub struct TextureRef {
+    pub texture: u32,
+    pub wrap_s: Wrap,
+    pub wrap_t: Wrap,
+}
+
+pub struct Texture {
+    pub width: u32,
+    pub height: u32,
+    /// Row-major, top row first (glTF UV (0,0) is the image's top-left corner).
+    pub texels: Vec<[u8; 4]>,
+    /// Color textures (base color, emissive, specular color) are sRGB-encoded; data textures
+    /// (metallic-roughness, normal, specular) are linear.
+    pub srgb: bool,
+}
+
+/// sRGB EOTF for each 8-bit code (IEC 61966-2-1).
+fn srgb_table() -> &'static [f32; 256] {
+    static TABLE: std::sync::OnceLock<[f32; 256]> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| {
+        let mut t = [0.0f32; 256];
+        for (i, v) in t.iter_mut().enumerate() {
+            let c = i as f32 / 255.0;
+            *v = if c <= 0.04045 {
+                c / 12.92
+            } else {
+                ((c + 0.055) / 1.055).powf(2.4)
+            };
+        }
+        t
+    })
+}
+
+#[inline]
+fn wrap_coord(i: i64, n: u32, wrap: Wrap) -> u32 {
+    let n = n as i64;
+    match wrap {
+        Wrap::Repeat => i.rem_euclid(n) as u32,
+        Wrap::ClampToEdge => i.clamp(0, n - 1) as u32,
+        Wrap::MirroredRepeat => {
+            let period = 2 * n;
+            let m = i.rem_euclid(period);
+            (if m < n { m } else { period - 1 - m }) as u32
+        }
+    }
+}
+
+impl Texture {
+    #[inline]
+    fn texel(&self, x: u32, y: u32) -> Vec4 {
+        let t = self.texels[(y as usize) * self.width as usize + x as usize];
+        if self.srgb {
+            let table = srgb_table();
+            Vec4::new(
+                table[t[0] as usize],
+                table[t[1] as usize],
+                table[t[2] as usize],
+                t[3] as f32 / 255.0,
+            )
+        } else {
+            Vec4::new(t[0] as f32, t[1] as f32, t[2] as f32, t[3] as f32) / 255.0
+        }
+    }
+
+    /// Bilinear lookup in linear space (decode first, then filter, as GPUs do for sRGB formats).
+    pub fn sample(&self, uv: Vec2, r: &TextureRef) -> Vec4 {
+        let x = uv.x * self.width as f32 - 0.5;
+        let y = uv.y * self.height as f32 - 0.5;
+        if !x.is_finite() || !y.is_finite() {
+            return self.texel(0, 0);
+        }
+        let (x0, y0) = (x.floor(), y.floor());
+        let (fx, fy) = (x - x0, y - y0);
+        let (x0, y0) = (x0 as i64, y0 as i64);
+        let xa = wrap_coord(x0, self.width, r.wrap_s);
+        let xb = wrap_coord(x0 + 1, self.width, r.wrap_s);
+        let ya = wrap_coord(y0, self.height, r.wrap_t);
+        let yb = wrap_coord(y0 + 1, self.height, r.wrap_t);
+        let top = self.texel(xa, ya) * (1.0 - fx) + self.texel(xb, ya) * fx;
+        let bottom = self.texel(xa, yb) * (1.0 - fx) + self.texel(xb, yb) * fx;
+        top * (1.0 - fy) + bottom * fy
+    }
+
+    /// Mean of the linear texels (used to estimate the power of textured emitters).
+    pub fn mean(&self) -> Vec4 {
+        let mut sum = glam::DVec4::ZERO;
+        for y in 0..self.height {
+            for x in 0..self.width {
+                sum += self.texel(x, y).as_dvec4();
+            }
+        }
+        (sum / (self.width as f64 * self.height as f64).max(1.0)).as_vec4()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn checker() -> Texture {
+        Texture {
+            width: 2,
+            height: 2,
+            texels: vec![
+                [0, 0, 0, 255],
+                [255, 255, 255, 255],
+                [255, 255, 255, 255],
+                [0, 0, 0, 255],
+            ],
+            srgb: false,
+        }
+    }
+
+    #[test]
+    fn wrap_modes() {
+        assert_eq!(wrap_coord(-1, 4, Wrap::Repeat), 3);
+        assert_eq!(wrap_coord(4, 4, Wrap::ClampToEdge), 3);
+        assert_eq!(wrap_coord(-1, 4, Wrap::ClampToEdge), 0);
+        assert_eq!(wrap_coord(4, 4, Wrap::MirroredRepeat), 3);
+        assert_eq!(wrap_coord(-1, 4, Wrap::MirroredRepeat), 0);
+    }
+
+    #[test]
+    fn bilinear_hits_texel_centres_and_blends_between() {
+        let t = checker();
+        let r = TextureRef {
+            texture: 0,
+            wrap_s: Wrap::ClampToEdge,
+            wrap_t: Wrap::ClampToEdge,
+        };
+        assert_eq!(t.sample(Vec2::new(0.25, 0.25), &r).x, 0.0);
+        assert_eq!(t.sample(Vec2::new(0.75, 0.25), &r).x, 1.0);
+        assert!((t.sample(Vec2::new(0.5, 0.25), &r).x - 0.5).abs() < 1e-6);
+    }
+
+    #[test]
+    fn srgb_decode() {
+        let t = Texture {
+            width: 1,
+            height: 1,
+            texels: vec![[188, 0, 255, 255]],
+            srgb: true,
+        };
+        let r = TextureRef {
+            texture: 0,
+            wrap_s: Wrap::Repeat,
+            wrap_t: Wrap::Repeat,
+        };
+        let v = t.sample(Vec2::splat(0.5), &r);
+        assert!((v.x - 0.5029).abs() < 1e-3, "{v:?}");
+        assert_eq!(v.y, 0.0);
+        assert!((v.z - 1.0).abs() < 1e-6);
+    }
+}

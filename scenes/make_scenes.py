@@ -147,6 +147,19 @@ class Gltf:
             f.write("\n")
 
 
+def write_glb(g, path):
+    """The same document as a binary .glb (buffer 0 in the BIN chunk)."""
+    doc = dict(g.doc)
+    doc["buffers"] = [{"byteLength": len(g.blob)}]
+    js = json.dumps(doc).encode()
+    js += b" " * (-len(js) % 4)
+    blob = bytes(g.blob) + b"\0" * (-len(g.blob) % 4)
+    out = struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(js) + 8 + len(blob))
+    out += struct.pack("<I4s", len(js), b"JSON") + js + struct.pack("<I4s", len(blob), b"BIN\0") + blob
+    with open(path, "wb") as f:
+        f.write(out)
+
+
 def cornell():
     g = Gltf()
     white = g.material("white", (0.725, 0.71, 0.68))
@@ -171,6 +184,7 @@ def cornell():
     g.mesh("tall_box", p, t, white, normals=True)
     g.camera([0, 0, 3.9], [0, 0, 0], 39.3, 1.0)
     g.write(os.path.join(HERE, "cornell", "cornell.gltf"))
+    write_glb(g, os.path.join(HERE, "cornell", "cornell.glb"))
 
 
 def veach():

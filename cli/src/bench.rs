@@ -41,9 +41,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let paths = settings.width as f64 * settings.height as f64 * settings.spp as f64;
     println!(
         "scene {} | {}x{} {} spp | integrator {:?} sampler {:?} | {} threads",
-        args.scene
-            .as_ref()
-            .map_or("built-in cornell".to_string(), |p| p.display().to_string()),
+        args.scene.as_ref().map_or("built-in cornell".to_string(), |p| p.display().to_string()),
         settings.width,
         settings.height,
         settings.spp,
@@ -62,11 +60,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             println!("warm-up: {secs:.3}s");
             continue;
         }
-        println!(
-            "run {run}: {secs:.3}s  {:.3} Mpaths/s  {:.3} Mrays/s",
-            paths / secs / 1e6,
-            rays / secs / 1e6
-        );
+        println!("run {run}: {secs:.3}s  {:.3} Mpaths/s  {:.3} Mrays/s", paths / secs / 1e6, rays / secs / 1e6);
         times.push(secs);
         path_rates.push(paths / secs);
         ray_rates.push(rays / secs);

@@ -6,11 +6,7 @@ mod render_cmd;
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
-#[command(
-    name = "tessera",
-    version,
-    about = "Tessera: a distributed path-tracing render farm"
-)]
+#[command(name = "tessera", version, about = "Tessera: a distributed path-tracing render farm")]
 struct Cli {
     #[command(subcommand)]
     command: Command,

@@ -56,10 +56,7 @@ impl RenderFlags {
     /// Settings for `scene`, with the image size derived from the camera's aspect ratio when not given.
     pub fn settings(&self, scene: &Scene) -> Result<RenderSettings> {
         let aspect = match scene.camera(self.camera) {
-            Ok(c) => c
-                .aspect_ratio
-                .filter(|a| a.is_finite() && *a > 0.0)
-                .unwrap_or(640.0 / 480.0),
+            Ok(c) => c.aspect_ratio.filter(|a| a.is_finite() && *a > 0.0).unwrap_or(640.0 / 480.0),
             Err((i, n)) => bail!("the scene has no camera {i} (it has {n})"),
         };
         let (width, height) = match (self.width, self.height) {
@@ -110,10 +107,7 @@ pub struct RenderArgs {
 pub fn load_scene(path: Option<&Path>) -> Result<Scene> {
     match path {
         Some(p) => Ok(renderer::gltf_loader::load(p)?),
-        None => Ok(renderer::gltf_loader::load_from_bytes(
-            Path::new("<built-in cornell.gltf>"),
-            EMBEDDED_CORNELL,
-        )?),
+        None => Ok(renderer::gltf_loader::load_from_bytes(Path::new("<built-in cornell.gltf>"), EMBEDDED_CORNELL)?),
     }
 }
 
@@ -122,10 +116,7 @@ pub fn init_threads(threads: Option<usize>) -> Result<()> {
         if t == 0 {
             bail!("--threads must be at least 1");
         }
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(t)
-            .build_global()
-            .context("cannot start the thread pool")?;
+        rayon::ThreadPoolBuilder::new().num_threads(t).build_global().context("cannot start the thread pool")?;
     }
     Ok(())
 }
@@ -152,15 +143,9 @@ pub fn run(args: RenderArgs) -> Result<()> {
         s.spawn(|| {
             while !done.load(Ordering::Relaxed) {
                 let samples = counters.samples.load(Ordering::Relaxed);
-                let rays = counters.rays.load(Ordering::Relaxed) as f64
-                    / start.elapsed().as_secs_f64().max(1e-3);
+                let rays = counters.rays.load(Ordering::Relaxed) as f64 / start.elapsed().as_secs_f64().max(1e-3);
                 bar.set_position(samples);
-                bar.set_message(format!(
-                    "{}/{} | {:.2} Mrays/s",
-                    samples / pixels.max(1),
-                    settings.spp,
-                    rays / 1e6
-                ));
+                bar.set_message(format!("{}/{} | {:.2} Mrays/s", samples / pixels.max(1), settings.spp, rays / 1e6));
                 std::thread::sleep(Duration::from_millis(100));
             }
         });
@@ -174,10 +159,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     let settings_json = serde_json_lite(&settings);
     final_image.write_exr(
         &args.output,
-        &[
-            ("tessera.settings", settings_json),
-            ("tessera.version", env!("CARGO_PKG_VERSION").to_string()),
-        ],
+        &[("tessera.settings", settings_json), ("tessera.version", env!("CARGO_PKG_VERSION").to_string())],
     )?;
     if let Some(p) = &args.preview {
         final_image.write_png(p, args.exposure)?;
@@ -196,10 +178,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         args.output.display()
     );
     if nonfinite > 0 {
-        tracing::warn!(
-            nonfinite,
-            "samples with non-finite radiance were replaced by zero"
-        );
+        tracing::warn!(nonfinite, "samples with non-finite radiance were replaced by zero");
     }
     Ok(())
 }

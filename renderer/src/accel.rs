@@ -20,12 +20,7 @@ pub struct RtTriangle {
 impl RtTriangle {
     pub fn new(v: [Vec3; 3], id: u32) -> Self {
         let v0 = Vec3A::from(v[0]);
-        RtTriangle {
-            v0,
-            e1: Vec3A::from(v[1]) - v0,
-            e2: Vec3A::from(v[2]) - v0,
-            id,
-        }
+        RtTriangle { v0, e1: Vec3A::from(v[1]) - v0, e2: Vec3A::from(v[2]) - v0, id }
     }
 
     /// Returns (t, b1, b2) for a hit with `tmin < t < tmax`.
@@ -71,29 +66,18 @@ impl Accel {
         let prims: Vec<obvhs::triangle::Triangle> = (0..mesh.triangles.len() as u32)
             .map(|i| {
                 let [a, b, c] = mesh.vertices(i);
-                obvhs::triangle::Triangle {
-                    v0: a.into(),
-                    v1: b.into(),
-                    v2: c.into(),
-                }
+                obvhs::triangle::Triangle { v0: a.into(), v1: b.into(), v2: c.into() }
             })
             .collect();
         if prims.is_empty() {
-            return Accel {
-                bvh: CwBvh::default(),
-                tris: Vec::new(),
-            };
+            return Accel { bvh: CwBvh::default(), tris: Vec::new() };
         }
         let bvh = obvhs::cwbvh::builder::build_cwbvh_from_tris(
             &prims,
             obvhs::BvhBuildParams::medium_build(),
             &mut std::time::Duration::default(),
         );
-        let tris = bvh
-            .primitive_indices
-            .iter()
-            .map(|&i| RtTriangle::new(mesh.vertices(i), i))
-            .collect();
+        let tris = bvh.primitive_indices.iter().map(|&i| RtTriangle::new(mesh.vertices(i), i)).collect();
         Accel { bvh, tris }
     }
 
@@ -110,12 +94,7 @@ impl Accel {
             let tri = &self.tris[id];
             match tri.intersect(oa, da, 0.0, r.tmax) {
                 Some((t, b1, b2)) => {
-                    best = Some(Hit {
-                        t,
-                        triangle: tri.id,
-                        b1,
-                        b2,
-                    });
+                    best = Some(Hit { t, triangle: tri.id, b1, b2 });
                     t
                 }
                 None => f32::INFINITY,
@@ -131,10 +110,8 @@ impl Accel {
         }
         let (oa, da) = (Vec3A::from(o), Vec3A::from(d));
         let ray = BvhRay::new(oa, da, 0.0, tmax);
-        !self.bvh.ray_traverse_miss(ray, |_, id| {
-            self.tris[id]
-                .intersect(oa, da, 0.0, tmax)
-                .map_or(f32::INFINITY, |h| h.0)
-        })
+        !self
+            .bvh
+            .ray_traverse_miss(ray, |_, id| self.tris[id].intersect(oa, da, 0.0, tmax).map_or(f32::INFINITY, |h| h.0))
     }
 }

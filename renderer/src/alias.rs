@@ -17,33 +17,16 @@ struct Bin {
 impl AliasTable {
     /// Builds the table from non-negative weights. Returns None when no weight is positive and finite.
     pub fn new(weights: &[f32]) -> Option<Self> {
-        let clean: Vec<f64> = weights
-            .iter()
-            .map(|&w| {
-                if w.is_finite() && w > 0.0 {
-                    w as f64
-                } else {
-                    0.0
-                }
-            })
-            .collect();
+        let clean: Vec<f64> = weights.iter().map(|&w| if w.is_finite() && w > 0.0 { w as f64 } else { 0.0 }).collect();
         let total: f64 = clean.iter().sum();
         if !(total > 0.0) || clean.len() > u32::MAX as usize {
             return None;
         }
         let n = clean.len();
-        let mut bins: Vec<Bin> = clean
-            .iter()
-            .map(|&w| Bin {
-                q: 0.0,
-                p: (w / total) as f32,
-                alias: 0,
-            })
-            .collect();
+        let mut bins: Vec<Bin> = clean.iter().map(|&w| Bin { q: 0.0, p: (w / total) as f32, alias: 0 }).collect();
         let scaled: Vec<f64> = clean.iter().map(|&w| w / total * n as f64).collect();
         let mut q = scaled.clone();
-        let (mut small, mut large): (Vec<usize>, Vec<usize>) =
-            (0..n).partition(|&i| scaled[i] < 1.0);
+        let (mut small, mut large): (Vec<usize>, Vec<usize>) = (0..n).partition(|&i| scaled[i] < 1.0);
         while let (Some(&s), Some(&l)) = (small.last(), large.last()) {
             small.pop();
             bins[s].q = q[s] as f32;
@@ -76,11 +59,7 @@ impl AliasTable {
         let x = u * n as f32;
         let i = (x as usize).min(n - 1);
         let up = (x - i as f32).min(1.0 - f32::EPSILON);
-        let idx = if up < self.bins[i].q {
-            i
-        } else {
-            self.bins[i].alias as usize
-        };
+        let idx = if up < self.bins[i].q { i } else { self.bins[i].alias as usize };
         (idx, self.bins[idx].p)
     }
 

@@ -13,9 +13,7 @@
 //! When alpha is below [`Ggx::DELTA_ALPHA`] the specular lobe is a mirror: it is only reachable by
 //! `sample()` (flagged `delta`), contributes nothing to `eval()`/`pdf()`, and takes no MIS weight.
 
-use crate::math::{
-    cosine_hemisphere_pdf, luminance, reflect, sample_cosine_hemisphere, Vec2, Vec3, INV_PI,
-};
+use crate::math::{cosine_hemisphere_pdf, luminance, reflect, sample_cosine_hemisphere, Vec2, Vec3, INV_PI};
 use crate::microfacet::Ggx;
 
 /// Material parameters resolved at one shading point (after textures).
@@ -71,11 +69,8 @@ impl Bsdf {
     fn specular_probability(&self, cos_o: f32) -> f32 {
         let fd = schlick(self.f0_dielectric, cos_o);
         let fm = schlick(self.base_color, cos_o);
-        let spec =
-            self.metallic * luminance(fm) + (1.0 - self.metallic) * self.specular * luminance(fd);
-        let diff = (1.0 - self.metallic)
-            * luminance(self.base_color)
-            * (1.0 - self.specular * fd.max_element());
+        let spec = self.metallic * luminance(fm) + (1.0 - self.metallic) * self.specular * luminance(fd);
+        let diff = (1.0 - self.metallic) * luminance(self.base_color) * (1.0 - self.specular * fd.max_element());
         let (spec, diff) = (spec.max(0.0), diff.max(0.0));
         if spec + diff <= 0.0 {
             return 0.0;
@@ -139,12 +134,7 @@ impl Bsdf {
         if u_lobe < ps {
             if self.ggx.is_delta() {
                 let wi = Vec3::new(-wo.x, -wo.y, wo.z);
-                return Some(BsdfSample {
-                    wi,
-                    f: self.specular_tint(wo.z),
-                    pdf: ps,
-                    delta: true,
-                });
+                return Some(BsdfSample { wi, f: self.specular_tint(wo.z), pdf: ps, delta: true });
             }
             let h = self.ggx.sample_visible_normal(wo, u);
             let wi = reflect(wo, h);
@@ -166,12 +156,7 @@ impl Bsdf {
         if !(pdf > 0.0) || !pdf.is_finite() {
             return None;
         }
-        Some(BsdfSample {
-            wi,
-            f: self.eval(wo, wi),
-            pdf,
-            delta: false,
-        })
+        Some(BsdfSample { wi, f: self.eval(wo, wi), pdf, delta: false })
     }
 
     /// True when no part of this BSDF can be evaluated for NEE (pure mirror, or black).
@@ -217,28 +202,16 @@ pub(crate) mod tests {
     #[test]
     fn lambert_is_albedo_over_pi() {
         let b = lambert(0.5);
-        let f = b.eval(
-            Vec3::new(0.0, 0.6, 0.8),
-            Vec3::new(0.3, 0.0, 0.954).normalize(),
-        );
+        let f = b.eval(Vec3::new(0.0, 0.6, 0.8), Vec3::new(0.3, 0.0, 0.954).normalize());
         assert!((f - Vec3::splat(0.5 * INV_PI)).abs().max_element() < 1e-6);
     }
 
     #[test]
     fn sample_weight_equals_f_cos_over_pdf() {
         let wo = Vec3::new(0.4, -0.2, 0.7).normalize();
-        for b in [
-            lambert(0.7),
-            metal(0.3),
-            plastic(0.5),
-            metal(0.0),
-            plastic(0.0),
-        ] {
+        for b in [lambert(0.7), metal(0.3), plastic(0.5), metal(0.0), plastic(0.0)] {
             for i in 0..2000 {
-                let u = Vec2::new(
-                    ((i * 7919) % 1000) as f32 / 1000.0,
-                    ((i * 104729) % 997) as f32 / 997.0,
-                );
+                let u = Vec2::new(((i * 7919) % 1000) as f32 / 1000.0, ((i * 104729) % 997) as f32 / 997.0);
                 let ul = ((i * 31) % 101) as f32 / 101.0;
                 if let Some(s) = b.sample(wo, ul, u) {
                     let w = s.weight();
@@ -246,8 +219,7 @@ pub(crate) mod tests {
                     if !s.delta {
                         let expect = b.eval(wo, s.wi) * s.wi.z / b.pdf(wo, s.wi);
                         assert!(
-                            (w - expect).abs().max_element()
-                                <= 1e-4 * expect.max_element().max(1.0),
+                            (w - expect).abs().max_element() <= 1e-4 * expect.max_element().max(1.0),
                             "{w:?} vs {expect:?}"
                         );
                         assert!((s.pdf - b.pdf(wo, s.wi)).abs() <= 1e-5 * s.pdf);
@@ -264,10 +236,7 @@ pub(crate) mod tests {
         for b in [lambert(0.7), metal(0.3), metal(1.0)] {
             let f1 = b.eval(a, c);
             let f2 = b.eval(c, a);
-            assert!(
-                (f1 - f2).abs().max_element() <= 1e-5 * f1.max_element().max(1e-3),
-                "{f1:?} {f2:?}"
-            );
+            assert!((f1 - f2).abs().max_element() <= 1e-5 * f1.max_element().max(1e-3), "{f1:?} {f2:?}");
         }
     }
 }

@@ -30,23 +30,12 @@ impl Camera {
         }
         // Re-orthogonalize so a slightly sheared matrix still yields an orthonormal basis.
         let up = (up0 - forward * forward.dot(up0)).normalize_or_zero();
-        let up = if up == Vec3::ZERO {
-            right.cross(forward)
-        } else {
-            up
-        };
+        let up = if up == Vec3::ZERO { right.cross(forward) } else { up };
         let right = forward.cross(up);
         if !(yfov > 0.0 && yfov < std::f32::consts::PI) {
             return None;
         }
-        Some(Camera {
-            origin,
-            right,
-            up,
-            forward,
-            yfov,
-            aspect_ratio,
-        })
+        Some(Camera { origin, right, up, forward, yfov, aspect_ratio })
     }
 
     /// A default view of a bounding box: from +Z (the glTF "front"), slightly above, framing the
@@ -61,14 +50,7 @@ impl Camera {
         let forward = (center - origin).normalize();
         let right = forward.cross(Vec3::Y).normalize();
         let up = right.cross(forward);
-        Camera {
-            origin,
-            right,
-            up,
-            forward,
-            yfov,
-            aspect_ratio: None,
-        }
+        Camera { origin, right, up, forward, yfov, aspect_ratio: None }
     }
 
     /// Primary ray direction (unit) through film position `film` in pixels, (0,0) = top-left corner.
@@ -92,15 +74,9 @@ mod tests {
         let d = cam.ray_direction(Vec2::new(50.0, 50.0), 100, 100);
         assert!((d - Vec3::new(0.0, 0.0, -1.0)).length() < 1e-6);
         let top = cam.ray_direction(Vec2::new(50.0, 0.0), 100, 100);
-        assert!(
-            (top.y - top.z.abs()).abs() < 1e-5,
-            "45° half angle: {top:?}"
-        );
+        assert!((top.y - top.z.abs()).abs() < 1e-5, "45° half angle: {top:?}");
         let left = cam.ray_direction(Vec2::new(0.0, 50.0), 200, 100);
-        assert!(
-            (left.x + 2.0 * left.z.abs()).abs() < 1e-5,
-            "aspect 2: {left:?}"
-        );
+        assert!((left.x + 2.0 * left.z.abs()).abs() < 1e-5, "aspect 2: {left:?}");
     }
 
     #[test]

@@ -6,10 +6,7 @@ use std::path::PathBuf;
 #[derive(Debug, thiserror::Error)]
 pub enum SceneError {
     #[error("{path}: cannot read: {source}")]
-    Io {
-        path: PathBuf,
-        source: std::io::Error,
-    },
+    Io { path: PathBuf, source: std::io::Error },
     #[error("{path}: not a valid glTF 2.0 file: {message}")]
     Parse { path: PathBuf, message: String },
     #[error("{path}: unsupported glTF feature: {feature}")]
@@ -17,24 +14,11 @@ pub enum SceneError {
     #[error("{path}: invalid scene data: {message}")]
     Invalid { path: PathBuf, message: String },
     #[error("{path}: URI '{uri}' is not allowed: {reason}")]
-    ForbiddenUri {
-        path: PathBuf,
-        uri: String,
-        reason: String,
-    },
+    ForbiddenUri { path: PathBuf, uri: String, reason: String },
     #[error("{path}: {what} is {size} bytes, over the limit of {limit} bytes")]
-    TooLarge {
-        path: PathBuf,
-        what: String,
-        size: u64,
-        limit: u64,
-    },
+    TooLarge { path: PathBuf, what: String, size: u64, limit: u64 },
     #[error("{path}: scene has no camera numbered {index} (it has {count})")]
-    NoSuchCamera {
-        path: PathBuf,
-        index: usize,
-        count: usize,
-    },
+    NoSuchCamera { path: PathBuf, index: usize, count: usize },
 }
 
 #[derive(Debug, thiserror::Error)]

@@ -25,12 +25,7 @@ impl Rect {
         let mut out = Vec::new();
         for y0 in (0..height).step_by(size as usize) {
             for x0 in (0..width).step_by(size as usize) {
-                out.push(Rect {
-                    x0,
-                    y0,
-                    width: size.min(width - x0),
-                    height: size.min(height - y0),
-                });
+                out.push(Rect { x0, y0, width: size.min(width - x0), height: size.min(height - y0) });
             }
         }
         out
@@ -49,12 +44,7 @@ pub struct PartialSums {
 impl PartialSums {
     pub fn new(rect: Rect) -> Self {
         let n = rect.pixels();
-        PartialSums {
-            rect,
-            sum_rgb: vec![[0.0; 3]; n],
-            sum_lum_sq: vec![0.0; n],
-            count: vec![0; n],
-        }
+        PartialSums { rect, sum_rgb: vec![[0.0; 3]; n], sum_lum_sq: vec![0.0; n], count: vec![0; n] }
     }
 
     /// Adds one sample to pixel `i` (index within the rect).
@@ -72,10 +62,7 @@ impl PartialSums {
     /// Elementwise `self += other` (same rect).
     pub fn merge(&mut self, other: &PartialSums) -> Result<(), String> {
         if self.rect != other.rect {
-            return Err(format!(
-                "cannot merge sums of {:?} into {:?}",
-                other.rect, self.rect
-            ));
+            return Err(format!("cannot merge sums of {:?} into {:?}", other.rect, self.rect));
         }
         for i in 0..self.sum_rgb.len() {
             for c in 0..3 {
@@ -90,11 +77,7 @@ impl PartialSums {
     /// Adds a tile's sums into this (larger) rect at the tile's position.
     pub fn merge_tile(&mut self, tile: &PartialSums) -> Result<(), String> {
         let (r, t) = (self.rect, tile.rect);
-        if t.x0 < r.x0
-            || t.y0 < r.y0
-            || t.x0 + t.width > r.x0 + r.width
-            || t.y0 + t.height > r.y0 + r.height
-        {
+        if t.x0 < r.x0 || t.y0 < r.y0 || t.x0 + t.width > r.x0 + r.width || t.y0 + t.height > r.y0 + r.height {
             return Err(format!("tile {t:?} lies outside {r:?}"));
         }
         for ty in 0..t.height {
@@ -127,18 +110,11 @@ impl PartialSums {
         }
         for i in 0..n {
             let s = self.sum_rgb[i];
-            if !s
-                .iter()
-                .chain(std::iter::once(&self.sum_lum_sq[i]))
-                .all(|v| v.is_finite() && *v >= 0.0)
-            {
+            if !s.iter().chain(std::iter::once(&self.sum_lum_sq[i])).all(|v| v.is_finite() && *v >= 0.0) {
                 return Err(format!("pixel {i} holds a non-finite or negative sum"));
             }
             if self.count[i] != expected_count {
-                return Err(format!(
-                    "pixel {i} holds {} samples, expected {expected_count}",
-                    self.count[i]
-                ));
+                return Err(format!("pixel {i} holds {} samples, expected {expected_count}", self.count[i]));
             }
         }
         Ok(())
@@ -185,12 +161,7 @@ mod tests {
 
     #[test]
     fn variance_of_mean_matches_definition() {
-        let mut p = PartialSums::new(Rect {
-            x0: 0,
-            y0: 0,
-            width: 1,
-            height: 1,
-        });
+        let mut p = PartialSums::new(Rect { x0: 0, y0: 0, width: 1, height: 1 });
         for v in [1.0f32, 2.0, 3.0, 6.0] {
             p.add_sample(0, Vec3::splat(v));
         }
@@ -202,12 +173,7 @@ mod tests {
 
     #[test]
     fn validate_rejects_bad_sums() {
-        let mut p = PartialSums::new(Rect {
-            x0: 0,
-            y0: 0,
-            width: 2,
-            height: 1,
-        });
+        let mut p = PartialSums::new(Rect { x0: 0, y0: 0, width: 2, height: 1 });
         p.add_sample(0, Vec3::ONE);
         p.add_sample(1, Vec3::ONE);
         assert!(p.validate(1).is_ok());

@@ -26,11 +26,8 @@ const MAX_NODE_DEPTH: usize = 256;
 
 /// Extensions this renderer implements. Anything else listed in `extensionsUsed` changes how the
 /// scene should look, so it is refused.
-const SUPPORTED_EXTENSIONS: &[&str] = &[
-    "KHR_materials_emissive_strength",
-    "KHR_materials_specular",
-    "KHR_materials_ior",
-];
+const SUPPORTED_EXTENSIONS: &[&str] =
+    &["KHR_materials_emissive_strength", "KHR_materials_specular", "KHR_materials_ior"];
 /// Extensions that carry only metadata and cannot change the image.
 const HARMLESS_EXTENSIONS: &[&str] = &["KHR_xmp_json_ld", "KHR_xmp"];
 
@@ -42,27 +39,21 @@ pub fn load(path: &Path) -> Result<Scene, SceneError> {
 
 /// Loads a scene from bytes; `path` names the file in errors and anchors relative URIs.
 pub fn load_from_bytes(path: &Path, bytes: &[u8]) -> Result<Scene, SceneError> {
-    let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| SceneError::Parse {
-        path: path.into(),
-        message: e.to_string(),
-    })?;
     let loader = Loader {
         path: path.to_path_buf(),
-        dir: path
-            .parent()
-            .map(Path::to_path_buf)
-            .unwrap_or_else(|| PathBuf::from(".")),
+        dir: path.parent().map(Path::to_path_buf).unwrap_or_else(|| PathBuf::from(".")),
     };
-    loader.check_extensions(&gltf.document)?;
+    // Extensions first, so that an unsupported one (e.g. Draco compression, whose accessors have no
+    // bufferView) is reported by name rather than as the validation errors it causes.
+    loader.check_extensions(bytes)?;
+    let gltf =
+        gltf::Gltf::from_slice(bytes).map_err(|e| SceneError::Parse { path: path.into(), message: e.to_string() })?;
     let buffers = loader.load_buffers(&gltf.document, gltf.blob.as_deref())?;
     loader.build(&gltf.document, &buffers)
 }
 
 fn read_bounded(path: &Path, scene: &Path, what: &str) -> Result<Vec<u8>, SceneError> {
-    let meta = std::fs::metadata(path).map_err(|source| SceneError::Io {
-        path: path.into(),
-        source,
-    })?;
+    let meta = std::fs::metadata(path).map_err(|source| SceneError::Io { path: path.into(), source })?;
     if meta.len() > MAX_FILE_BYTES {
         return Err(SceneError::TooLarge {
             path: scene.into(),
@@ -71,10 +62,7 @@ fn read_bounded(path: &Path, scene: &Path, what: &str) -> Result<Vec<u8>, SceneE
             limit: MAX_FILE_BYTES,
         });
     }
-    std::fs::read(path).map_err(|source| SceneError::Io {
-        path: path.into(),
-        source,
-    })
+    std::fs::read(path).map_err(|source| SceneError::Io { path: path.into(), source })
 }
 
 struct Loader {
@@ -101,23 +89,40 @@ fn percent_decode(s: &str) -> Option<String> {
 
 impl Loader {
     fn invalid(&self, message: impl Into<String>) -> SceneError {
-        SceneError::Invalid {
-            path: self.path.clone(),
-            message: message.into(),
-        }
+        SceneError::Invalid { path: self.path.clone(), message: message.into() }
     }
 
     fn unsupported(&self, feature: impl Into<String>) -> SceneError {
-        SceneError::Unsupported {
-            path: self.path.clone(),
-            feature: feature.into(),
-        }
+        SceneError::Unsupported { path: self.path.clone(), feature: feature.into() }
     }
 
-    fn check_extensions(&self, doc: &gltf::Document) -> Result<(), SceneError> {
-        for ext in doc.extensions_required().chain(doc.extensions_used()) {
-            if !SUPPORTED_EXTENSIONS.contains(&ext) && !HARMLESS_EXTENSIONS.contains(&ext) {
-                return Err(self.unsupported(format!("extension {ext}")));
+    /// Reads `extensionsUsed`/`extensionsRequired` straight from the JSON (the gltf crate's own
+    /// parser already rejects unknown required extensions, with a less helpful message).
+    fn check_extensions(&self, bytes: &[u8]) -> Result<(), SceneError> {
+        let json: &[u8] = if bytes.starts_with(b"glTF") {
+            match gltf::binary::Glb::from_slice(bytes) {
+                Ok(glb) => return self.check_extension_json(&glb.json),
+                Err(e) => return Err(SceneError::Parse { path: self.path.clone(), message: e.to_string() }),
+            }
+        } else {
+            bytes
+        };
+        self.check_extension_json(json)
+    }
+
+    fn check_extension_json(&self, json: &[u8]) -> Result<(), SceneError> {
+        #[derive(serde::Deserialize)]
+        struct Extensions {
+            #[serde(default, rename = "extensionsUsed")]
+            used: Vec<String>,
+            #[serde(default, rename = "extensionsRequired")]
+            required: Vec<String>,
+        }
+        let ext: Extensions = serde_json::from_slice(json)
+            .map_err(|e| SceneError::Parse { path: self.path.clone(), message: e.to_string() })?;
+        for e in ext.required.iter().chain(&ext.used) {
+            if !SUPPORTED_EXTENSIONS.contains(&e.as_str()) && !HARMLESS_EXTENSIONS.contains(&e.as_str()) {
+                return Err(self.unsupported(format!("extension {e}")));
             }
         }
         Ok(())
@@ -131,9 +136,7 @@ impl Loader {
             reason: reason.into(),
         };
         if let Some(rest) = uri.strip_prefix("data:") {
-            let (header, data) = rest
-                .split_once(',')
-                .ok_or_else(|| forbid("malformed data URI (no ',')"))?;
+            let (header, data) = rest.split_once(',').ok_or_else(|| forbid("malformed data URI (no ',')"))?;
             if !header.ends_with(";base64") {
                 return Err(forbid("data URIs must be base64-encoded"));
             }
@@ -151,38 +154,23 @@ impl Loader {
         }
         if let Some(colon) = uri.find(':') {
             if !uri[..colon].contains('/') {
-                return Err(forbid(
-                    "only data URIs and relative paths inside the scene's folder are allowed",
-                ));
+                return Err(forbid("only data URIs and relative paths inside the scene's folder are allowed"));
             }
         }
         let decoded = percent_decode(uri).ok_or_else(|| forbid("bad percent-encoding"))?;
-        if decoded.starts_with('/')
-            || decoded.contains('\\')
-            || decoded.split('/').any(|c| c == "..")
-        {
+        if decoded.starts_with('/') || decoded.contains('\\') || decoded.split('/').any(|c| c == "..") {
             return Err(forbid("path escapes the scene's folder"));
         }
         let full = self.dir.join(&decoded);
-        let base = self.dir.canonicalize().map_err(|source| SceneError::Io {
-            path: self.dir.clone(),
-            source,
-        })?;
-        let canon = full.canonicalize().map_err(|source| SceneError::Io {
-            path: full.clone(),
-            source,
-        })?;
+        let base = self.dir.canonicalize().map_err(|source| SceneError::Io { path: self.dir.clone(), source })?;
+        let canon = full.canonicalize().map_err(|source| SceneError::Io { path: full.clone(), source })?;
         if !canon.starts_with(&base) {
             return Err(forbid("path escapes the scene's folder (through a link)"));
         }
         read_bounded(&canon, &self.path, what)
     }
 
-    fn load_buffers(
-        &self,
-        doc: &gltf::Document,
-        blob: Option<&[u8]>,
-    ) -> Result<Vec<Vec<u8>>, SceneError> {
+    fn load_buffers(&self, doc: &gltf::Document, blob: Option<&[u8]>) -> Result<Vec<Vec<u8>>, SceneError> {
         let mut out = Vec::new();
         for buffer in doc.buffers() {
             let data = match buffer.source() {
@@ -194,9 +182,7 @@ impl Loader {
                         ))
                     })?
                     .to_vec(),
-                gltf::buffer::Source::Uri(uri) => {
-                    self.fetch_uri(uri, &format!("buffer {}", buffer.index()))?
-                }
+                gltf::buffer::Source::Uri(uri) => self.fetch_uri(uri, &format!("buffer {}", buffer.index()))?,
             };
             if data.len() < buffer.length() {
                 return Err(self.invalid(format!(
@@ -237,15 +223,9 @@ impl Loader {
             return Err(self.unsupported(format!("sparse accessor for {name}")));
         }
         if !types.contains(&acc.data_type()) || acc.dimensions() != dims {
-            return Err(self.unsupported(format!(
-                "{name} stored as {:?} {:?}",
-                acc.data_type(),
-                acc.dimensions()
-            )));
+            return Err(self.unsupported(format!("{name} stored as {:?} {:?}", acc.data_type(), acc.dimensions())));
         }
-        let view = acc
-            .view()
-            .ok_or_else(|| self.invalid(format!("{name} has no bufferView")))?;
+        let view = acc.view().ok_or_else(|| self.invalid(format!("{name} has no bufferView")))?;
         let count = acc.count();
         if count == 0 {
             return Err(self.invalid(format!("{name} is empty")));
@@ -253,14 +233,10 @@ impl Loader {
         let elem = acc.size();
         let stride = view.stride().unwrap_or(elem);
         if stride < elem {
-            return Err(self.invalid(format!(
-                "{name}: byteStride {stride} is smaller than an element ({elem} bytes)"
-            )));
+            return Err(self.invalid(format!("{name}: byteStride {stride} is smaller than an element ({elem} bytes)")));
         }
-        let end = (count - 1)
-            .checked_mul(stride)
-            .and_then(|x| x.checked_add(elem))
-            .and_then(|x| x.checked_add(acc.offset()));
+        let end =
+            (count - 1).checked_mul(stride).and_then(|x| x.checked_add(elem)).and_then(|x| x.checked_add(acc.offset()));
         if end.is_none_or(|e| e > view.length()) {
             return Err(self.invalid(format!(
                 "{name}: {count} elements run past bufferView {} ({} bytes)",
@@ -287,20 +263,13 @@ impl Loader {
             Some(s) => s.nodes().collect(),
             None => {
                 // No scene: render every root node (nodes that are nobody's child).
-                let children: std::collections::HashSet<usize> = doc
-                    .nodes()
-                    .flat_map(|n| n.children().map(|c| c.index()))
-                    .collect();
-                doc.nodes()
-                    .filter(|n| !children.contains(&n.index()))
-                    .collect()
+                let children: std::collections::HashSet<usize> =
+                    doc.nodes().flat_map(|n| n.children().map(|c| c.index())).collect();
+                doc.nodes().filter(|n| !children.contains(&n.index())).collect()
             }
         };
-        let mut stack: Vec<(gltf::Node, Mat4, usize)> = roots
-            .into_iter()
-            .rev()
-            .map(|n| (n, Mat4::IDENTITY, 0))
-            .collect();
+        let mut stack: Vec<(gltf::Node, Mat4, usize)> =
+            roots.into_iter().rev().map(|n| (n, Mat4::IDENTITY, 0)).collect();
         let mut visits = 0usize;
         while let Some((node, parent, depth)) = stack.pop() {
             visits += 1;
@@ -310,54 +279,35 @@ impl Loader {
             let local = Mat4::from_cols_array_2d(&node.transform().matrix());
             let world = parent * local;
             if !world.is_finite() {
-                return Err(
-                    self.invalid(format!("node {} has a non-finite transform", node.index()))
-                );
+                return Err(self.invalid(format!("node {} has a non-finite transform", node.index())));
             }
             if node.skin().is_some() {
-                return Err(self.unsupported(format!(
-                    "skin on node {} (skeletal animation)",
-                    node.index()
-                )));
+                return Err(self.unsupported(format!("skin on node {} (skeletal animation)", node.index())));
             }
             if let Some(cam) = node.camera() {
                 match cam.projection() {
                     gltf::camera::Projection::Perspective(p) => {
-                        let c = Camera::from_matrix(world, p.yfov(), p.aspect_ratio()).ok_or_else(
-                            || {
-                                self.invalid(format!(
-                                    "camera on node {} has a degenerate transform or yfov {}",
-                                    node.index(),
-                                    p.yfov()
-                                ))
-                            },
-                        )?;
+                        let c = Camera::from_matrix(world, p.yfov(), p.aspect_ratio()).ok_or_else(|| {
+                            self.invalid(format!(
+                                "camera on node {} has a degenerate transform or yfov {}",
+                                node.index(),
+                                p.yfov()
+                            ))
+                        })?;
                         cameras.push(c);
                     }
                     gltf::camera::Projection::Orthographic(_) => {
-                        tracing::warn!(
-                            node = node.index(),
-                            "orthographic camera skipped (not supported)"
-                        );
+                        tracing::warn!(node = node.index(), "orthographic camera skipped (not supported)");
                     }
                 }
             }
             if let Some(m) = node.mesh() {
                 let weights = node.weights().or(m.weights()).unwrap_or(&[]);
                 if weights.iter().any(|&w| w != 0.0) {
-                    return Err(
-                        self.unsupported(format!("morph target weights on mesh {}", m.index()))
-                    );
+                    return Err(self.unsupported(format!("morph target weights on mesh {}", m.index())));
                 }
                 for prim in m.primitives() {
-                    self.primitive(
-                        &prim,
-                        world,
-                        buffers,
-                        &mut mesh,
-                        &materials,
-                        default_material,
-                    )?;
+                    self.primitive(&prim, world, buffers, &mut mesh, &materials, default_material)?;
                 }
             }
             for child in node.children() {
@@ -378,33 +328,19 @@ impl Loader {
     ) -> Result<(), SceneError> {
         use gltf::mesh::Mode;
         let mode = prim.mode();
-        if matches!(
-            mode,
-            Mode::Points | Mode::Lines | Mode::LineLoop | Mode::LineStrip
-        ) {
-            tracing::warn!(
-                ?mode,
-                "primitive skipped: points and lines have no area to render"
-            );
+        if matches!(mode, Mode::Points | Mode::Lines | Mode::LineLoop | Mode::LineStrip) {
+            tracing::warn!(?mode, "primitive skipped: points and lines have no area to render");
             return Ok(());
         }
         let get = |b: gltf::Buffer| buffers.get(b.index()).map(Vec::as_slice);
         let reader = prim.reader(get);
-        let pos_acc = prim
-            .get(&gltf::Semantic::Positions)
-            .ok_or_else(|| self.invalid("primitive without POSITION"))?;
+        let pos_acc = prim.get(&gltf::Semantic::Positions).ok_or_else(|| self.invalid("primitive without POSITION"))?;
         let n = self.check_accessor(&pos_acc, "POSITION", &[DataType::F32], Dimensions::Vec3)?;
-        let positions: Vec<[f32; 3]> = reader
-            .read_positions()
-            .ok_or_else(|| self.invalid("POSITION data missing"))?
-            .collect();
+        let positions: Vec<[f32; 3]> =
+            reader.read_positions().ok_or_else(|| self.invalid("POSITION data missing"))?.collect();
         let normals: Option<Vec<[f32; 3]>> = match prim.get(&gltf::Semantic::Normals) {
             Some(a) => {
-                self.expect_count(
-                    self.check_accessor(&a, "NORMAL", &[DataType::F32], Dimensions::Vec3)?,
-                    n,
-                    "NORMAL",
-                )?;
+                self.expect_count(self.check_accessor(&a, "NORMAL", &[DataType::F32], Dimensions::Vec3)?, n, "NORMAL")?;
                 reader.read_normals().map(Iterator::collect)
             }
             None => None,
@@ -441,17 +377,8 @@ impl Loader {
         };
         let indices: Vec<u32> = match prim.indices() {
             Some(a) => {
-                self.check_accessor(
-                    &a,
-                    "indices",
-                    &[DataType::U8, DataType::U16, DataType::U32],
-                    Dimensions::Scalar,
-                )?;
-                reader
-                    .read_indices()
-                    .ok_or_else(|| self.invalid("index data missing"))?
-                    .into_u32()
-                    .collect()
+                self.check_accessor(&a, "indices", &[DataType::U8, DataType::U16, DataType::U32], Dimensions::Scalar)?;
+                reader.read_indices().ok_or_else(|| self.invalid("index data missing"))?.into_u32().collect()
             }
             None => (0..n as u32).collect(),
         };
@@ -459,10 +386,7 @@ impl Loader {
             return Err(self.invalid(format!("index {bad} out of range for {n} vertices")));
         }
         let tris: Vec<[u32; 3]> = match mode {
-            Mode::Triangles => indices
-                .chunks_exact(3)
-                .map(|c| [c[0], c[1], c[2]])
-                .collect(),
+            Mode::Triangles => indices.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
             Mode::TriangleStrip => (0..indices.len().saturating_sub(2))
                 .map(|i| {
                     if i % 2 == 0 {
@@ -472,23 +396,19 @@ impl Loader {
                     }
                 })
                 .collect(),
-            Mode::TriangleFan => (1..indices.len().saturating_sub(1))
-                .map(|i| [indices[i], indices[i + 1], indices[0]])
-                .collect(),
+            Mode::TriangleFan => {
+                (1..indices.len().saturating_sub(1)).map(|i| [indices[i], indices[i + 1], indices[0]]).collect()
+            }
             _ => Vec::new(),
         };
 
-        let material = prim
-            .material()
-            .index()
-            .map_or(default_material, |i| i as u32);
+        let material = prim.material().index().map_or(default_material, |i| i as u32);
         let mat = &materials[material as usize];
         let needs_tangents = mat.normal_texture.is_some();
         if needs_tangents && uvs.is_none() {
-            return Err(self.invalid(format!(
-                "material '{}' has a normal map but the primitive has no TEXCOORD_0",
-                mat.name
-            )));
+            return Err(
+                self.invalid(format!("material '{}' has a normal map but the primitive has no TEXCOORD_0", mat.name))
+            );
         }
 
         // World transform: points by M, normals by the inverse transpose, tangents by M's linear part.
@@ -500,23 +420,14 @@ impl Loader {
         }
         let normal_m = linear.inverse().transpose();
         let base = mesh.positions.len() as u32;
-        mesh.positions.extend(
-            positions
-                .iter()
-                .map(|p| world.transform_point3(Vec3::from(*p))),
-        );
+        mesh.positions.extend(positions.iter().map(|p| world.transform_point3(Vec3::from(*p))));
         match &normals {
-            Some(ns) => mesh.normals.extend(
-                ns.iter()
-                    .map(|v| (normal_m * Vec3::from(*v)).normalize_or_zero()),
-            ),
+            Some(ns) => mesh.normals.extend(ns.iter().map(|v| (normal_m * Vec3::from(*v)).normalize_or_zero())),
             None => mesh.normals.extend(std::iter::repeat_n(Vec3::ZERO, n)),
         }
         match &tangents {
             Some(ts) => mesh.tangents.extend(ts.iter().map(|t| {
-                (linear * Vec3::new(t[0], t[1], t[2]))
-                    .normalize_or_zero()
-                    .extend(if t[3] < 0.0 { -1.0 } else { 1.0 })
+                (linear * Vec3::new(t[0], t[1], t[2])).normalize_or_zero().extend(if t[3] < 0.0 { -1.0 } else { 1.0 })
             })),
             None => mesh.tangents.extend(std::iter::repeat_n(Vec4::ZERO, n)),
         }
@@ -542,11 +453,7 @@ impl Loader {
             } else {
                 [base + t[0], base + t[1], base + t[2]]
             };
-            mesh.triangles.push(Triangle {
-                v,
-                material,
-                flags: f,
-            });
+            mesh.triangles.push(Triangle { v, material, flags: f });
         }
         if needs_tangents && tangents.is_none() {
             mesh.generate_tangents(first..mesh.triangles.len());
@@ -568,57 +475,32 @@ impl Loader {
         textures: &mut Vec<Texture>,
         ids: &mut HashMap<(usize, bool), u32>,
     ) -> Result<Material, SceneError> {
-        let name = m
-            .name()
-            .map(str::to_owned)
-            .unwrap_or_else(|| format!("material {}", m.index().unwrap_or(0)));
+        let name = m.name().map(str::to_owned).unwrap_or_else(|| format!("material {}", m.index().unwrap_or(0)));
         match m.alpha_mode() {
             gltf::material::AlphaMode::Opaque => {}
-            other => {
-                return Err(self.unsupported(format!("alphaMode {other:?} (material '{name}')")))
-            }
+            other => return Err(self.unsupported(format!("alphaMode {other:?} (material '{name}')"))),
         }
         let pbr = m.pbr_metallic_roughness();
-        let mut tex = |info: Option<gltf::texture::Info>,
-                       srgb: bool|
-         -> Result<Option<TextureRef>, SceneError> {
+        let mut tex = |info: Option<gltf::texture::Info>, srgb: bool| -> Result<Option<TextureRef>, SceneError> {
             match info {
-                Some(i) => Ok(Some(self.texture_ref(
-                    &i.texture(),
-                    i.tex_coord(),
-                    srgb,
-                    buffers,
-                    textures,
-                    ids,
-                )?)),
+                Some(i) => Ok(Some(self.texture_ref(&i.texture(), i.tex_coord(), srgb, buffers, textures, ids)?)),
                 None => Ok(None),
             }
         };
         let base_color_texture = tex(pbr.base_color_texture(), true)?;
         let metallic_roughness_texture = tex(pbr.metallic_roughness_texture(), false)?;
         let emissive_texture = tex(m.emissive_texture(), true)?;
-        let (specular, specular_texture, specular_color, specular_color_texture) =
-            match m.specular() {
-                Some(s) => (
-                    s.specular_factor(),
-                    tex(s.specular_texture(), false)?,
-                    Vec3::from(s.specular_color_factor()),
-                    tex(s.specular_color_texture(), true)?,
-                ),
-                None => (1.0, None, Vec3::ONE, None),
-            };
-        let (normal_texture, normal_scale) = match m.normal_texture() {
-            Some(n) => (
-                Some(self.texture_ref(
-                    &n.texture(),
-                    n.tex_coord(),
-                    false,
-                    buffers,
-                    textures,
-                    ids,
-                )?),
-                n.scale(),
+        let (specular, specular_texture, specular_color, specular_color_texture) = match m.specular() {
+            Some(s) => (
+                s.specular_factor(),
+                tex(s.specular_texture(), false)?,
+                Vec3::from(s.specular_color_factor()),
+                tex(s.specular_color_texture(), true)?,
             ),
+            None => (1.0, None, Vec3::ONE, None),
+        };
+        let (normal_texture, normal_scale) = match m.normal_texture() {
+            Some(n) => (Some(self.texture_ref(&n.texture(), n.tex_coord(), false, buffers, textures, ids)?), n.scale()),
             None => (None, 1.0),
         };
         let emissive = Vec3::from(m.emissive_factor()) * m.emissive_strength().unwrap_or(1.0);
@@ -629,11 +511,7 @@ impl Loader {
                 Err(self.invalid(format!("material '{name}': {what} is not finite")))
             }
         };
-        for (v, what) in [
-            (emissive.x, "emissive"),
-            (emissive.y, "emissive"),
-            (emissive.z, "emissive"),
-        ] {
+        for (v, what) in [(emissive.x, "emissive"), (emissive.y, "emissive"), (emissive.z, "emissive")] {
             if checked(v, what)? < 0.0 {
                 return Err(self.invalid(format!("material '{name}': negative emission")));
             }
@@ -668,9 +546,7 @@ impl Loader {
         ids: &mut HashMap<(usize, bool), u32>,
     ) -> Result<TextureRef, SceneError> {
         if tex_coord != 0 {
-            return Err(self.unsupported(format!(
-                "texCoord {tex_coord} (only TEXCOORD_0 is supported)"
-            )));
+            return Err(self.unsupported(format!("texCoord {tex_coord} (only TEXCOORD_0 is supported)")));
         }
         let image = t.source();
         let key = (image.index(), srgb);
@@ -690,19 +566,10 @@ impl Loader {
             gltf::texture::WrappingMode::Repeat => Wrap::Repeat,
         };
         let s = t.sampler();
-        Ok(TextureRef {
-            texture: id,
-            wrap_s: wrap(s.wrap_s()),
-            wrap_t: wrap(s.wrap_t()),
-        })
+        Ok(TextureRef { texture: id, wrap_s: wrap(s.wrap_s()), wrap_t: wrap(s.wrap_t()) })
     }
 
-    fn decode_image(
-        &self,
-        image: &gltf::Image,
-        srgb: bool,
-        buffers: &[Vec<u8>],
-    ) -> Result<Texture, SceneError> {
+    fn decode_image(&self, image: &gltf::Image, srgb: bool, buffers: &[Vec<u8>]) -> Result<Texture, SceneError> {
         let what = format!("image {}", image.index());
         let bytes: Vec<u8> = match image.source() {
             gltf::image::Source::View { view, .. } => {
@@ -719,17 +586,10 @@ impl Loader {
         limits.max_image_height = Some(MAX_TEXTURE_SIDE);
         limits.max_alloc = Some(2 << 30);
         reader.limits(limits);
-        let img = reader
-            .decode()
-            .map_err(|e| self.invalid(format!("{what}: cannot decode: {e}")))?;
+        let img = reader.decode().map_err(|e| self.invalid(format!("{what}: cannot decode: {e}")))?;
         let rgba = img.to_rgba8();
         let (width, height) = rgba.dimensions();
         let texels = rgba.pixels().map(|p| p.0).collect();
-        Ok(Texture {
-            width,
-            height,
-            texels,
-            srgb,
-        })
+        Ok(Texture { width, height, texels, srgb })
     }
 }

@@ -34,17 +34,9 @@ impl FinalImage {
     }
 
     /// Writes the EXR (ZIP-compressed, lossless). `attributes` become string header attributes.
-    pub fn write_exr(
-        &self,
-        path: &Path,
-        attributes: &[(&str, String)],
-    ) -> std::result::Result<(), RenderError> {
-        let err = |message: String| RenderError::Write {
-            path: path.into(),
-            message,
-        };
-        let plane =
-            |f: &dyn Fn(usize) -> f32| FlatSamples::F32((0..self.rgb.len()).map(f).collect());
+    pub fn write_exr(&self, path: &Path, attributes: &[(&str, String)]) -> std::result::Result<(), RenderError> {
+        let err = |message: String| RenderError::Write { path: path.into(), message };
+        let plane = |f: &dyn Fn(usize) -> f32| FlatSamples::F32((0..self.rgb.len()).map(f).collect());
         let channels = AnyChannels::sort(SmallVec::from_vec(vec![
             AnyChannel::new("R", plane(&|i| self.rgb[i][0])),
             AnyChannel::new("G", plane(&|i| self.rgb[i][1])),
@@ -54,9 +46,7 @@ impl FinalImage {
         ]));
         let mut layer_attributes = LayerAttributes::named("tessera");
         for (k, v) in attributes {
-            layer_attributes
-                .other
-                .insert(Text::from(*k), AttributeValue::Text(Text::from(v.as_str())));
+            layer_attributes.other.insert(Text::from(*k), AttributeValue::Text(Text::from(v.as_str())));
         }
         let layer = Layer::new(
             (self.width as usize, self.height as usize),
@@ -64,37 +54,19 @@ impl FinalImage {
             Encoding::SMALL_LOSSLESS,
             channels,
         );
-        Image::from_layer(layer)
-            .write()
-            .to_file(path)
-            .map_err(|e| err(e.to_string()))
+        Image::from_layer(layer).write().to_file(path).map_err(|e| err(e.to_string()))
     }
 
     /// Writes an 8-bit sRGB PNG: radiance × 2^exposure, clamped, sRGB-encoded.
     pub fn write_png(&self, path: &Path, exposure: f32) -> std::result::Result<(), RenderError> {
-        let err = |message: String| RenderError::Write {
-            path: path.into(),
-            message,
-        };
+        let err = |message: String| RenderError::Write { path: path.into(), message };
         let scale = 2f32.powf(exposure);
         let encode = |v: f32| -> u8 {
-            let v = if v.is_finite() {
-                (v * scale).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            let s = if v <= 0.003_130_8 {
-                12.92 * v
-            } else {
-                1.055 * v.powf(1.0 / 2.4) - 0.055
-            };
+            let v = if v.is_finite() { (v * scale).clamp(0.0, 1.0) } else { 0.0 };
+            let s = if v <= 0.003_130_8 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 };
             (s * 255.0 + 0.5) as u8
         };
-        let data: Vec<u8> = self
-            .rgb
-            .iter()
-            .flat_map(|p| [encode(p[0]), encode(p[1]), encode(p[2])])
-            .collect();
+        let data: Vec<u8> = self.rgb.iter().flat_map(|p| [encode(p[0]), encode(p[1]), encode(p[2])]).collect();
         let file = std::fs::File::create(path).map_err(|e| err(e.to_string()))?;
         let mut enc = png::Encoder::new(std::io::BufWriter::new(file), self.width, self.height);
         enc.set_color(png::ColorType::Rgb);
@@ -113,19 +85,13 @@ pub struct ExrChannels {
 
 impl ExrChannels {
     pub fn channel(&self, name: &str) -> Option<&[f32]> {
-        self.channels
-            .iter()
-            .find(|(n, _)| n == name)
-            .map(|(_, v)| v.as_slice())
+        self.channels.iter().find(|(n, _)| n == name).map(|(_, v)| v.as_slice())
     }
 }
 
 /// Reads all channels of the first layer of an EXR as f32.
 pub fn read_exr(path: &Path) -> std::result::Result<ExrChannels, RenderError> {
-    let err = |message: String| RenderError::Read {
-        path: path.into(),
-        message,
-    };
+    let err = |message: String| RenderError::Read { path: path.into(), message };
     let image = read_first_flat_layer_from_file(path).map_err(|e| err(e.to_string()))?;
     let layer = image.layer_data;
     let (w, h) = (layer.size.width(), layer.size.height());
@@ -133,16 +99,7 @@ pub fn read_exr(path: &Path) -> std::result::Result<ExrChannels, RenderError> {
         .channel_data
         .list
         .iter()
-        .map(|c| {
-            (
-                c.name.to_string(),
-                c.sample_data.values_as_f32().collect::<Vec<f32>>(),
-            )
-        })
+        .map(|c| (c.name.to_string(), c.sample_data.values_as_f32().collect::<Vec<f32>>()))
         .collect();
-    Ok(ExrChannels {
-        width: w as u32,
-        height: h as u32,
-        channels,
-    })
+    Ok(ExrChannels { width: w as u32, height: h as u32, channels })
 }

@@ -49,7 +49,12 @@ pub fn radiance(
             if le != Vec3::ZERO {
                 match (settings.integrator, prev) {
                     (_, None) | (IntegratorKind::Bsdf, _) => l += beta * le,
-                    (IntegratorKind::Nee, Some(_)) => {}
+                    // NEE already counted this emitter, unless it is not in the light set.
+                    (IntegratorKind::Nee, Some(_)) => {
+                        if !scene.lights.is_light(hit.triangle) {
+                            l += beta * le;
+                        }
+                    }
                     (IntegratorKind::Mis, Some((p_prev, bsdf_pdf))) => {
                         let light_pdf = scene.lights.pdf(hit.triangle, p_prev, sp.p, sp.ng);
                         l += beta * le * mis_weight(settings.mis_heuristic, bsdf_pdf, light_pdf);
@@ -102,16 +107,10 @@ pub fn radiance(
         let origin = offset_ray_origin(sp.p, ng);
 
         // Next-event estimation.
-        if settings.integrator != IntegratorKind::Bsdf
-            && !scene.lights.is_empty()
-            && !bsdf.is_delta_only()
-        {
+        if settings.integrator != IntegratorKind::Bsdf && !scene.lights.is_empty() && !bsdf.is_delta_only() {
             let u_sel = sampler.get_1d(base + dims::LIGHT_SELECT);
             let u = sampler.get_2d(base + dims::LIGHT_POS);
-            if let Some(ls) = scene
-                .lights
-                .sample(mesh, materials, textures, sp.p, u_sel, u)
-            {
+            if let Some(ls) = scene.lights.sample(mesh, materials, textures, sp.p, u_sel, u) {
                 let wi = frame.to_local(ls.wi);
                 if ls.le != Vec3::ZERO && wi.z > 0.0 && ls.wi.dot(ng) > 0.0 {
                     let f = bsdf.eval(wo, wi);
@@ -122,9 +121,7 @@ pub fn radiance(
                         *rays += 1;
                         if dist > 0.0 && !scene.occluded(origin, to / dist, dist) {
                             let w = match settings.integrator {
-                                IntegratorKind::Mis => {
-                                    mis_weight(settings.mis_heuristic, ls.pdf, bsdf.pdf(wo, wi))
-                                }
+                                IntegratorKind::Mis => mis_weight(settings.mis_heuristic, ls.pdf, bsdf.pdf(wo, wi)),
                                 _ => 1.0,
                             };
                             l += beta * f * ls.le * (wi.z * w / ls.pdf);
@@ -135,11 +132,8 @@ pub fn radiance(
         }
 
         // BSDF sampling for the next segment.
-        let Some(bs) = bsdf.sample(
-            wo,
-            sampler.get_1d(base + dims::BSDF_LOBE),
-            sampler.get_2d(base + dims::BSDF_DIR),
-        ) else {
+        let Some(bs) = bsdf.sample(wo, sampler.get_1d(base + dims::BSDF_LOBE), sampler.get_2d(base + dims::BSDF_DIR))
+        else {
             break;
         };
         let wi_world = frame.to_world(bs.wi);

@@ -22,6 +22,8 @@ pub mod render;
 pub mod sampler;
 pub mod scene;
 pub mod settings;
+pub mod stats;
+pub mod testing;
 pub mod texture;
 
 pub use error::{RenderError, SceneError};

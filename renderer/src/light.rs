@@ -41,15 +41,7 @@ pub struct LightSet {
 /// Radiance leaving an emissive triangle towards direction `w` (pointing away from the surface).
 /// Emission is one-sided along the winding normal unless the material is double-sided.
 #[inline]
-pub fn emitted(
-    mesh: &Mesh,
-    materials: &[Material],
-    textures: &[Texture],
-    tri: u32,
-    b1: f32,
-    b2: f32,
-    w: Vec3,
-) -> Vec3 {
+pub fn emitted(mesh: &Mesh, materials: &[Material], textures: &[Texture], tri: u32, b1: f32, b2: f32, w: Vec3) -> Vec3 {
     let t = &mesh.triangles[tri as usize];
     let m = &materials[t.material as usize];
     if !m.is_emissive() {
@@ -60,6 +52,20 @@ pub fn emitted(
         return Vec3::ZERO;
     }
     m.emission(textures, sp.uv)
+}
+
+/// Average emitted radiance over a triangle, estimated from the texture at seven interior points
+/// (cheap, and only used for selection probabilities: any positive estimate keeps the estimator
+/// unbiased, and a triangle estimated at zero is simply not a light — the integrator then counts
+/// it when BSDF sampling hits it).
+fn mean_emission(mesh: &Mesh, m: &Material, textures: &[Texture], tri: u32) -> Vec3 {
+    if m.emissive_texture.is_none() {
+        return m.emissive;
+    }
+    const B: [(f32, f32); 7] =
+        [(1.0 / 3.0, 1.0 / 3.0), (0.1, 0.1), (0.8, 0.1), (0.1, 0.8), (0.45, 0.1), (0.45, 0.45), (0.1, 0.45)];
+    let sum: Vec3 = B.iter().map(|&(b1, b2)| m.emission(textures, mesh.surface_point(tri, b1, b2).uv)).sum();
+    sum / B.len() as f32
 }
 
 impl LightSet {
@@ -76,28 +82,17 @@ impl LightSet {
             if !(area > 0.0) || !area.is_finite() {
                 continue;
             }
-            let mean_tex = m.emissive_texture.map_or(Vec3::ONE, |r| {
-                textures[r.texture as usize].mean().truncate()
-            });
             let sides = if m.double_sided { 2.0 } else { 1.0 };
-            let p = luminance(m.emissive * mean_tex) * area * PI * sides;
+            let p = luminance(mean_emission(mesh, m, textures, i as u32)) * area * PI * sides;
             if !(p > 0.0) {
                 continue;
             }
             triangle_light[i] = lights.len() as u32;
-            lights.push(AreaLight {
-                triangle: i as u32,
-                area,
-                two_sided: m.double_sided,
-            });
+            lights.push(AreaLight { triangle: i as u32, area, two_sided: m.double_sided });
             power.push(p);
         }
         let selection = AliasTable::new(&power).unwrap_or_default();
-        LightSet {
-            lights,
-            selection,
-            triangle_light,
-        }
+        LightSet { lights, selection, triangle_light }
     }
 
     pub fn is_empty(&self) -> bool {
@@ -138,14 +133,7 @@ impl LightSet {
             return None;
         }
         let n = if cos_l > 0.0 { sp.ng } else { -sp.ng };
-        Some(LightSample {
-            p: sp.p,
-            n,
-            wi,
-            dist,
-            le,
-            pdf,
-        })
+        Some(LightSample { p: sp.p, n, wi, dist, le, pdf })
     }
 
     /// Solid-angle pdf with which `sample()` from `reference` would have produced the point `p` on
@@ -165,6 +153,11 @@ impl LightSet {
             return 0.0;
         }
         self.selection.pmf(li as usize) * dist2 / (cos_l * light.area)
+    }
+
+    /// True when triangle `tri` is in the light set (NEE can sample it).
+    pub fn is_light(&self, tri: u32) -> bool {
+        self.triangle_light.get(tri as usize).is_some_and(|&l| l != u32::MAX)
     }
 
     /// The light-selection probability of light `i`.

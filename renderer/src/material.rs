@@ -56,8 +56,7 @@ impl Default for Material {
 
 #[inline]
 fn lookup(textures: &[Texture], r: &Option<TextureRef>, uv: Vec2) -> Option<Vec4> {
-    r.as_ref()
-        .map(|r| textures[r.texture as usize].sample(uv, r))
+    r.as_ref().map(|r| textures[r.texture as usize].sample(uv, r))
 }
 
 impl Material {
@@ -107,11 +106,7 @@ impl Material {
             ggx: Ggx::from_roughness(sanitize(roughness)),
             specular: sanitize(specular),
             f0_dielectric: Bsdf::f0_from_ior(
-                if self.ior.is_finite() {
-                    self.ior.max(1.0)
-                } else {
-                    1.5
-                },
+                if self.ior.is_finite() { self.ior.max(1.0) } else { 1.5 },
                 specular_color.max(Vec3::ZERO),
             ),
         }
@@ -120,11 +115,8 @@ impl Material {
     /// Tangent-space normal from the normal texture (scaled as the glTF spec defines), or None.
     pub fn tangent_space_normal(&self, textures: &[Texture], uv: Vec2) -> Option<Vec3> {
         let t = lookup(textures, &self.normal_texture, uv)?;
-        let n = Vec3::new(
-            (2.0 * t.x - 1.0) * self.normal_scale,
-            (2.0 * t.y - 1.0) * self.normal_scale,
-            2.0 * t.z - 1.0,
-        );
+        let n =
+            Vec3::new((2.0 * t.x - 1.0) * self.normal_scale, (2.0 * t.y - 1.0) * self.normal_scale, 2.0 * t.z - 1.0);
         let n = n.normalize_or_zero();
         (n != Vec3::ZERO).then_some(n)
     }

@@ -42,11 +42,7 @@ impl Frame {
             return Frame::from_normal(n);
         }
         let s = s / len2.sqrt();
-        Frame {
-            s,
-            t: n.cross(s),
-            n,
-        }
+        Frame { s, t: n.cross(s), n }
     }
 
     #[inline]
@@ -69,35 +65,13 @@ pub fn offset_ray_origin(p: Vec3, n: Vec3) -> Vec3 {
     const ORIGIN: f32 = 1.0 / 32.0;
     const FLOAT_SCALE: f32 = 1.0 / 65536.0;
     const INT_SCALE: f32 = 256.0;
-    let of_i = [
-        (INT_SCALE * n.x) as i32,
-        (INT_SCALE * n.y) as i32,
-        (INT_SCALE * n.z) as i32,
-    ];
-    let offset = |p: f32, o: i32| -> f32 {
-        f32::from_bits((p.to_bits() as i32 + if p < 0.0 { -o } else { o }) as u32)
-    };
-    let pi = Vec3::new(
-        offset(p.x, of_i[0]),
-        offset(p.y, of_i[1]),
-        offset(p.z, of_i[2]),
-    );
+    let of_i = [(INT_SCALE * n.x) as i32, (INT_SCALE * n.y) as i32, (INT_SCALE * n.z) as i32];
+    let offset = |p: f32, o: i32| -> f32 { f32::from_bits((p.to_bits() as i32 + if p < 0.0 { -o } else { o }) as u32) };
+    let pi = Vec3::new(offset(p.x, of_i[0]), offset(p.y, of_i[1]), offset(p.z, of_i[2]));
     Vec3::new(
-        if p.x.abs() < ORIGIN {
-            p.x + FLOAT_SCALE * n.x
-        } else {
-            pi.x
-        },
-        if p.y.abs() < ORIGIN {
-            p.y + FLOAT_SCALE * n.y
-        } else {
-            pi.y
-        },
-        if p.z.abs() < ORIGIN {
-            p.z + FLOAT_SCALE * n.z
-        } else {
-            pi.z
-        },
+        if p.x.abs() < ORIGIN { p.x + FLOAT_SCALE * n.x } else { pi.x },
+        if p.y.abs() < ORIGIN { p.y + FLOAT_SCALE * n.y } else { pi.y },
+        if p.z.abs() < ORIGIN { p.z + FLOAT_SCALE * n.z } else { pi.z },
     )
 }
 
@@ -193,9 +167,7 @@ mod tests {
             let f = Frame::from_normal(n);
             assert!((f.s.length() - 1.0).abs() < 1e-5);
             assert!((f.t.length() - 1.0).abs() < 1e-5);
-            assert!(
-                f.s.dot(f.t).abs() < 1e-5 && f.s.dot(n).abs() < 1e-5 && f.t.dot(n).abs() < 1e-5
-            );
+            assert!(f.s.dot(f.t).abs() < 1e-5 && f.s.dot(n).abs() < 1e-5 && f.t.dot(n).abs() < 1e-5);
             let v = Vec3::new(0.2, -0.7, 0.4);
             assert!((f.to_world(f.to_local(v)) - v).length() < 1e-5);
         }

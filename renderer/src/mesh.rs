@@ -45,11 +45,7 @@ impl Mesh {
     #[inline]
     pub fn vertices(&self, tri: u32) -> [Vec3; 3] {
         let t = &self.triangles[tri as usize];
-        [
-            self.positions[t.v[0] as usize],
-            self.positions[t.v[1] as usize],
-            self.positions[t.v[2] as usize],
-        ]
+        [self.positions[t.v[0] as usize], self.positions[t.v[1] as usize], self.positions[t.v[2] as usize]]
     }
 
     pub fn area(&self, tri: u32) -> f32 {
@@ -85,14 +81,7 @@ impl Mesh {
         };
         let tangent = (t.flags & flags::TANGENTS != 0)
             .then(|| self.tangents[i0] * b0 + self.tangents[i1] * b1 + self.tangents[i2] * b2);
-        SurfacePoint {
-            p,
-            ng,
-            ns,
-            tangent,
-            uv,
-            triangle: tri,
-        }
+        SurfacePoint { p, ng, ns, tangent, uv, triangle: tri }
     }
 
     /// Generates per-vertex tangents from UV derivatives for the triangles in `tris` (Lengyel 2001,
@@ -102,16 +91,8 @@ impl Mesh {
         let mut tan = std::collections::HashMap::<u32, (Vec3, Vec3)>::new();
         for t in &self.triangles[tris.clone()] {
             let [i0, i1, i2] = t.v;
-            let (p0, p1, p2) = (
-                self.positions[i0 as usize],
-                self.positions[i1 as usize],
-                self.positions[i2 as usize],
-            );
-            let (w0, w1, w2) = (
-                self.uvs[i0 as usize],
-                self.uvs[i1 as usize],
-                self.uvs[i2 as usize],
-            );
+            let (p0, p1, p2) = (self.positions[i0 as usize], self.positions[i1 as usize], self.positions[i2 as usize]);
+            let (w0, w1, w2) = (self.uvs[i0 as usize], self.uvs[i1 as usize], self.uvs[i2 as usize]);
             let (e1, e2) = (p1 - p0, p2 - p0);
             let (d1, d2) = (w1 - w0, w2 - w0);
             let det = d1.x * d2.y - d2.x * d1.y;

@@ -110,8 +110,7 @@ mod tests {
                 let mu = 1.0 - t * t; // dμ = 2 t dt
                 let sin = (1.0 - mu * mu).max(0.0).sqrt();
                 let h = Vec3::new(sin as f32, 0.0, mu as f32);
-                sum +=
-                    g.d(h) as f64 * mu * 2.0 * t * (1.0 / nt as f64) * 2.0 * std::f64::consts::PI;
+                sum += g.d(h) as f64 * mu * 2.0 * t * (1.0 / nt as f64) * 2.0 * std::f64::consts::PI;
             }
             let _ = np;
             assert!((sum - 1.0).abs() < 0.01, "alpha {alpha}: {sum}");

@@ -44,12 +44,7 @@ fn filter_offset(filter: PixelFilter, u: Vec2) -> Vec2 {
 /// Renders samples `samples` of every pixel in `rect`. The result for a pixel is the in-order f64
 /// sum, starting from zero, of its samples' radiance: independent of threads, tile shapes and of
 /// whatever else is rendered in the same call.
-pub fn render_tile(
-    scene: &Scene,
-    settings: &RenderSettings,
-    rect: Rect,
-    samples: Range<u32>,
-) -> PartialSums {
+pub fn render_tile(scene: &Scene, settings: &RenderSettings, rect: Rect, samples: Range<u32>) -> PartialSums {
     render_tile_counted(scene, settings, rect, samples, &Counters::default())
 }
 
@@ -69,12 +64,7 @@ pub fn render_tile_counted(
         .map(|i| {
             let x = rect.x0 + (i as u32 % rect.width);
             let y = rect.y0 + (i as u32 / rect.width);
-            let mut one = PartialSums::new(Rect {
-                x0: 0,
-                y0: 0,
-                width: 1,
-                height: 1,
-            });
+            let mut one = PartialSums::new(Rect { x0: 0, y0: 0, width: 1, height: 1 });
             let mut rays = 0u64;
             let mut bad = 0u64;
             for s in samples.clone() {
@@ -90,9 +80,7 @@ pub fn render_tile_counted(
                 one.add_sample(0, l);
             }
             counters.rays.fetch_add(rays, Ordering::Relaxed);
-            counters
-                .samples
-                .fetch_add(samples.len() as u64, Ordering::Relaxed);
+            counters.samples.fetch_add(samples.len() as u64, Ordering::Relaxed);
             if bad > 0 {
                 counters.nonfinite.fetch_add(bad, Ordering::Relaxed);
             }
@@ -121,12 +109,7 @@ pub fn render(
     counters: &Counters,
     mut on_pass: impl FnMut(&PartialSums),
 ) -> (PartialSums, u32) {
-    let full = Rect {
-        x0: 0,
-        y0: 0,
-        width: settings.width,
-        height: settings.height,
-    };
+    let full = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
     let mut image = PartialSums::new(full);
     let tiles = Rect::tiles(settings.width, settings.height, LOCAL_TILE);
     let mut done = 0;
@@ -134,15 +117,11 @@ pub fn render(
         if counters.cancel.load(Ordering::Relaxed) {
             break;
         }
-        let sums: Vec<PartialSums> = tiles
-            .par_iter()
-            .map(|t| render_tile_counted(scene, settings, *t, pass.clone(), counters))
-            .collect();
+        let sums: Vec<PartialSums> =
+            tiles.par_iter().map(|t| render_tile_counted(scene, settings, *t, pass.clone(), counters)).collect();
         for s in &sums {
             // Tiles are disjoint, so every pixel receives exactly one addition per pass.
-            image
-                .merge_tile(s)
-                .expect("local tiles lie inside the image");
+            image.merge_tile(s).expect("local tiles lie inside the image");
         }
         done = pass.end;
         on_pass(&image);

@@ -20,9 +20,7 @@ impl std::str::FromStr for SamplerKind {
         match s {
             "sobol" => Ok(SamplerKind::Sobol),
             "independent" => Ok(SamplerKind::Independent),
-            other => Err(format!(
-                "unknown sampler '{other}' (expected sobol or independent)"
-            )),
+            other => Err(format!("unknown sampler '{other}' (expected sobol or independent)")),
         }
     }
 }
@@ -55,13 +53,8 @@ pub struct PixelSample {
 
 impl PixelSample {
     pub fn new(kind: SamplerKind, seed: u64, pixel: (u32, u32), index: u32) -> Self {
-        let pixel_seed =
-            hash_u64(seed ^ hash_u64(((pixel.0 as u64) << 32) | pixel.1 as u64)) as u32;
-        PixelSample {
-            kind,
-            pixel_seed,
-            index,
-        }
+        let pixel_seed = hash_u64(seed ^ hash_u64(((pixel.0 as u64) << 32) | pixel.1 as u64)) as u32;
+        PixelSample { kind, pixel_seed, index }
     }
 
     /// Uniform number in [0, 1) for dimension `dim`.
@@ -72,10 +65,7 @@ impl PixelSample {
                 // sobol_burley supports 2^16 samples per seed: higher blocks get a fresh seed.
                 let block = self.index >> 16;
                 let seed = hash_u32(
-                    self.pixel_seed
-                        ^ hash_u32(
-                            (dim / 4).wrapping_mul(0x9e37_79b9) ^ block.wrapping_mul(0x85eb_ca6b),
-                        ),
+                    self.pixel_seed ^ hash_u32((dim / 4).wrapping_mul(0x9e37_79b9) ^ block.wrapping_mul(0x85eb_ca6b)),
                 );
                 sobol_burley::sample(self.index & 0xffff, dim % 4, seed)
             }

@@ -22,12 +22,7 @@ pub struct Scene {
 impl Scene {
     /// Builds the acceleration structure and light set. Lights are built only from emissive
     /// triangles; a scene without emitters gets an empty set and renders black.
-    pub fn new(
-        mesh: Mesh,
-        materials: Vec<Material>,
-        textures: Vec<Texture>,
-        cameras: Vec<Camera>,
-    ) -> Self {
+    pub fn new(mesh: Mesh, materials: Vec<Material>, textures: Vec<Texture>, cameras: Vec<Camera>) -> Self {
         let mut min = Vec3::splat(f32::INFINITY);
         let mut max = Vec3::splat(f32::NEG_INFINITY);
         for p in &mesh.positions {
@@ -40,20 +35,8 @@ impl Scene {
         }
         let accel = Accel::build(&mesh);
         let lights = LightSet::build(&mesh, &materials, &textures);
-        tracing::debug!(
-            triangles = mesh.triangles.len(),
-            lights = lights.lights.len(),
-            "scene built"
-        );
-        Scene {
-            mesh,
-            materials,
-            textures,
-            cameras,
-            accel,
-            lights,
-            bounds: (min, max),
-        }
+        tracing::debug!(triangles = mesh.triangles.len(), lights = lights.lights.len(), "scene built");
+        Scene { mesh, materials, textures, cameras, accel, lights, bounds: (min, max) }
     }
 
     #[inline]
@@ -71,11 +54,7 @@ impl Scene {
     pub fn camera(&self, index: Option<usize>) -> Result<Camera, (usize, usize)> {
         match index {
             Some(i) => self.cameras.get(i).copied().ok_or((i, self.cameras.len())),
-            None => Ok(self
-                .cameras
-                .first()
-                .copied()
-                .unwrap_or_else(|| Camera::framing(self.bounds.0, self.bounds.1))),
+            None => Ok(self.cameras.first().copied().unwrap_or_else(|| Camera::framing(self.bounds.0, self.bounds.1))),
         }
     }
 }

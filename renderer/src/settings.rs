@@ -22,9 +22,7 @@ impl std::str::FromStr for IntegratorKind {
             "bsdf" => Ok(Self::Bsdf),
             "nee" => Ok(Self::Nee),
             "mis" => Ok(Self::Mis),
-            o => Err(format!(
-                "unknown integrator '{o}' (expected mis, nee or bsdf)"
-            )),
+            o => Err(format!("unknown integrator '{o}' (expected mis, nee or bsdf)")),
         }
     }
 }
@@ -42,9 +40,7 @@ impl std::str::FromStr for MisHeuristic {
         match s {
             "power" => Ok(Self::Power),
             "balance" => Ok(Self::Balance),
-            o => Err(format!(
-                "unknown MIS heuristic '{o}' (expected power or balance)"
-            )),
+            o => Err(format!("unknown MIS heuristic '{o}' (expected power or balance)")),
         }
     }
 }
@@ -120,10 +116,7 @@ impl Default for RenderSettings {
 impl RenderSettings {
     pub fn validate(&self) -> Result<(), String> {
         if self.width == 0 || self.height == 0 {
-            return Err(format!(
-                "resolution {}x{} has a zero side",
-                self.width, self.height
-            ));
+            return Err(format!("resolution {}x{} has a zero side", self.width, self.height));
         }
         if self.width > MAX_IMAGE_SIDE || self.height > MAX_IMAGE_SIDE {
             return Err(format!(
@@ -138,10 +131,7 @@ impl RenderSettings {
             return Err("pass_spp must be at least 1".into());
         }
         if self.max_depth > MAX_DEPTH_LIMIT {
-            return Err(format!(
-                "max depth {} exceeds the limit of {MAX_DEPTH_LIMIT}",
-                self.max_depth
-            ));
+            return Err(format!("max depth {} exceeds the limit of {MAX_DEPTH_LIMIT}", self.max_depth));
         }
         Ok(())
     }

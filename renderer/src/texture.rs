@@ -35,11 +35,7 @@ fn srgb_table() -> &'static [f32; 256] {
         let mut t = [0.0f32; 256];
         for (i, v) in t.iter_mut().enumerate() {
             let c = i as f32 / 255.0;
-            *v = if c <= 0.04045 {
-                c / 12.92
-            } else {
-                ((c + 0.055) / 1.055).powf(2.4)
-            };
+            *v = if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) };
         }
         t
     })
@@ -65,12 +61,7 @@ impl Texture {
         let t = self.texels[(y as usize) * self.width as usize + x as usize];
         if self.srgb {
             let table = srgb_table();
-            Vec4::new(
-                table[t[0] as usize],
-                table[t[1] as usize],
-                table[t[2] as usize],
-                t[3] as f32 / 255.0,
-            )
+            Vec4::new(table[t[0] as usize], table[t[1] as usize], table[t[2] as usize], t[3] as f32 / 255.0)
         } else {
             Vec4::new(t[0] as f32, t[1] as f32, t[2] as f32, t[3] as f32) / 255.0
         }
@@ -94,17 +85,6 @@ impl Texture {
         let bottom = self.texel(xa, yb) * (1.0 - fx) + self.texel(xb, yb) * fx;
         top * (1.0 - fy) + bottom * fy
     }
-
-    /// Mean of the linear texels (used to estimate the power of textured emitters).
-    pub fn mean(&self) -> Vec4 {
-        let mut sum = glam::DVec4::ZERO;
-        for y in 0..self.height {
-            for x in 0..self.width {
-                sum += self.texel(x, y).as_dvec4();
-            }
-        }
-        (sum / (self.width as f64 * self.height as f64).max(1.0)).as_vec4()
-    }
 }
 
 #[cfg(test)]
@@ -115,12 +95,7 @@ mod tests {
         Texture {
             width: 2,
             height: 2,
-            texels: vec![
-                [0, 0, 0, 255],
-                [255, 255, 255, 255],
-                [255, 255, 255, 255],
-                [0, 0, 0, 255],
-            ],
+            texels: vec![[0, 0, 0, 255], [255, 255, 255, 255], [255, 255, 255, 255], [0, 0, 0, 255]],
             srgb: false,
         }
     }
@@ -137,11 +112,7 @@ mod tests {
     #[test]
     fn bilinear_hits_texel_centres_and_blends_between() {
         let t = checker();
-        let r = TextureRef {
-            texture: 0,
-            wrap_s: Wrap::ClampToEdge,
-            wrap_t: Wrap::ClampToEdge,
-        };
+        let r = TextureRef { texture: 0, wrap_s: Wrap::ClampToEdge, wrap_t: Wrap::ClampToEdge };
         assert_eq!(t.sample(Vec2::new(0.25, 0.25), &r).x, 0.0);
         assert_eq!(t.sample(Vec2::new(0.75, 0.25), &r).x, 1.0);
         assert!((t.sample(Vec2::new(0.5, 0.25), &r).x - 0.5).abs() < 1e-6);
@@ -149,17 +120,8 @@ mod tests {
 
     #[test]
     fn srgb_decode() {
-        let t = Texture {
-            width: 1,
-            height: 1,
-            texels: vec![[188, 0, 255, 255]],
-            srgb: true,
-        };
-        let r = TextureRef {
-            texture: 0,
-            wrap_s: Wrap::Repeat,
-            wrap_t: Wrap::Repeat,
-        };
+        let t = Texture { width: 1, height: 1, texels: vec![[188, 0, 255, 255]], srgb: true };
+        let r = TextureRef { texture: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat };
         let v = t.sample(Vec2::splat(0.5), &r);
         assert!((v.x - 0.5029).abs() < 1e-3, "{v:?}");
         assert_eq!(v.y, 0.0);

@@ -1,0 +1,164 @@
+//! Small programmatic scenes for tests, benchmarks and the numerical-extremes suite (furnaces,
+//! spheres, single lights), built directly as meshes so they depend on nothing but this crate.
+
+use crate::camera::Camera;
+use crate::material::Material;
+use crate::math::{Vec2, Vec3, Vec4};
+use crate::mesh::{Mesh, Triangle};
+use crate::scene::Scene;
+
+/// Unit icosphere subdivided `level` times: (positions, outward-wound triangles).
+pub fn icosphere(level: u32) -> (Vec<Vec3>, Vec<[u32; 3]>) {
+    let t = (1.0 + 5f32.sqrt()) / 2.0;
+    let mut v: Vec<Vec3> = [
+        [-1.0, t, 0.0],
+        [1.0, t, 0.0],
+        [-1.0, -t, 0.0],
+        [1.0, -t, 0.0],
+        [0.0, -1.0, t],
+        [0.0, 1.0, t],
+        [0.0, -1.0, -t],
+        [0.0, 1.0, -t],
+        [t, 0.0, -1.0],
+        [t, 0.0, 1.0],
+        [-t, 0.0, -1.0],
+        [-t, 0.0, 1.0],
+    ]
+    .iter()
+    .map(|p| Vec3::from(*p).normalize())
+    .collect();
+    let mut f: Vec<[u32; 3]> = vec![
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ];
+    for _ in 0..level {
+        let mut cache = std::collections::HashMap::new();
+        let mut mid = |a: u32, b: u32, v: &mut Vec<Vec3>| -> u32 {
+            *cache.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                v.push(((v[a as usize] + v[b as usize]) * 0.5).normalize());
+                v.len() as u32 - 1
+            })
+        };
+        let mut nf = Vec::with_capacity(f.len() * 4);
+        for [a, b, c] in f {
+            let ab = mid(a, b, &mut v);
+            let bc = mid(b, c, &mut v);
+            let ca = mid(c, a, &mut v);
+            nf.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
+        }
+        f = nf;
+    }
+    (v, f)
+}
+
+/// Accumulates meshes and materials into a [`Scene`].
+#[derive(Default)]
+pub struct SceneBuilder {
+    pub mesh: Mesh,
+    pub materials: Vec<Material>,
+    pub cameras: Vec<Camera>,
+}
+
+impl SceneBuilder {
+    pub fn material(&mut self, m: Material) -> u32 {
+        self.materials.push(m);
+        self.materials.len() as u32 - 1
+    }
+
+    /// Adds triangles (no vertex normals, no UVs: flat shading).
+    pub fn triangles(&mut self, positions: &[Vec3], tris: &[[u32; 3]], material: u32) {
+        let base = self.mesh.positions.len() as u32;
+        self.mesh.positions.extend_from_slice(positions);
+        self.mesh.normals.extend(std::iter::repeat_n(Vec3::ZERO, positions.len()));
+        self.mesh.tangents.extend(std::iter::repeat_n(Vec4::ZERO, positions.len()));
+        self.mesh.uvs.extend(std::iter::repeat_n(Vec2::ZERO, positions.len()));
+        for t in tris {
+            self.mesh.triangles.push(Triangle { v: [base + t[0], base + t[1], base + t[2]], material, flags: 0 });
+        }
+    }
+
+    /// Sphere of `radius` at `center`; `inward` flips the winding so the front faces the inside.
+    pub fn sphere(&mut self, center: Vec3, radius: f32, level: u32, inward: bool, material: u32) {
+        let (v, f) = icosphere(level);
+        let p: Vec<Vec3> = v.iter().map(|p| center + *p * radius).collect();
+        let f: Vec<[u32; 3]> = if inward { f.iter().map(|t| [t[0], t[2], t[1]]).collect() } else { f };
+        self.triangles(&p, &f, material);
+    }
+
+    /// Quad centred at `c` spanning ±u, ±v, front face along u × v.
+    pub fn quad(&mut self, c: Vec3, u: Vec3, v: Vec3, material: u32) {
+        let p = [c - u - v, c + u - v, c + u + v, c - u + v];
+        self.triangles(&p, &[[0, 1, 2], [0, 2, 3]], material);
+    }
+
+    pub fn look_at(&mut self, eye: Vec3, target: Vec3, yfov_deg: f32) {
+        let forward = (target - eye).normalize();
+        let right = forward.cross(if forward.cross(Vec3::Y).length() < 1e-4 { Vec3::Z } else { Vec3::Y }).normalize();
+        let up = right.cross(forward);
+        self.cameras.push(Camera { origin: eye, right, up, forward, yfov: yfov_deg.to_radians(), aspect_ratio: None });
+    }
+
+    pub fn build(self) -> Scene {
+        Scene::new(self.mesh, self.materials, Vec::new(), self.cameras)
+    }
+}
+
+/// A Lambert material (KHR_materials_specular specularFactor 0).
+pub fn lambert(albedo: Vec3) -> Material {
+    Material {
+        name: "lambert".into(),
+        base_color: albedo.extend(1.0),
+        metallic: 0.0,
+        roughness: 1.0,
+        specular: 0.0,
+        ..Material::default()
+    }
+}
+
+/// A metal with base color `color` and `roughness`.
+pub fn metal(color: Vec3, roughness: f32) -> Material {
+    Material { name: "metal".into(), base_color: color.extend(1.0), metallic: 1.0, roughness, ..Material::default() }
+}
+
+/// A black, double-sided emitter of radiance `le`.
+pub fn emitter(le: Vec3) -> Material {
+    Material {
+        name: "emitter".into(),
+        base_color: Vec4::new(0.0, 0.0, 0.0, 1.0),
+        metallic: 0.0,
+        specular: 0.0,
+        emissive: le,
+        double_sided: true,
+        ..Material::default()
+    }
+}
+
+/// White furnace: a sphere of `inner` material at the origin (radius 1) inside a closed, uniform,
+/// double-sided emitter of radiance 1 (radius 10), camera looking at the sphere.
+pub fn furnace(inner: Material) -> Scene {
+    let mut b = SceneBuilder::default();
+    let m = b.material(inner);
+    let e = b.material(emitter(Vec3::ONE));
+    b.sphere(Vec3::ZERO, 1.0, 3, false, m);
+    b.sphere(Vec3::ZERO, 10.0, 2, true, e);
+    b.look_at(Vec3::new(0.0, 0.0, 4.0), Vec3::ZERO, 35.0);
+    b.build()
+}

@@ -1,0 +1,81 @@
+//! Furnace tests: inside a closed uniform emitter of radiance 1, a white Lambert sphere must render
+//! exactly 1 everywhere (energy conservation with no loss), and GGX metals never more than 1.
+
+use renderer::film::Rect;
+use renderer::math::Vec3;
+use renderer::testing::{furnace, lambert, metal};
+use renderer::{render_tile, IntegratorKind, RenderSettings};
+
+fn settings(integrator: IntegratorKind, spp: u32) -> RenderSettings {
+    RenderSettings {
+        width: 24,
+        height: 24,
+        spp,
+        integrator,
+        max_depth: 1000,
+        rr_depth: 1000,
+        ..RenderSettings::default()
+    }
+}
+
+#[test]
+fn white_lambert_sphere_vanishes_in_the_furnace() {
+    let scene = furnace(lambert(Vec3::ONE));
+    for integrator in [IntegratorKind::Bsdf, IntegratorKind::Nee, IntegratorKind::Mis] {
+        let s = settings(integrator, 32);
+        let sums = render_tile(&scene, &s, Rect { x0: 0, y0: 0, width: 24, height: 24 }, 0..s.spp);
+        let mut worst_z = 0.0f32;
+        for i in 0..sums.rect.pixels() {
+            let m = sums.mean(i);
+            if integrator == IntegratorKind::Bsdf {
+                // With BSDF sampling every path carries exactly 1 (albedo 1, unbounded depth, no
+                // roulette), up to f32 rounding along the path.
+                assert!(m.iter().all(|c| (c - 1.0).abs() < 1e-3), "{integrator:?} pixel {i}: {m:?}");
+            } else {
+                // NEE estimates are random per path; the mean must be 1 within noise.
+                let sd = sums.variance_of_mean(i).sqrt();
+                worst_z = worst_z.max((m[0] - 1.0).abs() / sd.max(1e-6));
+            }
+        }
+        assert!(worst_z < 5.0, "{integrator:?}: worst z {worst_z}");
+    }
+}
+
+#[test]
+fn grey_lambert_sphere_reflects_its_albedo() {
+    // A convex sphere of albedo a sees only the emitter, so it reflects exactly a.
+    let scene = furnace(lambert(Vec3::splat(0.5)));
+    let s = settings(IntegratorKind::Mis, 64);
+    let sums = render_tile(&scene, &s, Rect { x0: 8, y0: 8, width: 8, height: 8 }, 0..s.spp);
+    for i in 0..sums.rect.pixels() {
+        let m = sums.mean(i)[0];
+        let sd = sums.variance_of_mean(i).sqrt();
+        assert!((m - 0.5).abs() < 5.0 * sd + 1e-4, "pixel {i}: {m} ± {sd}");
+    }
+}
+
+#[test]
+fn ggx_metals_never_gain_energy() {
+    let mut previous_mean = f32::INFINITY;
+    for roughness in [0.0f32, 0.05, 0.3, 0.6, 1.0] {
+        let scene = furnace(metal(Vec3::ONE, roughness));
+        let s = settings(IntegratorKind::Mis, 64);
+        let sums = render_tile(&scene, &s, Rect { x0: 0, y0: 0, width: 24, height: 24 }, 0..s.spp);
+        let mut min = f32::INFINITY;
+        for i in 0..sums.rect.pixels() {
+            let m = sums.mean(i)[0];
+            let sd = sums.variance_of_mean(i).sqrt();
+            assert!(m.is_finite());
+            assert!(m <= 1.0 + 4.0 * sd + 1e-4, "roughness {roughness}, pixel {i}: {m} ± {sd}");
+            min = min.min(m);
+        }
+        if roughness == 0.0 {
+            // A perfect white mirror loses nothing.
+            assert!(min > 0.999, "mirror furnace min {min}");
+        }
+        // Single-scattering GGX loses more energy the rougher it is.
+        let mean: f32 = (0..sums.rect.pixels()).map(|i| sums.mean(i)[0]).sum::<f32>() / sums.rect.pixels() as f32;
+        assert!(mean <= previous_mean + 1e-3, "roughness {roughness}: mean {mean} above the smoother {previous_mean}");
+        previous_mean = mean;
+    }
+}

@@ -1,0 +1,127 @@
+//! Chi-square goodness-of-fit of every sampling routine against its pdf (pbrt-v4 / Mitsuba style):
+//! ≥ 10⁶ samples binned in (θ, φ), expected counts from the pdf integrated over each cell, low cells
+//! pooled, family-wise α = 0.01 with a Šidák correction over every configuration in this file.
+
+use renderer::bsdf::Bsdf;
+use renderer::math::{cosine_hemisphere_pdf, sample_cosine_hemisphere, Vec3};
+use renderer::microfacet::Ggx;
+use renderer::sampler::{PixelSample, SamplerKind};
+use renderer::stats::{chi2_directions, sidak, ChiSquare};
+use renderer::testing::{emitter, SceneBuilder};
+
+const N: usize = 1_000_000;
+
+fn rng(i: usize, seed: u64) -> PixelSample {
+    PixelSample::new(SamplerKind::Independent, seed, (7, 11), i as u32)
+}
+
+fn bsdf(metallic: f32, roughness: f32, specular: f32) -> Bsdf {
+    Bsdf {
+        base_color: Vec3::new(0.7, 0.5, 0.3),
+        metallic,
+        ggx: Ggx::from_roughness(roughness),
+        specular,
+        f0_dielectric: Bsdf::f0_from_ior(1.5, Vec3::ONE),
+    }
+}
+
+fn bsdf_case(b: Bsdf, cos_theta_o: f32, seed: u64) -> ChiSquare {
+    let sin = (1.0 - cos_theta_o * cos_theta_o).sqrt();
+    let wo = Vec3::new(sin * 0.8, sin * 0.6, cos_theta_o);
+    chi2_directions(
+        N,
+        20,
+        40,
+        // Near grazing the lobe hugs the horizon: integrate the pdf on a finer grid there.
+        if cos_theta_o < 0.1 { 96 } else { 24 },
+        |i| {
+            let s = rng(i, seed);
+            b.sample(wo, s.get_1d(0), s.get_2d(2)).filter(|x| !x.delta).map(|x| x.wi)
+        },
+        |wi| b.pdf(wo, wi) as f64,
+    )
+}
+
+#[test]
+fn every_sampler_matches_its_pdf() {
+    let mut results: Vec<(String, ChiSquare)> = Vec::new();
+
+    results.push((
+        "cosine hemisphere".into(),
+        chi2_directions(
+            N,
+            20,
+            40,
+            8,
+            |i| Some(sample_cosine_hemisphere(rng(i, 1).get_2d(0))),
+            |w| cosine_hemisphere_pdf(w.z) as f64,
+        ),
+    ));
+
+    // GGX visible normals through the metal BSDF, several roughnesses and incident angles down to grazing.
+    for (k, &r) in [0.2f32, 0.5, 0.8, 1.0].iter().enumerate() {
+        for (j, &c) in [1.0f32, 0.7, 0.2, 0.02].iter().enumerate() {
+            results.push((
+                format!("GGX metal roughness {r} cosθo {c}"),
+                bsdf_case(bsdf(1.0, r, 1.0), c, 100 + (k * 10 + j) as u64),
+            ));
+        }
+    }
+    // The full glTF mixture (diffuse + dielectric specular) and pure Lambert.
+    for (k, &r) in [0.3f32, 0.7].iter().enumerate() {
+        for (j, &c) in [0.9f32, 0.3].iter().enumerate() {
+            results.push((
+                format!("glTF dielectric roughness {r} cosθo {c}"),
+                bsdf_case(bsdf(0.0, r, 1.0), c, 200 + (k * 10 + j) as u64),
+            ));
+        }
+    }
+    results.push(("Lambert via Bsdf".into(), bsdf_case(bsdf(0.0, 1.0, 0.0), 0.5, 300)));
+
+    // Area-light sampling from a point: two triangles of different size, emission and orientation.
+    let mut b = SceneBuilder::default();
+    let bright = b.material(emitter(Vec3::splat(5.0)));
+    let dim = b.material(emitter(Vec3::splat(1.0)));
+    b.triangles(
+        &[Vec3::new(-1.0, 1.0, -1.0), Vec3::new(1.0, 1.0, -1.0), Vec3::new(0.0, 1.0, 1.0)],
+        &[[0, 1, 2]],
+        bright,
+    );
+    b.triangles(&[Vec3::new(1.5, -0.5, -0.5), Vec3::new(1.5, 0.5, -0.5), Vec3::new(1.5, 0.0, 1.5)], &[[0, 2, 1]], dim);
+    let scene = b.build();
+    let reference = Vec3::new(0.1, -0.2, 0.05);
+    let light_chi2 = chi2_directions(
+        N,
+        40,
+        80,
+        16,
+        |i| {
+            let s = rng(i, 400);
+            scene
+                .lights
+                .sample(&scene.mesh, &scene.materials, &scene.textures, reference, s.get_1d(0), s.get_2d(2))
+                .map(|ls| ls.wi)
+        },
+        |w| match scene.intersect(reference, w, f32::INFINITY) {
+            Some(h) => {
+                let sp = scene.mesh.surface_point(h.triangle, h.b1, h.b2);
+                scene.lights.pdf(h.triangle, reference, sp.p, sp.ng) as f64
+            }
+            None => 0.0,
+        },
+    );
+    results.push(("area lights from a point".into(), light_chi2));
+
+    let alpha = sidak(0.01, results.len());
+    let mut failures = Vec::new();
+    for (name, r) in &results {
+        println!(
+            "{name}: χ² = {:.1}, dof {}, p = {:.3e} (pooled {} cells)",
+            r.statistic, r.dof, r.p_value, r.pooled_cells
+        );
+        if !(r.p_value > alpha) {
+            failures.push(format!("{name}: p = {:.3e} < {alpha:.3e}", r.p_value));
+        }
+    }
+    assert!(failures.is_empty(), "chi-square rejections:\n{}", failures.join("\n"));
+}

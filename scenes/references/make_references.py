@@ -1,0 +1,184 @@
+#!/usr/bin/env python3
+"""Renders reference images of Tessera's test scenes with Mitsuba 3 (an independent renderer).
+
+    pip install mitsuba numpy
+    python3 scenes/references/make_references.py [--spp 4096] [--passes 16] [scene ...]
+
+For each scene (default: cornell, veach) it reads the glTF itself (the subset our scenes use: node
+matrices/TRS, triangle meshes, Lambert = KHR_materials_specular specularFactor 0, white metal =
+metallic 1 + baseColor 1, emissive + KHR_materials_emissive_strength, perspective camera) and builds
+the equivalent Mitsuba scene, following ../shared/guide: `path` integrator, `hdrfilm` with a box
+filter, `perspective` with fov_axis y, Lambert = `diffuse`, white metal = `roughconductor`
+(material none, GGX, alpha = roughness²), one-sided `area` emitters, `face_normals`.
+
+It renders `--passes` independent passes (different seeds) and writes
+`scenes/references/<scene>.exr` with channels R, G, B (the mean) and `variance` (the variance of the
+mean *luminance*, estimated from the spread between passes), the same layout as `tessera render`.
+The resolution and depth are those the reference tests use (see `SCENES` below).
+"""
+import argparse
+import base64
+import json
+import math
+import os
+import struct
+import sys
+import tempfile
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+
+# scene name -> (gltf path, width, height). Tessera's max_depth 64 = Mitsuba's max_depth 65.
+SCENES = {
+    "cornell": ("cornell/cornell.gltf", 128, 128),
+    "veach": ("veach/veach.gltf", 128, 96),
+}
+TESSERA_MAX_DEPTH = 64
+
+
+def mat_from_trs(node):
+    if "matrix" in node:
+        return np.array(node["matrix"], dtype=np.float64).reshape(4, 4).T  # column-major
+    t = node.get("translation", [0, 0, 0])
+    x, y, z, w = node.get("rotation", [0, 0, 0, 1])
+    s = node.get("scale", [1, 1, 1])
+    r = np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+    m = np.eye(4)
+    m[:3, :3] = r @ np.diag(s)
+    m[:3, 3] = t
+    return m
+
+
+def load_buffers(doc, base):
+    out = []
+    for b in doc["buffers"]:
+        uri = b["uri"]
+        if uri.startswith("data:"):
+            out.append(base64.b64decode(uri.split(",", 1)[1]))
+        else:
+            with open(os.path.join(base, uri), "rb") as f:
+                out.append(f.read())
+    return out
+
+
+def read_accessor(doc, buffers, idx):
+    a = doc["accessors"][idx]
+    v = doc["bufferViews"][a["bufferView"]]
+    ncomp = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}[a["type"]]
+    dtype = {5126: np.float32, 5125: np.uint32, 5123: np.uint16, 5121: np.uint8}[a["componentType"]]
+    start = v.get("byteOffset", 0) + a.get("byteOffset", 0)
+    size = np.dtype(dtype).itemsize * ncomp
+    stride = v.get("byteStride", size)
+    raw = buffers[v["buffer"]]
+    rows = [np.frombuffer(raw, dtype=dtype, count=ncomp, offset=start + i * stride) for i in range(a["count"])]
+    return np.array(rows).reshape(a["count"], ncomp)
+
+
+def write_ply(path, pos, faces):
+    with open(path, "wb") as f:
+        f.write(("ply\nformat binary_little_endian 1.0\nelement vertex %d\nproperty float x\nproperty float y\n"
+                 "property float z\nelement face %d\nproperty list uchar int vertex_indices\nend_header\n" % (len(pos), len(faces))).encode())
+        f.write(np.asarray(pos, dtype="<f4").tobytes())
+        for t in faces:
+            f.write(struct.pack("<B3i", 3, *[int(i) for i in t]))
+
+
+def material_dict(m):
+    ext = m.get("extensions", {})
+    pbr = m.get("pbrMetallicRoughness", {})
+    base = pbr.get("baseColorFactor", [1, 1, 1, 1])[:3]
+    metallic = pbr.get("metallicFactor", 1.0)
+    rough = pbr.get("roughnessFactor", 1.0)
+    spec = ext.get("KHR_materials_specular", {}).get("specularFactor", 1.0)
+    if metallic == 0.0 and spec == 0.0:
+        return {"type": "diffuse", "reflectance": {"type": "rgb", "value": base}}
+    if metallic == 1.0 and base == [1, 1, 1]:
+        alpha = rough * rough
+        if alpha < 1e-3:  # Tessera's delta threshold (microfacet.rs)
+            return {"type": "conductor", "material": "none"}
+        return {"type": "roughconductor", "material": "none", "distribution": "ggx", "alpha": alpha, "sample_visible": True}
+    sys.exit(f"material {m.get('name')}: not in the subset this script maps to Mitsuba")
+
+
+def build_scene(gltf_path, width, height, spp, tmp):
+    with open(gltf_path) as f:
+        doc = json.load(f)
+    buffers = load_buffers(doc, os.path.dirname(gltf_path))
+    scene = {"type": "scene",
+             "integrator": {"type": "path", "max_depth": TESSERA_MAX_DEPTH + 1, "rr_depth": 5, "hide_emitters": False}}
+    stack = [(n, np.eye(4)) for n in doc["scenes"][doc.get("scene", 0)]["nodes"]]
+    k = 0
+    while stack:
+        ni, parent = stack.pop()
+        node = doc["nodes"][ni]
+        world = parent @ mat_from_trs(node)
+        if "camera" in node:
+            cam = doc["cameras"][node["camera"]]["perspective"]
+            # glTF camera: right, up, looks down -Z. Mitsuba camera: x = left, y = up, looks down +Z.
+            to_world = world @ np.diag([-1.0, 1.0, -1.0, 1.0])
+            scene["sensor"] = {"type": "perspective", "fov": math.degrees(cam["yfov"]), "fov_axis": "y",
+                               "to_world": __import__("mitsuba").ScalarTransform4f(to_world.tolist()),
+                               "film": {"type": "hdrfilm", "width": width, "height": height, "rfilter": {"type": "box"},
+                                        "pixel_format": "rgb"},
+                               "sampler": {"type": "independent", "sample_count": spp}}
+        if "mesh" in node:
+            for prim in doc["meshes"][node["mesh"]]["primitives"]:
+                pos = read_accessor(doc, buffers, prim["attributes"]["POSITION"]).astype(np.float64)
+                pos = (world @ np.c_[pos, np.ones(len(pos))].T).T[:, :3]
+                idx = read_accessor(doc, buffers, prim["indices"]).reshape(-1, 3) if "indices" in prim else np.arange(len(pos)).reshape(-1, 3)
+                if np.linalg.det(world[:3, :3]) < 0:
+                    idx = idx[:, [0, 2, 1]]
+                path = os.path.join(tmp, f"m{k}.ply")
+                write_ply(path, pos, idx)
+                m = doc["materials"][prim["material"]]
+                shape = {"type": "ply", "filename": path, "face_normals": True, "bsdf": material_dict(m)}
+                em = m.get("emissiveFactor", [0, 0, 0])
+                strength = m.get("extensions", {}).get("KHR_materials_emissive_strength", {}).get("emissiveStrength", 1.0)
+                if max(em) > 0:
+                    shape["emitter"] = {"type": "area", "radiance": {"type": "rgb", "value": [e * strength for e in em]}}
+                    shape["bsdf"] = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0, 0, 0]}} if material_dict(m)["type"] == "diffuse" else shape["bsdf"]
+                scene[f"shape{k}"] = shape
+                k += 1
+        for c in node.get("children", []):
+            stack.append((c, world))
+    return scene
+
+
+def main():
+    import mitsuba as mi
+    mi.set_variant("scalar_rgb")
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--spp", type=int, default=4096, help="samples per pixel in total")
+    ap.add_argument("--passes", type=int, default=16)
+    ap.add_argument("scenes", nargs="*", default=list(SCENES))
+    args = ap.parse_args()
+    import time
+    for name in args.scenes:
+        rel, w, h = SCENES[name]
+        per = args.spp // args.passes
+        with tempfile.TemporaryDirectory() as tmp:
+            scene = mi.load_dict(build_scene(os.path.join(ROOT, rel), w, h, per, tmp))
+            imgs = []
+            t0 = time.time()
+            for p in range(args.passes):
+                imgs.append(np.array(mi.render(scene, seed=p, spp=per), dtype=np.float64)[:, :, :3])
+                print(f"{name}: pass {p + 1}/{args.passes} ({time.time() - t0:.0f}s)", flush=True)
+        stack = np.stack(imgs)  # passes × h × w × 3
+        mean = stack.mean(axis=0)
+        lum = stack @ np.array([0.2126, 0.7152, 0.0722])
+        var_mean = lum.var(axis=0, ddof=1) / args.passes
+        out = os.path.join(HERE, f"{name}.exr")
+        bmp = mi.Bitmap(np.dstack([mean, var_mean]).astype(np.float32), pixel_format=mi.Bitmap.PixelFormat.MultiChannel,
+                        channel_names=["R", "G", "B", "variance"])
+        bmp.write(out)
+        print(f"{name}: wrote {out} ({args.spp} spp, {time.time() - t0:.0f}s, mitsuba {mi.__version__} scalar_rgb)")
+
+
+if __name__ == "__main__":
+    main()

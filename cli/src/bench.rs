@@ -19,6 +19,9 @@ pub struct BenchArgs {
     pub flags: RenderFlags,
     #[arg(long)]
     pub threads: Option<usize>,
+    /// Ray-query structure: obvhs (CWBVH, default) or own (binned-SAH BVH2, for comparison).
+    #[arg(long, default_value = "obvhs")]
+    pub accel: renderer::accel::AccelKind,
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -36,18 +39,23 @@ fn median(mut v: Vec<f64>) -> f64 {
 
 pub fn run(args: BenchArgs) -> Result<()> {
     init_threads(args.threads)?;
-    let scene = load_scene(args.scene.as_deref())?;
+    let mut scene = load_scene(args.scene.as_deref())?;
+    let t = Instant::now();
+    scene.use_accel(args.accel);
+    let build = t.elapsed().as_secs_f64();
     let settings = args.flags.settings(&scene)?;
     let paths = settings.width as f64 * settings.height as f64 * settings.spp as f64;
     println!(
-        "scene {} | {}x{} {} spp | integrator {:?} sampler {:?} | {} threads",
+        "scene {} | {}x{} {} spp | integrator {:?} sampler {:?} | {} threads | accel {:?} built in {:.3}s",
         args.scene.as_ref().map_or("built-in cornell".to_string(), |p| p.display().to_string()),
         settings.width,
         settings.height,
         settings.spp,
         settings.integrator,
         settings.sampler,
-        rayon::current_num_threads()
+        rayon::current_num_threads(),
+        args.accel,
+        build
     );
     let (mut times, mut path_rates, mut ray_rates) = (Vec::new(), Vec::new(), Vec::new());
     for run in 0..=args.runs {

@@ -55,14 +55,42 @@ pub struct Hit {
     pub b2: f32,
 }
 
+/// Which BVH answers ray queries. Both give the same hits; `Own` is kept to measure `Obvhs` against.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum AccelKind {
+    #[default]
+    Obvhs,
+    Own,
+}
+
+impl std::str::FromStr for AccelKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "obvhs" => Ok(Self::Obvhs),
+            "own" => Ok(Self::Own),
+            o => Err(format!("unknown accelerator '{o}' (expected obvhs or own)")),
+        }
+    }
+}
+
 pub struct Accel {
     bvh: CwBvh,
     /// Triangles in `bvh.primitive_indices` order, so a leaf's primitives are contiguous in memory.
     tris: Vec<RtTriangle>,
+    own: Option<crate::bvh::Bvh>,
 }
 
 impl Accel {
     pub fn build(mesh: &Mesh) -> Self {
+        Self::build_with(mesh, AccelKind::Obvhs)
+    }
+
+    pub fn build_with(mesh: &Mesh, kind: AccelKind) -> Self {
+        if kind == AccelKind::Own {
+            let tris = (0..mesh.triangles.len() as u32).map(|i| RtTriangle::new(mesh.vertices(i), i)).collect();
+            return Accel { bvh: CwBvh::default(), tris: Vec::new(), own: Some(crate::bvh::Bvh::build(tris)) };
+        }
         let prims: Vec<obvhs::triangle::Triangle> = (0..mesh.triangles.len() as u32)
             .map(|i| {
                 let [a, b, c] = mesh.vertices(i);
@@ -70,7 +98,7 @@ impl Accel {
             })
             .collect();
         if prims.is_empty() {
-            return Accel { bvh: CwBvh::default(), tris: Vec::new() };
+            return Accel { bvh: CwBvh::default(), tris: Vec::new(), own: None };
         }
         let bvh = obvhs::cwbvh::builder::build_cwbvh_from_tris(
             &prims,
@@ -78,11 +106,14 @@ impl Accel {
             &mut std::time::Duration::default(),
         );
         let tris = bvh.primitive_indices.iter().map(|&i| RtTriangle::new(mesh.vertices(i), i)).collect();
-        Accel { bvh, tris }
+        Accel { bvh, tris, own: None }
     }
 
     /// Closest hit along `o + t d`, `0 < t < tmax`.
     pub fn intersect(&self, o: Vec3, d: Vec3, tmax: f32) -> Option<Hit> {
+        if let Some(own) = &self.own {
+            return own.intersect(o, d, tmax, false).map(|(t, i, b1, b2)| Hit { t, triangle: own.tris[i].id, b1, b2 });
+        }
         if self.tris.is_empty() {
             return None;
         }
@@ -105,6 +136,9 @@ impl Accel {
 
     /// True when anything lies on `o + t d` for `0 < t < tmax`.
     pub fn occluded(&self, o: Vec3, d: Vec3, tmax: f32) -> bool {
+        if let Some(own) = &self.own {
+            return own.intersect(o, d, tmax, true).is_some();
+        }
         if self.tris.is_empty() {
             return false;
         }

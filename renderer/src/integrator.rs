@@ -6,7 +6,7 @@
 //! reaches `rr_depth` and is based on the path throughput.
 
 use crate::light::emitted;
-use crate::math::{balance_heuristic, offset_ray_origin, power_heuristic, Frame, Vec3};
+use crate::math::{balance_heuristic, offset_ray_origin, power_heuristic, Frame, Vec2, Vec3};
 use crate::sampler::{dims, PixelSample};
 use crate::scene::Scene;
 use crate::settings::{IntegratorKind, MisHeuristic, RenderSettings};
@@ -45,7 +45,7 @@ pub fn radiance(
         let material = &materials[mesh.triangles[hit.triangle as usize].material as usize];
 
         if material.is_emissive() {
-            let le = emitted(mesh, materials, textures, hit.triangle, hit.b1, hit.b2, -d);
+            let le = emitted(material, textures, sp.ng, sp.uv, -d);
             if le != Vec3::ZERO {
                 match (settings.integrator, prev) {
                     (_, None) | (IntegratorKind::Bsdf, _) => l += beta * le,
@@ -104,12 +104,15 @@ pub fn radiance(
         }
         let bsdf = material.bsdf(textures, sp.uv);
         let base = dims::BOUNCE_BASE + dims::BOUNCE_STRIDE * depth;
+        // The two 4D sets of this bounce, each evaluated once.
+        let u_bsdf = sampler.get_4d((base + dims::BSDF_DIR) / 4);
         let origin = offset_ray_origin(sp.p, ng);
 
         // Next-event estimation.
         if settings.integrator != IntegratorKind::Bsdf && !scene.lights.is_empty() && !bsdf.is_delta_only() {
-            let u_sel = sampler.get_1d(base + dims::LIGHT_SELECT);
-            let u = sampler.get_2d(base + dims::LIGHT_POS);
+            let u_light = sampler.get_4d((base + dims::LIGHT_POS) / 4);
+            let u_sel = u_light[(dims::LIGHT_SELECT % 4) as usize];
+            let u = Vec2::new(u_light[(dims::LIGHT_POS % 4) as usize], u_light[(dims::LIGHT_POS % 4 + 1) as usize]);
             if let Some(ls) = scene.lights.sample(mesh, materials, textures, sp.p, u_sel, u) {
                 let wi = frame.to_local(ls.wi);
                 if ls.le != Vec3::ZERO && wi.z > 0.0 && ls.wi.dot(ng) > 0.0 {
@@ -132,10 +135,8 @@ pub fn radiance(
         }
 
         // BSDF sampling for the next segment.
-        let Some(bs) = bsdf.sample(wo, sampler.get_1d(base + dims::BSDF_LOBE), sampler.get_2d(base + dims::BSDF_DIR))
-        else {
-            break;
-        };
+        let u_dir = Vec2::new(u_bsdf[(dims::BSDF_DIR % 4) as usize], u_bsdf[(dims::BSDF_DIR % 4 + 1) as usize]);
+        let Some(bs) = bsdf.sample(wo, u_bsdf[(dims::BSDF_LOBE % 4) as usize], u_dir) else { break };
         let wi_world = frame.to_world(bs.wi);
         if wi_world.dot(ng) <= 0.0 {
             // A shading normal can send a reflected direction under the true surface; that energy is lost.
@@ -154,7 +155,7 @@ pub fn radiance(
             let m = beta.max_element();
             if m < 1.0 {
                 let q = (1.0 - m).max(0.0);
-                if sampler.get_1d(base + dims::RUSSIAN_ROULETTE) < q {
+                if u_bsdf[(dims::RUSSIAN_ROULETTE % 4) as usize] < q {
                     break;
                 }
                 beta /= 1.0 - q;

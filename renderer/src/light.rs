@@ -38,20 +38,14 @@ pub struct LightSet {
     triangle_light: Vec<u32>,
 }
 
-/// Radiance leaving an emissive triangle towards direction `w` (pointing away from the surface).
-/// Emission is one-sided along the winding normal unless the material is double-sided.
+/// Radiance leaving an emissive surface point towards direction `w` (pointing away from the
+/// surface). Emission is one-sided along the winding normal `ng` unless the material is double-sided.
 #[inline]
-pub fn emitted(mesh: &Mesh, materials: &[Material], textures: &[Texture], tri: u32, b1: f32, b2: f32, w: Vec3) -> Vec3 {
-    let t = &mesh.triangles[tri as usize];
-    let m = &materials[t.material as usize];
-    if !m.is_emissive() {
+pub fn emitted(m: &Material, textures: &[Texture], ng: Vec3, uv: Vec2, w: Vec3) -> Vec3 {
+    if !m.is_emissive() || (!m.double_sided && ng.dot(w) <= 0.0) {
         return Vec3::ZERO;
     }
-    let sp = mesh.surface_point(tri, b1, b2);
-    if !m.double_sided && sp.ng.dot(w) <= 0.0 {
-        return Vec3::ZERO;
-    }
-    m.emission(textures, sp.uv)
+    m.emission(textures, uv)
 }
 
 /// Average emitted radiance over a triangle, estimated from the texture at seven interior points
@@ -115,25 +109,26 @@ impl LightSet {
         let (idx, pmf) = self.selection.sample(u_select);
         let light = &self.lights[idx];
         let b = sample_uniform_triangle(u);
-        let sp = mesh.surface_point(light.triangle, b.y, b.z);
-        let to = sp.p - reference;
+        let (p, ng, uv) = mesh.position_normal_uv(light.triangle, b.y, b.z);
+        let to = p - reference;
         let dist2 = to.length_squared();
         if !(dist2 > 0.0) || !dist2.is_finite() {
             return None;
         }
         let dist = dist2.sqrt();
         let wi = to / dist;
-        let cos_l = sp.ng.dot(-wi);
+        let cos_l = ng.dot(-wi);
         if cos_l == 0.0 {
             return None;
         }
-        let le = emitted(mesh, materials, textures, light.triangle, b.y, b.z, -wi);
+        let m = &materials[mesh.triangles[light.triangle as usize].material as usize];
+        let le = emitted(m, textures, ng, uv, -wi);
         let pdf = pmf * dist2 / (cos_l.abs() * light.area);
         if !(pdf > 0.0) || !pdf.is_finite() {
             return None;
         }
-        let n = if cos_l > 0.0 { sp.ng } else { -sp.ng };
-        Some(LightSample { p: sp.p, n, wi, dist, le, pdf })
+        let n = if cos_l > 0.0 { ng } else { -ng };
+        Some(LightSample { p, n, wi, dist, le, pdf })
     }
 
     /// Solid-angle pdf with which `sample()` from `reference` would have produced the point `p` on

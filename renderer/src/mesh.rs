@@ -53,6 +53,22 @@ impl Mesh {
         0.5 * (b - a).cross(c - a).length()
     }
 
+    /// Position, geometric normal and UV at barycentrics (b1, b2): what light sampling needs.
+    #[inline]
+    pub fn position_normal_uv(&self, tri: u32, b1: f32, b2: f32) -> (Vec3, Vec3, Vec2) {
+        let t = &self.triangles[tri as usize];
+        let b0 = 1.0 - b1 - b2;
+        let [i0, i1, i2] = [t.v[0] as usize, t.v[1] as usize, t.v[2] as usize];
+        let (p0, p1, p2) = (self.positions[i0], self.positions[i1], self.positions[i2]);
+        let ng = (p1 - p0).cross(p2 - p0).normalize_or_zero();
+        let uv = if t.flags & flags::UVS != 0 {
+            self.uvs[i0] * b0 + self.uvs[i1] * b1 + self.uvs[i2] * b2
+        } else {
+            Vec2::ZERO
+        };
+        (p0 * b0 + p1 * b1 + p2 * b2, if ng == Vec3::ZERO { Vec3::Z } else { ng }, uv)
+    }
+
     /// Surface point at barycentrics (b1, b2) of `tri` (b0 = 1 − b1 − b2).
     pub fn surface_point(&self, tri: u32, b1: f32, b2: f32) -> SurfacePoint {
         let t = &self.triangles[tri as usize];

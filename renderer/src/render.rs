@@ -64,7 +64,7 @@ pub fn render_tile_counted(
         .map(|i| {
             let x = rect.x0 + (i as u32 % rect.width);
             let y = rect.y0 + (i as u32 / rect.width);
-            let mut one = PartialSums::new(Rect { x0: 0, y0: 0, width: 1, height: 1 });
+            let (mut rgb, mut lum_sq) = ([0.0f64; 3], 0.0f64);
             let mut rays = 0u64;
             let mut bad = 0u64;
             for s in samples.clone() {
@@ -77,14 +77,19 @@ pub fn render_tile_counted(
                     bad += 1;
                     l = crate::math::Vec3::ZERO;
                 }
-                one.add_sample(0, l);
+                // Same arithmetic as PartialSums::add_sample, in sample order (determinism rule 2).
+                rgb[0] += l.x as f64;
+                rgb[1] += l.y as f64;
+                rgb[2] += l.z as f64;
+                let y = crate::math::luminance(l) as f64;
+                lum_sq += y * y;
             }
             counters.rays.fetch_add(rays, Ordering::Relaxed);
             counters.samples.fetch_add(samples.len() as u64, Ordering::Relaxed);
             if bad > 0 {
                 counters.nonfinite.fetch_add(bad, Ordering::Relaxed);
             }
-            (one.sum_rgb[0], one.sum_lum_sq[0], one.count[0])
+            (rgb, lum_sq, samples.len() as u32)
         })
         .collect();
     let mut out = PartialSums::new(rect);

@@ -57,31 +57,41 @@ impl PixelSample {
         PixelSample { kind, pixel_seed, index }
     }
 
-    /// Uniform number in [0, 1) for dimension `dim`.
+    /// Dimensions `4·set … 4·set + 3` at once (one SIMD Owen-scrambled Sobol evaluation).
     #[inline]
-    pub fn get_1d(&self, dim: u32) -> f32 {
+    pub fn get_4d(&self, set: u32) -> [f32; 4] {
         match self.kind {
             SamplerKind::Sobol => {
                 // sobol_burley supports 2^16 samples per seed: higher blocks get a fresh seed.
                 let block = self.index >> 16;
                 let seed = hash_u32(
-                    self.pixel_seed ^ hash_u32((dim / 4).wrapping_mul(0x9e37_79b9) ^ block.wrapping_mul(0x85eb_ca6b)),
+                    self.pixel_seed ^ hash_u32(set.wrapping_mul(0x9e37_79b9) ^ block.wrapping_mul(0x85eb_ca6b)),
                 );
-                sobol_burley::sample(self.index & 0xffff, dim % 4, seed)
+                sobol_burley::sample_4d(self.index & 0xffff, 0, seed)
             }
             SamplerKind::Independent => {
-                let key = ((self.pixel_seed as u64) << 32 | self.index as u64)
-                    ^ ((dim as u64) << 17).wrapping_mul(0x9e37_79b9_7f4a_7c15);
-                u32_to_unit(pcg32_output(hash_u64(key)))
+                // One PCG32 stream per (pixel, sample), seeded by their hash; the 4D set picks the
+                // stream's increment, so sets are independent streams and values within a set are
+                // consecutive outputs of one stream.
+                let mut rng = Pcg32::new(hash_u64((self.pixel_seed as u64) << 32 | self.index as u64), set as u64);
+                [rng.next_unit(), rng.next_unit(), rng.next_unit(), rng.next_unit()]
             }
         }
+    }
+
+    /// Uniform number in [0, 1) for dimension `dim`.
+    #[inline]
+    pub fn get_1d(&self, dim: u32) -> f32 {
+        self.get_4d(dim / 4)[(dim % 4) as usize]
     }
 
     /// Two dimensions (`dim`, `dim + 1`); `dim` is even in the fixed layout so both stay in one
     /// Sobol 4D set and are jointly stratified.
     #[inline]
     pub fn get_2d(&self, dim: u32) -> Vec2 {
-        Vec2::new(self.get_1d(dim), self.get_1d(dim + 1))
+        let v = self.get_4d(dim / 4);
+        let k = (dim % 4) as usize;
+        Vec2::new(v[k], v[(k + 1) % 4])
     }
 }
 
@@ -91,15 +101,37 @@ fn u32_to_unit(x: u32) -> f32 {
     (x >> 8) as f32 * (1.0 / 16_777_216.0)
 }
 
-/// One PCG32 step from `state` (O'Neill 2014, XSH-RR output), used as a counter-based generator.
-#[inline]
-fn pcg32_output(state: u64) -> u32 {
+/// PCG32 (O'Neill 2014, `pcg32_random_r` with XSH-RR output).
+struct Pcg32 {
+    state: u64,
+    inc: u64,
+}
+
+impl Pcg32 {
     const MUL: u64 = 6_364_136_223_846_793_005;
-    const INC: u64 = 1_442_695_040_888_963_407;
-    let state = state.wrapping_mul(MUL).wrapping_add(INC);
-    let xorshifted = (((state >> 18) ^ state) >> 27) as u32;
-    let rot = (state >> 59) as u32;
-    xorshifted.rotate_right(rot)
+
+    /// `pcg32_srandom_r(seed, stream)`.
+    #[inline]
+    fn new(seed: u64, stream: u64) -> Self {
+        let mut r = Pcg32 { state: 0, inc: (stream << 1) | 1 };
+        r.next_u32();
+        r.state = r.state.wrapping_add(seed);
+        r.next_u32();
+        r
+    }
+
+    #[inline]
+    fn next_u32(&mut self) -> u32 {
+        let old = self.state;
+        self.state = old.wrapping_mul(Self::MUL).wrapping_add(self.inc);
+        let xorshifted = (((old >> 18) ^ old) >> 27) as u32;
+        xorshifted.rotate_right((old >> 59) as u32)
+    }
+
+    #[inline]
+    fn next_unit(&mut self) -> f32 {
+        u32_to_unit(self.next_u32())
+    }
 }
 
 /// SplitMix64 finalizer: a well-mixed 64-bit hash.

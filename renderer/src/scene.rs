@@ -39,6 +39,11 @@ impl Scene {
         Scene { mesh, materials, textures, cameras, accel, lights, bounds: (min, max) }
     }
 
+    /// Rebuilds the ray-query structure with another BVH (benchmarks compare them).
+    pub fn use_accel(&mut self, kind: crate::accel::AccelKind) {
+        self.accel = Accel::build_with(&self.mesh, kind);
+    }
+
     #[inline]
     pub fn intersect(&self, o: Vec3, d: Vec3, tmax: f32) -> Option<Hit> {
         self.accel.intersect(o, d, tmax)

@@ -163,3 +163,31 @@ fn cyclic_node_graphs_are_rejected() {
     let nodes = r#"[{"children":[1]},{"children":[0],"mesh":0}]"#;
     assert!(load_str(&gltf_json(nodes, "", true)).is_err());
 }
+
+#[test]
+fn own_bvh_and_obvhs_agree_on_every_hit() {
+    use renderer::accel::{Accel, AccelKind};
+    use renderer::math::Vec3;
+    use renderer::sampler::{PixelSample, SamplerKind};
+    let scene = load(&root().join("scenes/khronos/DamagedHelmet/DamagedHelmet.gltf")).unwrap();
+    let (a, b) = (Accel::build_with(&scene.mesh, AccelKind::Obvhs), Accel::build_with(&scene.mesh, AccelKind::Own));
+    let (lo, hi) = scene.bounds;
+    let mut hits = 0;
+    for i in 0..20_000u32 {
+        let s = PixelSample::new(SamplerKind::Independent, 1, (0, 0), i);
+        let o = lo + (hi - lo) * Vec3::new(s.get_1d(0), s.get_1d(1), s.get_1d(2)) * 1.4 - (hi - lo) * 0.2;
+        let d = renderer::math::sample_cosine_hemisphere(s.get_2d(4)) * if s.get_1d(6) < 0.5 { 1.0 } else { -1.0 };
+        let d = Vec3::new(d.x, d.z, d.y).normalize();
+        let (ha, hb) = (a.intersect(o, d, f32::INFINITY), b.intersect(o, d, f32::INFINITY));
+        match (ha, hb) {
+            (Some(x), Some(y)) => {
+                hits += 1;
+                assert!((x.t - y.t).abs() <= 1e-5 * x.t.max(1.0), "ray {i}: t {} vs {}", x.t, y.t);
+            }
+            (None, None) => {}
+            other => panic!("ray {i}: {other:?}"),
+        }
+        assert_eq!(a.occluded(o, d, 1.0), b.occluded(o, d, 1.0), "ray {i}");
+    }
+    assert!(hits > 1000, "the test rays must hit the helmet ({hits})");
+}

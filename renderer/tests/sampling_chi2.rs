@@ -94,7 +94,7 @@ fn every_sampler_matches_its_pdf() {
         N,
         40,
         80,
-        16,
+        64,
         |i| {
             let s = rng(i, 400);
             scene

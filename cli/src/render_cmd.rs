@@ -167,7 +167,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     let rays = counters.rays.load(Ordering::Relaxed) as f64;
     let nonfinite = counters.nonfinite.load(Ordering::Relaxed);
     eprintln!(
-        "rendered {}x{} at {} spp in {:.2}s (scene load {:.2}s): {:.3} Mpaths/s, {:.3} Mrays/s -> {}",
+        "rendered {}x{} at {} spp in {:.3}s (scene load {:.3}s): {:.3} Mpaths/s, {:.3} Mrays/s -> {}",
         settings.width,
         settings.height,
         settings.spp,

@@ -1,6 +1,8 @@
 //! The `tessera` command: local rendering and benchmarks (farm commands arrive with the farm).
 
 mod bench;
+mod client;
+mod farm_cmd;
 mod render_cmd;
 
 use clap::{Parser, Subcommand};
@@ -18,6 +20,22 @@ enum Command {
     Render(render_cmd::RenderArgs),
     /// Measure paths/s and rays/s on a scene (the built-in Cornell box by default).
     Bench(bench::BenchArgs),
+    /// Run the coordinator: REST API, web page and the workers' gRPC service on one port.
+    Coordinator(farm_cmd::CoordinatorArgs),
+    /// Run a render worker for a coordinator.
+    Worker(farm_cmd::WorkerArgs),
+    /// Submit a scene to the farm.
+    Submit(client::SubmitArgs),
+    /// Show one job (JSON).
+    Status(client::JobArgs),
+    /// List jobs.
+    List(client::ListArgs),
+    /// Cancel a job.
+    Cancel(client::JobArgs),
+    /// Download a finished job's EXR.
+    Download(client::DownloadArgs),
+    /// List the workers.
+    Workers(client::ListArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -32,12 +50,23 @@ fn main() -> std::process::ExitCode {
     let result = match cli.command {
         Command::Render(a) => render_cmd::run(a),
         Command::Bench(a) => bench::run(a),
+        Command::Coordinator(a) => farm_cmd::coordinator(a),
+        Command::Worker(a) => farm_cmd::worker(a),
+        Command::Submit(a) => client::submit(a),
+        Command::Status(a) => client::status(a),
+        Command::List(a) => client::list(a),
+        Command::Cancel(a) => client::cancel(a),
+        Command::Download(a) => client::download(a),
+        Command::Workers(a) => client::workers(a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
-            std::process::ExitCode::FAILURE
+            match e.downcast_ref::<client::CliError>() {
+                Some(c) => std::process::ExitCode::from(c.code),
+                None => std::process::ExitCode::FAILURE,
+            }
         }
     }
 }

@@ -56,15 +56,10 @@ impl RenderFlags {
     /// Settings for `scene`, with the image size derived from the camera's aspect ratio when not given.
     pub fn settings(&self, scene: &Scene) -> Result<RenderSettings> {
         let aspect = match scene.camera(self.camera) {
-            Ok(c) => c.aspect_ratio.filter(|a| a.is_finite() && *a > 0.0).unwrap_or(640.0 / 480.0),
+            Ok(c) => c.aspect_ratio,
             Err((i, n)) => bail!("the scene has no camera {i} (it has {n})"),
         };
-        let (width, height) = match (self.width, self.height) {
-            (Some(w), Some(h)) => (w, h),
-            (Some(w), None) => (w, ((w as f32 / aspect).round() as u32).max(1)),
-            (None, Some(h)) => (((h as f32 * aspect).round() as u32).max(1), h),
-            (None, None) => (640, ((640.0 / aspect).round() as u32).max(1)),
-        };
+        let (width, height) = renderer::settings::image_size(aspect, self.width, self.height);
         let s = RenderSettings {
             width,
             height,
@@ -156,11 +151,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     let elapsed = start.elapsed().as_secs_f64();
     bar.finish_and_clear();
     let final_image = FinalImage::from_sums(&image);
-    let settings_json = serde_json_lite(&settings);
-    final_image.write_exr(
-        &args.output,
-        &[("tessera.settings", settings_json), ("tessera.version", env!("CARGO_PKG_VERSION").to_string())],
-    )?;
+    final_image.write_exr(&args.output, &renderer::image_io::standard_attributes(&settings))?;
     if let Some(p) = &args.preview {
         final_image.write_png(p, args.exposure)?;
     }
@@ -181,12 +172,4 @@ pub fn run(args: RenderArgs) -> Result<()> {
         tracing::warn!(nonfinite, "samples with non-finite radiance were replaced by zero");
     }
     Ok(())
-}
-
-/// Settings as a compact `key=value` list for the EXR header (readable without a JSON parser).
-fn serde_json_lite(s: &RenderSettings) -> String {
-    format!(
-        "width={} height={} spp={} pass_spp={} integrator={:?} mis_heuristic={:?} sampler={:?} seed={} max_depth={} rr_depth={} camera={:?} filter={:?}",
-        s.width, s.height, s.spp, s.pass_spp, s.integrator, s.mis_heuristic, s.sampler, s.seed, s.max_depth, s.rr_depth, s.camera, s.filter
-    )
 }

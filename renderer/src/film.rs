@@ -186,3 +186,56 @@ mod tests {
         assert!(r.validate(1).is_err());
     }
 }
+
+/// Bytes per pixel in the wire encoding of [`PartialSums`]: three f64 sums, the f64 sum of squared
+/// luminance, the u32 count.
+pub const ENCODED_PIXEL_BYTES: usize = 36;
+
+impl PartialSums {
+    /// Little-endian encoding of the per-pixel data (the rect travels separately).
+    pub fn encode(&self) -> Vec<u8> {
+        let mut out = Vec::with_capacity(self.rect.pixels() * ENCODED_PIXEL_BYTES);
+        for i in 0..self.rect.pixels() {
+            for c in self.sum_rgb[i] {
+                out.extend_from_slice(&c.to_le_bytes());
+            }
+            out.extend_from_slice(&self.sum_lum_sq[i].to_le_bytes());
+            out.extend_from_slice(&self.count[i].to_le_bytes());
+        }
+        out
+    }
+
+    /// Decodes sums for `rect`; the length must match exactly (checked before allocating).
+    pub fn decode(rect: Rect, bytes: &[u8]) -> Result<Self, String> {
+        let n = rect.pixels();
+        let expected = n.checked_mul(ENCODED_PIXEL_BYTES).ok_or("rect too large")?;
+        if bytes.len() != expected {
+            return Err(format!("{} bytes of sums for a {}x{} rect, expected {expected}", bytes.len(), rect.width, rect.height));
+        }
+        let mut p = PartialSums::new(rect);
+        let f = |b: &[u8]| f64::from_le_bytes(b.try_into().unwrap_or([0; 8]));
+        for (i, px) in bytes.chunks_exact(ENCODED_PIXEL_BYTES).enumerate() {
+            p.sum_rgb[i] = [f(&px[0..8]), f(&px[8..16]), f(&px[16..24])];
+            p.sum_lum_sq[i] = f(&px[24..32]);
+            p.count[i] = u32::from_le_bytes(px[32..36].try_into().unwrap_or([0; 4]));
+        }
+        Ok(p)
+    }
+}
+
+#[cfg(test)]
+mod wire_tests {
+    use super::*;
+
+    #[test]
+    fn encode_decode_round_trip_is_bit_exact() {
+        let mut p = PartialSums::new(Rect { x0: 3, y0: 4, width: 5, height: 2 });
+        for i in 0..10 {
+            p.add_sample(i, Vec3::new(0.1 * i as f32, 1e-30, 3e20));
+        }
+        let e = p.encode();
+        assert_eq!(PartialSums::decode(p.rect, &e).unwrap(), p);
+        assert!(PartialSums::decode(p.rect, &e[1..]).is_err());
+        assert!(PartialSums::decode(Rect { x0: 0, y0: 0, width: u32::MAX, height: u32::MAX }, &e).is_err());
+    }
+}

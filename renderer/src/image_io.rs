@@ -12,6 +12,16 @@ pub const VARIANCE_CHANNEL: &str = "variance";
 /// Name of the EXR channel holding each pixel's sample count.
 pub const SPP_CHANNEL: &str = "spp";
 
+/// The header attributes every Tessera EXR carries (the same for a local and a farm render, so the
+/// files are byte-identical): the settings that made the image, and the version.
+pub fn standard_attributes(s: &crate::RenderSettings) -> Vec<(&'static str, String)> {
+    let settings = format!(
+        "width={} height={} spp={} pass_spp={} integrator={:?} mis_heuristic={:?} sampler={:?} seed={} max_depth={} rr_depth={} camera={:?} filter={:?}",
+        s.width, s.height, s.spp, s.pass_spp, s.integrator, s.mis_heuristic, s.sampler, s.seed, s.max_depth, s.rr_depth, s.camera, s.filter
+    );
+    vec![("tessera.settings", settings), ("tessera.version", env!("CARGO_PKG_VERSION").to_string())]
+}
+
 /// A finished image, in the form written to disk.
 pub struct FinalImage {
     pub width: u32,
@@ -33,9 +43,20 @@ impl FinalImage {
         }
     }
 
+    /// The EXR file's bytes (see `write_exr`).
+    pub fn exr_bytes(&self, attributes: &[(&str, String)]) -> std::result::Result<Vec<u8>, String> {
+        let mut buf = std::io::Cursor::new(Vec::new());
+        self.exr_image(attributes).write().to_buffered(&mut buf).map_err(|e| e.to_string())?;
+        Ok(buf.into_inner())
+    }
+
     /// Writes the EXR (ZIP-compressed, lossless). `attributes` become string header attributes.
     pub fn write_exr(&self, path: &Path, attributes: &[(&str, String)]) -> std::result::Result<(), RenderError> {
-        let err = |message: String| RenderError::Write { path: path.into(), message };
+        let bytes = self.exr_bytes(attributes).map_err(|message| RenderError::Write { path: path.into(), message })?;
+        std::fs::write(path, bytes).map_err(|e| RenderError::Write { path: path.into(), message: e.to_string() })
+    }
+
+    fn exr_image(&self, attributes: &[(&str, String)]) -> Image<Layer<AnyChannels<FlatSamples>>> {
         let plane = |f: &dyn Fn(usize) -> f32| FlatSamples::F32((0..self.rgb.len()).map(f).collect());
         let channels = AnyChannels::sort(SmallVec::from_vec(vec![
             AnyChannel::new("R", plane(&|i| self.rgb[i][0])),
@@ -54,12 +75,11 @@ impl FinalImage {
             Encoding::SMALL_LOSSLESS,
             channels,
         );
-        Image::from_layer(layer).write().to_file(path).map_err(|e| err(e.to_string()))
+        Image::from_layer(layer)
     }
 
-    /// Writes an 8-bit sRGB PNG: radiance × 2^exposure, clamped, sRGB-encoded.
-    pub fn write_png(&self, path: &Path, exposure: f32) -> std::result::Result<(), RenderError> {
-        let err = |message: String| RenderError::Write { path: path.into(), message };
+    /// An 8-bit sRGB PNG: radiance × 2^exposure, clamped, sRGB-encoded.
+    pub fn png_bytes(&self, exposure: f32) -> std::result::Result<Vec<u8>, String> {
         let scale = 2f32.powf(exposure);
         let encode = |v: f32| -> u8 {
             let v = if v.is_finite() { (v * scale).clamp(0.0, 1.0) } else { 0.0 };
@@ -67,12 +87,21 @@ impl FinalImage {
             (s * 255.0 + 0.5) as u8
         };
         let data: Vec<u8> = self.rgb.iter().flat_map(|p| [encode(p[0]), encode(p[1]), encode(p[2])]).collect();
-        let file = std::fs::File::create(path).map_err(|e| err(e.to_string()))?;
-        let mut enc = png::Encoder::new(std::io::BufWriter::new(file), self.width, self.height);
+        let mut out = Vec::new();
+        let mut enc = png::Encoder::new(&mut out, self.width, self.height);
         enc.set_color(png::ColorType::Rgb);
         enc.set_depth(png::BitDepth::Eight);
-        let mut w = enc.write_header().map_err(|e| err(e.to_string()))?;
-        w.write_image_data(&data).map_err(|e| err(e.to_string()))
+        let mut w = enc.write_header().map_err(|e| e.to_string())?;
+        w.write_image_data(&data).map_err(|e| e.to_string())?;
+        w.finish().map_err(|e| e.to_string())?;
+        Ok(out)
+    }
+
+    /// Writes the PNG preview (see `png_bytes`).
+    pub fn write_png(&self, path: &Path, exposure: f32) -> std::result::Result<(), RenderError> {
+        let err = |message: String| RenderError::Write { path: path.into(), message };
+        let bytes = self.png_bytes(exposure).map_err(err)?;
+        std::fs::write(path, bytes).map_err(|e| err(e.to_string()))
     }
 }
 

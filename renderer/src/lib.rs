@@ -10,6 +10,7 @@
 pub mod accel;
 pub mod alias;
 pub mod bsdf;
+pub mod bundle;
 pub mod bvh;
 pub mod camera;
 pub mod error;

@@ -113,6 +113,18 @@ impl Default for RenderSettings {
     }
 }
 
+/// Image size from optional width/height and the camera's aspect ratio: both given are used as they
+/// are; one given keeps the aspect; none gives 640 wide.
+pub fn image_size(aspect: Option<f32>, width: Option<u32>, height: Option<u32>) -> (u32, u32) {
+    let aspect = aspect.filter(|a| a.is_finite() && *a > 0.0).unwrap_or(640.0 / 480.0);
+    match (width, height) {
+        (Some(w), Some(h)) => (w, h),
+        (Some(w), None) => (w, ((w as f32 / aspect).round() as u32).max(1)),
+        (None, Some(h)) => (((h as f32 * aspect).round() as u32).max(1), h),
+        (None, None) => (640, ((640.0 / aspect).round() as u32).max(1)),
+    }
+}
+
 impl RenderSettings {
     pub fn validate(&self) -> Result<(), String> {
         if self.width == 0 || self.height == 0 {

@@ -1,0 +1,275 @@
+//! The farm's command-line client: `submit`, `status`, `list`, `cancel`, `download`, `workers`.
+//!
+//! Exit codes (for scripts): 0 success; 1 local error (bad file, bad flag value); 2 usage error
+//! (from the argument parser); 3 coordinator unreachable; 4 request refused by the coordinator
+//! (the message says why: 400/401/404/409/413/422/429); 5 the job failed or was cancelled while
+//! `--wait`ing.
+
+use crate::render_cmd::RenderFlags;
+use clap::Args;
+use serde_json::{json, Value};
+use std::io::Read;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+/// An error with the exit code a script should see.
+#[derive(Debug)]
+pub struct CliError {
+    pub code: u8,
+    pub message: String,
+}
+
+impl std::fmt::Display for CliError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message)
+    }
+}
+
+impl std::error::Error for CliError {}
+
+fn fail(code: u8, message: impl Into<String>) -> anyhow::Error {
+    CliError { code, message: message.into() }.into()
+}
+
+#[derive(Args, Debug, Clone)]
+pub struct Conn {
+    /// Coordinator URL.
+    #[arg(long, env = "TESSERA_COORDINATOR", default_value = "http://127.0.0.1:7878")]
+    pub coordinator: String,
+}
+
+struct Api {
+    base: String,
+    token: Option<String>,
+    agent: ureq::Agent,
+}
+
+impl Api {
+    fn new(c: &Conn) -> Self {
+        let agent: ureq::Agent = ureq::Agent::config_builder().http_status_as_error(false).timeout_global(Some(Duration::from_secs(600))).build().into();
+        Api { base: c.coordinator.trim_end_matches('/').to_string(), token: std::env::var("TESSERA_TOKEN").ok().filter(|t| !t.is_empty()), agent }
+    }
+
+    fn auth<B>(&self, r: ureq::RequestBuilder<B>) -> ureq::RequestBuilder<B> {
+        match &self.token {
+            Some(t) => r.header("Authorization", &format!("Bearer {t}")),
+            None => r,
+        }
+    }
+
+    fn check(&self, r: Result<ureq::http::Response<ureq::Body>, ureq::Error>) -> anyhow::Result<ureq::http::Response<ureq::Body>> {
+        let mut resp = r.map_err(|e| fail(3, format!("cannot reach the coordinator at {}: {e}", self.base)))?;
+        let status = resp.status();
+        if status.is_success() {
+            return Ok(resp);
+        }
+        let body = resp.body_mut().read_to_string().unwrap_or_default();
+        let msg = serde_json::from_str::<Value>(&body).ok().and_then(|v| v["error"].as_str().map(str::to_string)).unwrap_or(body);
+        Err(fail(4, format!("coordinator refused ({}): {msg}", status.as_u16())))
+    }
+
+    fn get_json(&self, path: &str) -> anyhow::Result<Value> {
+        let mut r = self.check(self.auth(self.agent.get(&format!("{}/api/v1{path}", self.base))).call())?;
+        r.body_mut().read_json().map_err(|e| fail(3, format!("bad reply from the coordinator: {e}")))
+    }
+
+    fn get_bytes(&self, path: &str) -> anyhow::Result<Vec<u8>> {
+        let mut r = self.check(self.auth(self.agent.get(&format!("{}/api/v1{path}", self.base))).call())?;
+        let mut v = Vec::new();
+        r.body_mut().as_reader().read_to_end(&mut v).map_err(|e| fail(3, format!("download failed: {e}")))?;
+        Ok(v)
+    }
+
+    fn post_json(&self, path: &str) -> anyhow::Result<Value> {
+        let mut r = self.check(self.auth(self.agent.post(&format!("{}/api/v1{path}", self.base))).send_empty())?;
+        r.body_mut().read_json().map_err(|e| fail(3, format!("bad reply from the coordinator: {e}")))
+    }
+}
+
+#[derive(Args, Debug)]
+pub struct SubmitArgs {
+    /// Scene file (.gltf with its sibling files, or .glb).
+    pub scene: PathBuf,
+    /// Environment map (not supported yet: refused by the coordinator).
+    #[arg(long)]
+    pub env: Option<PathBuf>,
+    #[command(flatten)]
+    pub flags: RenderFlags,
+    /// Higher runs first.
+    #[arg(long, default_value_t = 0)]
+    pub priority: i32,
+    /// Wait for the job, with a progress bar, then download the EXR.
+    #[arg(long)]
+    pub wait: bool,
+    /// Where `--wait` writes the EXR.
+    #[arg(short, long, default_value = "render.exr")]
+    pub output: PathBuf,
+    #[command(flatten)]
+    pub conn: Conn,
+}
+
+/// The files a scene needs: the scene file, and for `.gltf` the relative buffer and image URIs.
+fn scene_files(scene: &Path) -> anyhow::Result<Vec<(String, Vec<u8>)>> {
+    let data = std::fs::read(scene).map_err(|e| fail(1, format!("{}: {e}", scene.display())))?;
+    let name = scene.file_name().map(|n| n.to_string_lossy().to_string()).ok_or_else(|| fail(1, format!("{}: not a file", scene.display())))?;
+    let mut files = vec![(name.clone(), data.clone())];
+    if name.to_ascii_lowercase().ends_with(".gltf") {
+        let doc: Value = serde_json::from_slice(&data).map_err(|e| fail(1, format!("{}: not valid JSON: {e}", scene.display())))?;
+        let dir = scene.parent().unwrap_or(Path::new("."));
+        let uris = ["buffers", "images"].iter().flat_map(|k| doc[*k].as_array().cloned().unwrap_or_default()).filter_map(|v| v["uri"].as_str().map(str::to_string));
+        for uri in uris {
+            if uri.starts_with("data:") || files.iter().any(|(n, _)| *n == uri) {
+                continue;
+            }
+            let rel = uri.replace("%20", " ");
+            if !renderer::bundle::valid_name(&rel) {
+                return Err(fail(1, format!("{}: URI '{uri}' leaves the scene's folder", scene.display())));
+            }
+            let bytes = std::fs::read(dir.join(&rel)).map_err(|e| fail(1, format!("{}: {e}", dir.join(&rel).display())))?;
+            files.push((rel, bytes));
+        }
+    }
+    Ok(files)
+}
+
+fn multipart(files: &[(String, Vec<u8>)], settings: &Value) -> (String, Vec<u8>) {
+    let boundary = format!("tessera-{:016x}", std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos() as u64).unwrap_or(7));
+    let mut body = Vec::new();
+    for (name, data) in files {
+        body.extend_from_slice(format!("--{boundary}\r\nContent-Disposition: form-data; name=\"scene\"; filename=\"{}\"\r\nContent-Type: application/octet-stream\r\n\r\n", name.replace('"', "")).as_bytes());
+        body.extend_from_slice(data);
+        body.extend_from_slice(b"\r\n");
+    }
+    body.extend_from_slice(format!("--{boundary}\r\nContent-Disposition: form-data; name=\"settings\"\r\nContent-Type: application/json\r\n\r\n{settings}\r\n--{boundary}--\r\n").as_bytes());
+    (format!("multipart/form-data; boundary={boundary}"), body)
+}
+
+pub fn submit(a: SubmitArgs) -> anyhow::Result<()> {
+    if a.env.is_some() {
+        return Err(fail(1, "--env: environment maps are not supported yet"));
+    }
+    let files = scene_files(&a.scene)?;
+    let f = &a.flags;
+    let mut settings = json!({
+        "spp": f.spp, "camera": f.camera, "integrator": f.integrator, "mis_heuristic": f.mis_heuristic, "sampler": f.sampler,
+        "seed": f.seed, "max_depth": f.max_depth, "rr_depth": f.rr_depth, "filter": f.filter, "pass_spp": f.pass_spp, "priority": a.priority,
+    });
+    if let Some(w) = f.width {
+        settings["width"] = json!(w);
+    }
+    if let Some(h) = f.height {
+        settings["height"] = json!(h);
+    }
+    let api = Api::new(&a.conn);
+    let (ctype, body) = multipart(&files, &settings);
+    let mut r = api.check(api.auth(api.agent.post(&format!("{}/api/v1/jobs", api.base))).header("Content-Type", &ctype).send(&body[..]))?;
+    let job: Value = r.body_mut().read_json().map_err(|e| fail(3, format!("bad reply: {e}")))?;
+    let id = job["id"].as_str().unwrap_or_default().to_string();
+    if !a.wait {
+        println!("{id}");
+        return Ok(());
+    }
+    eprintln!("submitted {id}");
+    let bar = indicatif::ProgressBar::new(1000);
+    bar.set_style(indicatif::ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {percent:>3}% {msg}").unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()));
+    loop {
+        let j = api.get_json(&format!("/jobs/{id}"))?;
+        let frac = j["progress"]["fraction"].as_f64().unwrap_or(0.0);
+        bar.set_position((frac * 1000.0) as u64);
+        bar.set_message(format!(
+            "{} units {}/{} | rel. error {}",
+            j["state"].as_str().unwrap_or("?"),
+            j["progress"]["units_done"],
+            j["progress"]["units_total"],
+            j["noise"]["estimated_rel_error"].as_f64().map_or("-".into(), |e| format!("{e:.2e}"))
+        ));
+        match j["state"].as_str() {
+            Some("done") => break,
+            Some("failed") | Some("cancelled") => {
+                bar.abandon();
+                return Err(fail(5, format!("job {id} {}: {}", j["state"].as_str().unwrap_or("?"), j["error"].as_str().unwrap_or(""))));
+            }
+            _ => std::thread::sleep(Duration::from_millis(300)),
+        }
+    }
+    bar.finish_and_clear();
+    let exr = api.get_bytes(&format!("/jobs/{id}/image.exr"))?;
+    std::fs::write(&a.output, exr).map_err(|e| fail(1, format!("{}: {e}", a.output.display())))?;
+    eprintln!("job {id} done -> {}", a.output.display());
+    println!("{id}");
+    Ok(())
+}
+
+#[derive(Args, Debug)]
+pub struct JobArgs {
+    pub job: String,
+    #[command(flatten)]
+    pub conn: Conn,
+}
+
+pub fn status(a: JobArgs) -> anyhow::Result<()> {
+    let j = Api::new(&a.conn).get_json(&format!("/jobs/{}", a.job))?;
+    println!("{}", serde_json::to_string_pretty(&j).unwrap_or_default());
+    Ok(())
+}
+
+pub fn cancel(a: JobArgs) -> anyhow::Result<()> {
+    let j = Api::new(&a.conn).post_json(&format!("/jobs/{}/cancel", a.job))?;
+    println!("{} {}", a.job, j["state"].as_str().unwrap_or("?"));
+    Ok(())
+}
+
+#[derive(Args, Debug)]
+pub struct DownloadArgs {
+    pub job: String,
+    #[arg(short, long)]
+    pub output: PathBuf,
+    #[command(flatten)]
+    pub conn: Conn,
+}
+
+pub fn download(a: DownloadArgs) -> anyhow::Result<()> {
+    let exr = Api::new(&a.conn).get_bytes(&format!("/jobs/{}/image.exr", a.job))?;
+    std::fs::write(&a.output, exr).map_err(|e| fail(1, format!("{}: {e}", a.output.display())))?;
+    Ok(())
+}
+
+#[derive(Args, Debug)]
+pub struct ListArgs {
+    #[command(flatten)]
+    pub conn: Conn,
+}
+
+pub fn list(a: ListArgs) -> anyhow::Result<()> {
+    let v = Api::new(&a.conn).get_json("/jobs")?;
+    println!("{:<16} {:<10} {:>7} {:>9} {:>10}  name", "id", "state", "done", "elapsed", "rel.err");
+    for j in v["jobs"].as_array().cloned().unwrap_or_default() {
+        println!(
+            "{:<16} {:<10} {:>6.1}% {:>8.1}s {:>10}  {}",
+            j["id"].as_str().unwrap_or(""),
+            j["state"].as_str().unwrap_or(""),
+            100.0 * j["progress"]["fraction"].as_f64().unwrap_or(0.0),
+            j["elapsed_s"].as_f64().unwrap_or(0.0),
+            j["noise"]["estimated_rel_error"].as_f64().map_or("-".into(), |e| format!("{e:.2e}")),
+            j["name"].as_str().unwrap_or("")
+        );
+    }
+    Ok(())
+}
+
+pub fn workers(a: ListArgs) -> anyhow::Result<()> {
+    let v = Api::new(&a.conn).get_json("/workers")?;
+    println!("{:<16} {:<24} {:>5} {:>6} {:>8} {:>10}", "id", "name", "cores", "done", "rejected", "last seen");
+    for w in v["workers"].as_array().cloned().unwrap_or_default() {
+        println!(
+            "{:<16} {:<24} {:>5} {:>6} {:>8} {:>9.0}s",
+            w["id"].as_str().unwrap_or(""),
+            w["name"].as_str().unwrap_or(""),
+            w["cores"],
+            w["units_done"],
+            w["units_rejected"],
+            w["seconds_since_seen"].as_f64().unwrap_or(0.0)
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,211 @@
+//! The workers' gRPC service (`proto/tessera.proto`): register, lease (long-poll), fetch scene,
+//! heartbeat, submit result. Every call must carry the worker secret.
+
+use crate::state::SubmitOutcome;
+use crate::{lock, now_ms, Shared, WorkerInfo};
+use proto::v1::farm_server::{Farm, FarmServer};
+use proto::v1::*;
+use renderer::film::{PartialSums, Rect as FilmRect, ENCODED_PIXEL_BYTES};
+use std::sync::Arc;
+use std::time::Duration;
+use tokio_stream::StreamExt;
+use tonic::{Request, Response, Status, Streaming};
+
+/// Scene bundles are streamed in chunks of this size.
+const CHUNK: usize = 1 << 20;
+/// Longest long-poll a worker may ask for.
+const MAX_WAIT_MS: u32 = 30_000;
+
+pub fn router(shared: Arc<Shared>) -> axum::Router {
+    let secret = shared.config.worker_secret.clone();
+    let check = move |req: Request<()>| -> Result<Request<()>, Status> {
+        if let Some(secret) = &secret {
+            let given = req.metadata().get("authorization").and_then(|v| v.to_str().ok()).and_then(|v| v.strip_prefix("Bearer "));
+            if given != Some(secret.as_str()) {
+                return Err(Status::unauthenticated("worker secret missing or wrong (TESSERA_WORKER_SECRET)"));
+            }
+        }
+        Ok(req)
+    };
+    let svc = FarmServer::with_interceptor(FarmService { shared }, check);
+    tonic::service::Routes::new(svc).into_axum_router()
+}
+
+struct FarmService {
+    shared: Arc<Shared>,
+}
+
+fn to_proto_rect(r: FilmRect) -> Rect {
+    Rect { x0: r.x0, y0: r.y0, width: r.width, height: r.height }
+}
+
+impl FarmService {
+    fn touch(&self, worker_id: &str) -> Result<(), Status> {
+        match lock(&self.shared.workers).get_mut(worker_id) {
+            Some(w) => {
+                w.last_seen_ms = now_ms();
+                Ok(())
+            }
+            None => Err(Status::not_found(format!("unknown worker '{worker_id}': register first"))),
+        }
+    }
+}
+
+#[tonic::async_trait]
+impl Farm for FarmService {
+    async fn register(&self, req: Request<RegisterRequest>) -> Result<Response<RegisterReply>, Status> {
+        let r = req.into_inner();
+        if r.protocol != proto::PROTOCOL_VERSION {
+            return Err(Status::failed_precondition(format!(
+                "worker protocol {} (tessera {}) is incompatible with this coordinator's protocol {} (tessera {}): run the same tessera version",
+                r.protocol,
+                r.version,
+                proto::PROTOCOL_VERSION,
+                env!("CARGO_PKG_VERSION")
+            )));
+        }
+        let n = lock(&self.shared.workers).len();
+        let id = format!("w{}-{}", n + 1, now_ms() % 1_000_000);
+        let name: String = r.name.chars().take(64).collect();
+        tracing::info!(worker = %id, %name, cores = r.cores, version = %r.version, "worker registered");
+        lock(&self.shared.workers).insert(
+            id.clone(),
+            WorkerInfo { id: id.clone(), name, version: r.version.chars().take(32).collect(), cores: r.cores, registered_ms: now_ms(), last_seen_ms: now_ms(), units_done: 0, units_rejected: 0 },
+        );
+        Ok(Response::new(RegisterReply { worker_id: id, lease_ms: self.shared.config.lease.as_millis() as u32 }))
+    }
+
+    async fn lease(&self, req: Request<LeaseRequest>) -> Result<Response<LeaseReply>, Status> {
+        let r = req.into_inner();
+        self.touch(&r.worker_id)?;
+        let deadline = tokio::time::Instant::now() + Duration::from_millis(r.wait_ms.min(MAX_WAIT_MS) as u64);
+        loop {
+            // Register interest before looking, so a notification between the look and the wait is not lost.
+            let notified = self.shared.work_available.notified();
+            let unit = lock(&self.shared.farm).lease(&r.worker_id, now_ms(), self.shared.config.lease.as_millis() as i64);
+            if let Some(u) = unit {
+                let settings_json = serde_json::to_string(&u.settings).map_err(|e| Status::internal(e.to_string()))?;
+                let size = lock(&self.shared.store).scene(&u.scene_hash).ok().flatten().map_or(0, |s| s.len() as u64);
+                return Ok(Response::new(LeaseReply {
+                    unit: Some(WorkUnit {
+                        unit_id: u.unit_id,
+                        job_id: u.job_id,
+                        scene_hash: u.scene_hash,
+                        scene_size: size,
+                        settings_json,
+                        rect: Some(to_proto_rect(u.rect)),
+                        sample_start: u.samples.start,
+                        sample_end: u.samples.end,
+                        lease_deadline_unix_ms: u.deadline_ms,
+                    }),
+                }));
+            }
+            if tokio::time::timeout_at(deadline, notified).await.is_err() {
+                return Ok(Response::new(LeaseReply { unit: None }));
+            }
+        }
+    }
+
+    type FetchSceneStream = std::pin::Pin<Box<dyn tokio_stream::Stream<Item = Result<SceneChunk, Status>> + Send>>;
+
+    async fn fetch_scene(&self, req: Request<FetchSceneRequest>) -> Result<Response<Self::FetchSceneStream>, Status> {
+        let r = req.into_inner();
+        self.touch(&r.worker_id)?;
+        let data = lock(&self.shared.store)
+            .scene(&r.scene_hash)
+            .map_err(|e| Status::internal(e.to_string()))?
+            .ok_or_else(|| Status::not_found(format!("no scene with hash {}", r.scene_hash)))?;
+        let total = data.len() as u64;
+        let chunks: Vec<Result<SceneChunk, Status>> = data.chunks(CHUNK).map(|c| Ok(SceneChunk { total_size: total, data: c.to_vec() })).collect();
+        Ok(Response::new(Box::pin(tokio_stream::iter(chunks))))
+    }
+
+    async fn heartbeat(&self, req: Request<HeartbeatRequest>) -> Result<Response<HeartbeatReply>, Status> {
+        let r = req.into_inner();
+        self.touch(&r.worker_id)?;
+        let deadline = lock(&self.shared.farm).heartbeat(&r.worker_id, &r.unit_id, now_ms(), self.shared.config.lease.as_millis() as i64);
+        Ok(Response::new(HeartbeatReply { keep_going: deadline.is_some(), lease_deadline_unix_ms: deadline.unwrap_or(0) }))
+    }
+
+    async fn submit_result(&self, req: Request<Streaming<ResultChunk>>) -> Result<Response<SubmitReply>, Status> {
+        let mut stream = req.into_inner();
+        let header = match stream.next().await {
+            Some(Ok(ResultChunk { part: Some(result_chunk::Part::Header(h)) })) => h,
+            Some(Err(e)) => return Err(e),
+            _ => return Err(Status::invalid_argument("a result must start with its header")),
+        };
+        self.touch(&header.worker_id)?;
+        let (rect, samples) = lock(&self.shared.farm)
+            .unit_shape(&header.unit_id)
+            .ok_or_else(|| Status::not_found(format!("unknown unit '{}'", header.unit_id)))?;
+        // Bound the payload by what the unit can legitimately produce before reading any of it.
+        let expected = rect.pixels() * ENCODED_PIXEL_BYTES;
+        let mut payload = Vec::with_capacity(expected.min(header.payload_size as usize));
+        let mut too_long = false;
+        while let Some(chunk) = stream.next().await {
+            match chunk?.part {
+                Some(result_chunk::Part::Data(d)) => {
+                    if payload.len() + d.len() > expected {
+                        too_long = true;
+                        break;
+                    }
+                    payload.extend_from_slice(&d);
+                }
+                _ => return Err(Status::invalid_argument("only data chunks may follow the header")),
+            }
+        }
+        let claimed = header.rect.map(|r| FilmRect { x0: r.x0, y0: r.y0, width: r.width, height: r.height });
+        let sums = if too_long {
+            Err(format!("payload exceeds the {expected} bytes a {}x{} tile can hold", rect.width, rect.height))
+        } else if claimed != Some(rect) || header.sample_start != samples.start || header.sample_end != samples.end {
+            Err(format!("result header {:?} {}..{} does not match the unit {:?} {:?}", claimed, header.sample_start, header.sample_end, rect, samples))
+        } else {
+            PartialSums::decode(rect, &payload)
+        };
+        let t = std::time::Instant::now();
+        let mut farm = lock(&self.shared.farm);
+        let outcome = farm.submit(&header.worker_id, &header.unit_id, sums);
+        let reply = match outcome {
+            SubmitOutcome::Merged { tiles_changed, job_complete } => {
+                let job_id = header.unit_id.rsplit_once('/').map(|(j, _)| j.to_string()).unwrap_or_default();
+                if let Some(job) = farm.jobs.get_mut(&job_id) {
+                    {
+                        let store = lock(&self.shared.store);
+                        for &tile in &tiles_changed {
+                            if let Err(e) = store.put_tile(&job.id, tile, job.folded[tile], &job.tile_sums[tile]) {
+                                tracing::error!(job = %job.id, tile, error = %e, "checkpoint failed");
+                            }
+                        }
+                        if job.started_ms.is_some() {
+                            let _ = store.update_job_state(job);
+                        }
+                    }
+                    if job_complete {
+                        self.shared.finish_job(job);
+                    }
+                }
+                let mut m = lock(&self.shared.metrics);
+                m.units_merged += 1;
+                m.samples_merged += rect.pixels() as u64 * samples.len() as u64;
+                m.merge_seconds_sum += t.elapsed().as_secs_f64();
+                if let Some(w) = lock(&self.shared.workers).get_mut(&header.worker_id) {
+                    w.units_done += 1;
+                }
+                SubmitReply { accepted: true, message: "merged".into() }
+            }
+            SubmitOutcome::Duplicate => SubmitReply { accepted: false, message: "unit already merged: result dropped".into() },
+            SubmitOutcome::Stale => SubmitReply { accepted: false, message: "job finished or cancelled: result dropped".into() },
+            SubmitOutcome::Rejected(why) => {
+                drop(farm);
+                tracing::warn!(worker = %header.worker_id, unit = %header.unit_id, %why, "result rejected; worker put on the job's bad list");
+                lock(&self.shared.metrics).units_rejected += 1;
+                if let Some(w) = lock(&self.shared.workers).get_mut(&header.worker_id) {
+                    w.units_rejected += 1;
+                }
+                self.shared.work_available.notify_waiters();
+                return Err(Status::invalid_argument(format!("result rejected: {why}")));
+            }
+        };
+        Ok(Response::new(reply))
+    }
+}

@@ -1,0 +1,1 @@
+//! Helpers for the farm's integration tests.

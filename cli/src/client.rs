@@ -46,8 +46,16 @@ struct Api {
 
 impl Api {
     fn new(c: &Conn) -> Self {
-        let agent: ureq::Agent = ureq::Agent::config_builder().http_status_as_error(false).timeout_global(Some(Duration::from_secs(600))).build().into();
-        Api { base: c.coordinator.trim_end_matches('/').to_string(), token: std::env::var("TESSERA_TOKEN").ok().filter(|t| !t.is_empty()), agent }
+        let agent: ureq::Agent = ureq::Agent::config_builder()
+            .http_status_as_error(false)
+            .timeout_global(Some(Duration::from_secs(600)))
+            .build()
+            .into();
+        Api {
+            base: c.coordinator.trim_end_matches('/').to_string(),
+            token: std::env::var("TESSERA_TOKEN").ok().filter(|t| !t.is_empty()),
+            agent,
+        }
     }
 
     fn auth<B>(&self, r: ureq::RequestBuilder<B>) -> ureq::RequestBuilder<B> {
@@ -57,14 +65,20 @@ impl Api {
         }
     }
 
-    fn check(&self, r: Result<ureq::http::Response<ureq::Body>, ureq::Error>) -> anyhow::Result<ureq::http::Response<ureq::Body>> {
+    fn check(
+        &self,
+        r: Result<ureq::http::Response<ureq::Body>, ureq::Error>,
+    ) -> anyhow::Result<ureq::http::Response<ureq::Body>> {
         let mut resp = r.map_err(|e| fail(3, format!("cannot reach the coordinator at {}: {e}", self.base)))?;
         let status = resp.status();
         if status.is_success() {
             return Ok(resp);
         }
         let body = resp.body_mut().read_to_string().unwrap_or_default();
-        let msg = serde_json::from_str::<Value>(&body).ok().and_then(|v| v["error"].as_str().map(str::to_string)).unwrap_or(body);
+        let msg = serde_json::from_str::<Value>(&body)
+            .ok()
+            .and_then(|v| v["error"].as_str().map(str::to_string))
+            .unwrap_or(body);
         Err(fail(4, format!("coordinator refused ({}): {msg}", status.as_u16())))
     }
 
@@ -111,12 +125,19 @@ pub struct SubmitArgs {
 /// The files a scene needs: the scene file, and for `.gltf` the relative buffer and image URIs.
 fn scene_files(scene: &Path) -> anyhow::Result<Vec<(String, Vec<u8>)>> {
     let data = std::fs::read(scene).map_err(|e| fail(1, format!("{}: {e}", scene.display())))?;
-    let name = scene.file_name().map(|n| n.to_string_lossy().to_string()).ok_or_else(|| fail(1, format!("{}: not a file", scene.display())))?;
+    let name = scene
+        .file_name()
+        .map(|n| n.to_string_lossy().to_string())
+        .ok_or_else(|| fail(1, format!("{}: not a file", scene.display())))?;
     let mut files = vec![(name.clone(), data.clone())];
     if name.to_ascii_lowercase().ends_with(".gltf") {
-        let doc: Value = serde_json::from_slice(&data).map_err(|e| fail(1, format!("{}: not valid JSON: {e}", scene.display())))?;
+        let doc: Value =
+            serde_json::from_slice(&data).map_err(|e| fail(1, format!("{}: not valid JSON: {e}", scene.display())))?;
         let dir = scene.parent().unwrap_or(Path::new("."));
-        let uris = ["buffers", "images"].iter().flat_map(|k| doc[*k].as_array().cloned().unwrap_or_default()).filter_map(|v| v["uri"].as_str().map(str::to_string));
+        let uris = ["buffers", "images"]
+            .iter()
+            .flat_map(|k| doc[*k].as_array().cloned().unwrap_or_default())
+            .filter_map(|v| v["uri"].as_str().map(str::to_string));
         for uri in uris {
             if uri.starts_with("data:") || files.iter().any(|(n, _)| *n == uri) {
                 continue;
@@ -125,7 +146,8 @@ fn scene_files(scene: &Path) -> anyhow::Result<Vec<(String, Vec<u8>)>> {
             if !renderer::bundle::valid_name(&rel) {
                 return Err(fail(1, format!("{}: URI '{uri}' leaves the scene's folder", scene.display())));
             }
-            let bytes = std::fs::read(dir.join(&rel)).map_err(|e| fail(1, format!("{}: {e}", dir.join(&rel).display())))?;
+            let bytes =
+                std::fs::read(dir.join(&rel)).map_err(|e| fail(1, format!("{}: {e}", dir.join(&rel).display())))?;
             files.push((rel, bytes));
         }
     }
@@ -133,7 +155,10 @@ fn scene_files(scene: &Path) -> anyhow::Result<Vec<(String, Vec<u8>)>> {
 }
 
 fn multipart(files: &[(String, Vec<u8>)], settings: &Value) -> (String, Vec<u8>) {
-    let boundary = format!("tessera-{:016x}", std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos() as u64).unwrap_or(7));
+    let boundary = format!(
+        "tessera-{:016x}",
+        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos() as u64).unwrap_or(7)
+    );
     let mut body = Vec::new();
     for (name, data) in files {
         body.extend_from_slice(format!("--{boundary}\r\nContent-Disposition: form-data; name=\"scene\"; filename=\"{}\"\r\nContent-Type: application/octet-stream\r\n\r\n", name.replace('"', "")).as_bytes());
@@ -162,7 +187,9 @@ pub fn submit(a: SubmitArgs) -> anyhow::Result<()> {
     }
     let api = Api::new(&a.conn);
     let (ctype, body) = multipart(&files, &settings);
-    let mut r = api.check(api.auth(api.agent.post(&format!("{}/api/v1/jobs", api.base))).header("Content-Type", &ctype).send(&body[..]))?;
+    let mut r = api.check(
+        api.auth(api.agent.post(&format!("{}/api/v1/jobs", api.base))).header("Content-Type", &ctype).send(&body[..]),
+    )?;
     let job: Value = r.body_mut().read_json().map_err(|e| fail(3, format!("bad reply: {e}")))?;
     let id = job["id"].as_str().unwrap_or_default().to_string();
     if !a.wait {
@@ -171,7 +198,10 @@ pub fn submit(a: SubmitArgs) -> anyhow::Result<()> {
     }
     eprintln!("submitted {id}");
     let bar = indicatif::ProgressBar::new(1000);
-    bar.set_style(indicatif::ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {percent:>3}% {msg}").unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()));
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {percent:>3}% {msg}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
     loop {
         let j = api.get_json(&format!("/jobs/{id}"))?;
         let frac = j["progress"]["fraction"].as_f64().unwrap_or(0.0);
@@ -187,7 +217,10 @@ pub fn submit(a: SubmitArgs) -> anyhow::Result<()> {
             Some("done") => break,
             Some("failed") | Some("cancelled") => {
                 bar.abandon();
-                return Err(fail(5, format!("job {id} {}: {}", j["state"].as_str().unwrap_or("?"), j["error"].as_str().unwrap_or(""))));
+                return Err(fail(
+                    5,
+                    format!("job {id} {}: {}", j["state"].as_str().unwrap_or("?"), j["error"].as_str().unwrap_or("")),
+                ));
             }
             _ => std::thread::sleep(Duration::from_millis(300)),
         }

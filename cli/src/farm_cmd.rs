@@ -42,7 +42,12 @@ pub fn coordinator(a: CoordinatorArgs) -> Result<()> {
         data_dir: a.data_dir,
         token,
         worker_secret,
-        limits: coordinator::Limits { max_upload_bytes: a.max_upload_mb << 20, max_side: a.max_side, max_spp: a.max_spp, max_queued_jobs: a.max_queued_jobs },
+        limits: coordinator::Limits {
+            max_upload_bytes: a.max_upload_mb << 20,
+            max_side: a.max_side,
+            max_spp: a.max_spp,
+            max_queued_jobs: a.max_queued_jobs,
+        },
         lease: std::time::Duration::from_secs_f64(a.lease_seconds),
     };
     let rt = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
@@ -87,12 +92,16 @@ pub struct WorkerArgs {
 }
 
 pub fn worker(a: WorkerArgs) -> Result<()> {
-    let name = a.name.unwrap_or_else(|| format!("{}-{}", std::env::var("HOSTNAME").unwrap_or_else(|_| "worker".into()), std::process::id()));
+    let name = a.name.unwrap_or_else(|| {
+        format!("{}-{}", std::env::var("HOSTNAME").unwrap_or_else(|_| "worker".into()), std::process::id())
+    });
     let config = worker::WorkerConfig {
         coordinator: a.coordinator,
         secret: std::env::var("TESSERA_WORKER_SECRET").ok().filter(|t| !t.is_empty()),
         threads: a.threads,
-        cache_dir: a.cache_dir.unwrap_or_else(|| std::env::temp_dir().join(format!("tessera-cache-{}", std::process::id()))),
+        cache_dir: a
+            .cache_dir
+            .unwrap_or_else(|| std::env::temp_dir().join(format!("tessera-cache-{}", std::process::id()))),
         name,
         cache_limit_bytes: a.cache_limit_mb << 20,
     };

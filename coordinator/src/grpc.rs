@@ -20,7 +20,11 @@ pub fn router(shared: Arc<Shared>) -> axum::Router {
     let secret = shared.config.worker_secret.clone();
     let check = move |req: Request<()>| -> Result<Request<()>, Status> {
         if let Some(secret) = &secret {
-            let given = req.metadata().get("authorization").and_then(|v| v.to_str().ok()).and_then(|v| v.strip_prefix("Bearer "));
+            let given = req
+                .metadata()
+                .get("authorization")
+                .and_then(|v| v.to_str().ok())
+                .and_then(|v| v.strip_prefix("Bearer "));
             if given != Some(secret.as_str()) {
                 return Err(Status::unauthenticated("worker secret missing or wrong (TESSERA_WORKER_SECRET)"));
             }
@@ -70,7 +74,16 @@ impl Farm for FarmService {
         tracing::info!(worker = %id, %name, cores = r.cores, version = %r.version, "worker registered");
         lock(&self.shared.workers).insert(
             id.clone(),
-            WorkerInfo { id: id.clone(), name, version: r.version.chars().take(32).collect(), cores: r.cores, registered_ms: now_ms(), last_seen_ms: now_ms(), units_done: 0, units_rejected: 0 },
+            WorkerInfo {
+                id: id.clone(),
+                name,
+                version: r.version.chars().take(32).collect(),
+                cores: r.cores,
+                registered_ms: now_ms(),
+                last_seen_ms: now_ms(),
+                units_done: 0,
+                units_rejected: 0,
+            },
         );
         Ok(Response::new(RegisterReply { worker_id: id, lease_ms: self.shared.config.lease.as_millis() as u32 }))
     }
@@ -82,7 +95,8 @@ impl Farm for FarmService {
         loop {
             // Register interest before looking, so a notification between the look and the wait is not lost.
             let notified = self.shared.work_available.notified();
-            let unit = lock(&self.shared.farm).lease(&r.worker_id, now_ms(), self.shared.config.lease.as_millis() as i64);
+            let unit =
+                lock(&self.shared.farm).lease(&r.worker_id, now_ms(), self.shared.config.lease.as_millis() as i64);
             if let Some(u) = unit {
                 let settings_json = serde_json::to_string(&u.settings).map_err(|e| Status::internal(e.to_string()))?;
                 let size = lock(&self.shared.store).scene(&u.scene_hash).ok().flatten().map_or(0, |s| s.len() as u64);
@@ -116,15 +130,24 @@ impl Farm for FarmService {
             .map_err(|e| Status::internal(e.to_string()))?
             .ok_or_else(|| Status::not_found(format!("no scene with hash {}", r.scene_hash)))?;
         let total = data.len() as u64;
-        let chunks: Vec<Result<SceneChunk, Status>> = data.chunks(CHUNK).map(|c| Ok(SceneChunk { total_size: total, data: c.to_vec() })).collect();
+        let chunks: Vec<Result<SceneChunk, Status>> =
+            data.chunks(CHUNK).map(|c| Ok(SceneChunk { total_size: total, data: c.to_vec() })).collect();
         Ok(Response::new(Box::pin(tokio_stream::iter(chunks))))
     }
 
     async fn heartbeat(&self, req: Request<HeartbeatRequest>) -> Result<Response<HeartbeatReply>, Status> {
         let r = req.into_inner();
         self.touch(&r.worker_id)?;
-        let deadline = lock(&self.shared.farm).heartbeat(&r.worker_id, &r.unit_id, now_ms(), self.shared.config.lease.as_millis() as i64);
-        Ok(Response::new(HeartbeatReply { keep_going: deadline.is_some(), lease_deadline_unix_ms: deadline.unwrap_or(0) }))
+        let deadline = lock(&self.shared.farm).heartbeat(
+            &r.worker_id,
+            &r.unit_id,
+            now_ms(),
+            self.shared.config.lease.as_millis() as i64,
+        );
+        Ok(Response::new(HeartbeatReply {
+            keep_going: deadline.is_some(),
+            lease_deadline_unix_ms: deadline.unwrap_or(0),
+        }))
     }
 
     async fn submit_result(&self, req: Request<Streaming<ResultChunk>>) -> Result<Response<SubmitReply>, Status> {
@@ -158,7 +181,10 @@ impl Farm for FarmService {
         let sums = if too_long {
             Err(format!("payload exceeds the {expected} bytes a {}x{} tile can hold", rect.width, rect.height))
         } else if claimed != Some(rect) || header.sample_start != samples.start || header.sample_end != samples.end {
-            Err(format!("result header {:?} {}..{} does not match the unit {:?} {:?}", claimed, header.sample_start, header.sample_end, rect, samples))
+            Err(format!(
+                "result header {:?} {}..{} does not match the unit {:?} {:?}",
+                claimed, header.sample_start, header.sample_end, rect, samples
+            ))
         } else {
             PartialSums::decode(rect, &payload)
         };
@@ -193,8 +219,12 @@ impl Farm for FarmService {
                 }
                 SubmitReply { accepted: true, message: "merged".into() }
             }
-            SubmitOutcome::Duplicate => SubmitReply { accepted: false, message: "unit already merged: result dropped".into() },
-            SubmitOutcome::Stale => SubmitReply { accepted: false, message: "job finished or cancelled: result dropped".into() },
+            SubmitOutcome::Duplicate => {
+                SubmitReply { accepted: false, message: "unit already merged: result dropped".into() }
+            }
+            SubmitOutcome::Stale => {
+                SubmitReply { accepted: false, message: "job finished or cancelled: result dropped".into() }
+            }
             SubmitOutcome::Rejected(why) => {
                 drop(farm);
                 tracing::warn!(worker = %header.worker_id, unit = %header.unit_id, %why, "result rejected; worker put on the job's bad list");

@@ -141,7 +141,10 @@ pub async fn serve(config: Config) -> Result<(), Box<dyn std::error::Error + Sen
     serve_on(listener, config).await
 }
 
-pub async fn serve_on(listener: tokio::net::TcpListener, config: Config) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
+pub async fn serve_on(
+    listener: tokio::net::TcpListener,
+    config: Config,
+) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
     if config.token.is_none() {
         tracing::warn!("TESSERA_TOKEN is not set: the REST API accepts anyone who can reach it");
     }

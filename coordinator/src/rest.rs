@@ -55,7 +55,11 @@ pub fn router(shared: Arc<Shared>) -> Router {
 
 async fn auth(State(s): S, req: axum::extract::Request, next: axum::middleware::Next) -> Response {
     if let Some(token) = &s.config.token {
-        let given = req.headers().get(header::AUTHORIZATION).and_then(|v| v.to_str().ok()).and_then(|v| v.strip_prefix("Bearer "));
+        let given = req
+            .headers()
+            .get(header::AUTHORIZATION)
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| v.strip_prefix("Bearer "));
         if given != Some(token.as_str()) {
             return err(StatusCode::UNAUTHORIZED, "missing or wrong bearer token (TESSERA_TOKEN)").into_response();
         }
@@ -86,7 +90,10 @@ struct SubmitSettings {
 async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Value>), ApiError> {
     let limits = s.config.limits.clone();
     if lock(&s.farm).queued_jobs() >= limits.max_queued_jobs {
-        return Err(err(StatusCode::TOO_MANY_REQUESTS, format!("the queue holds the maximum of {} unfinished jobs", limits.max_queued_jobs)));
+        return Err(err(
+            StatusCode::TOO_MANY_REQUESTS,
+            format!("the queue holds the maximum of {} unfinished jobs", limits.max_queued_jobs),
+        ));
     }
     let mut files: Vec<(String, Vec<u8>)> = Vec::new();
     let mut settings = SubmitSettings::default();
@@ -96,29 +103,54 @@ async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Va
             Ok(Some(f)) => f,
             Ok(None) => break,
             Err(e) => {
-                let status = if e.status() == StatusCode::PAYLOAD_TOO_LARGE { StatusCode::PAYLOAD_TOO_LARGE } else { StatusCode::BAD_REQUEST };
-                let msg = if status == StatusCode::PAYLOAD_TOO_LARGE { format!("upload exceeds the limit of {} bytes", limits.max_upload_bytes) } else { format!("bad multipart body: {e}") };
+                let status = if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
+                    StatusCode::PAYLOAD_TOO_LARGE
+                } else {
+                    StatusCode::BAD_REQUEST
+                };
+                let msg = if status == StatusCode::PAYLOAD_TOO_LARGE {
+                    format!("upload exceeds the limit of {} bytes", limits.max_upload_bytes)
+                } else {
+                    format!("bad multipart body: {e}")
+                };
                 return Err(err(status, msg));
             }
         };
         let name = field.name().unwrap_or("").to_string();
         match name.as_str() {
             "scene" => {
-                let file_name = field.file_name().map(str::to_string).ok_or_else(|| err(StatusCode::BAD_REQUEST, "a 'scene' part needs a file name"))?;
-                let data = field.bytes().await.map_err(|e| err(StatusCode::PAYLOAD_TOO_LARGE, format!("upload failed or exceeds the limit of {} bytes: {e}", limits.max_upload_bytes)))?;
+                let file_name = field
+                    .file_name()
+                    .map(str::to_string)
+                    .ok_or_else(|| err(StatusCode::BAD_REQUEST, "a 'scene' part needs a file name"))?;
+                let data = field.bytes().await.map_err(|e| {
+                    err(
+                        StatusCode::PAYLOAD_TOO_LARGE,
+                        format!("upload failed or exceeds the limit of {} bytes: {e}", limits.max_upload_bytes),
+                    )
+                })?;
                 total += data.len();
                 files.push((file_name, data.to_vec()));
             }
             "settings" => {
                 let text = field.text().await.map_err(|e| err(StatusCode::BAD_REQUEST, format!("settings: {e}")))?;
-                settings = serde_json::from_str(&text).map_err(|e| err(StatusCode::BAD_REQUEST, format!("settings JSON: {e}")))?;
+                settings = serde_json::from_str(&text)
+                    .map_err(|e| err(StatusCode::BAD_REQUEST, format!("settings JSON: {e}")))?;
             }
             "env" => return Err(err(StatusCode::UNPROCESSABLE_ENTITY, "environment maps are not supported yet")),
-            other => return Err(err(StatusCode::BAD_REQUEST, format!("unknown form field '{other}' (expected scene, settings, env)"))),
+            other => {
+                return Err(err(
+                    StatusCode::BAD_REQUEST,
+                    format!("unknown form field '{other}' (expected scene, settings, env)"),
+                ))
+            }
         }
     }
     if total > limits.max_upload_bytes {
-        return Err(err(StatusCode::PAYLOAD_TOO_LARGE, format!("upload of {total} bytes exceeds the limit of {} bytes", limits.max_upload_bytes)));
+        return Err(err(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            format!("upload of {total} bytes exceeds the limit of {} bytes", limits.max_upload_bytes),
+        ));
     }
     let main = files
         .iter()
@@ -134,7 +166,8 @@ async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Va
     let d = dir.clone();
     let loaded = tokio::task::spawn_blocking(move || -> Result<Option<f32>, String> {
         let main = b.unpack(&d).map_err(|e| format!("cannot unpack the scene: {e}"))?;
-        let scene = renderer::gltf_loader::load(&main).map_err(|e| e.to_string().replace(&format!("{}/", d.display()), ""))?;
+        let scene =
+            renderer::gltf_loader::load(&main).map_err(|e| e.to_string().replace(&format!("{}/", d.display()), ""))?;
         Ok(scene.camera(None).ok().and_then(|c| c.aspect_ratio))
     })
     .await
@@ -160,10 +193,16 @@ async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Va
     };
     rs.validate().map_err(|e| err(StatusCode::UNPROCESSABLE_ENTITY, e))?;
     if rs.width > limits.max_side || rs.height > limits.max_side {
-        return Err(err(StatusCode::UNPROCESSABLE_ENTITY, format!("resolution {}x{} exceeds this farm's limit of {} per side", rs.width, rs.height, limits.max_side)));
+        return Err(err(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            format!("resolution {}x{} exceeds this farm's limit of {} per side", rs.width, rs.height, limits.max_side),
+        ));
     }
     if rs.spp > limits.max_spp {
-        return Err(err(StatusCode::UNPROCESSABLE_ENTITY, format!("spp {} exceeds this farm's limit of {}", rs.spp, limits.max_spp)));
+        return Err(err(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            format!("spp {} exceeds this farm's limit of {}", rs.spp, limits.max_spp),
+        ));
     }
     let encoded = bundle.encode();
     let hash = hex::encode(sha2::Sha256::digest(&encoded));
@@ -176,11 +215,18 @@ async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Va
         }
         id
     };
-    let spec = JobSpec { name: settings.name.unwrap_or_else(|| bundle.main.clone()), scene_hash: hash, settings: rs, priority: settings.priority.unwrap_or(0) };
+    let spec = JobSpec {
+        name: settings.name.unwrap_or_else(|| bundle.main.clone()),
+        scene_hash: hash,
+        settings: rs,
+        priority: settings.priority.unwrap_or(0),
+    };
     let job = Job::new(id.clone(), spec, now_ms());
     {
         let store = lock(&s.store);
-        store.put_scene(&job.spec.scene_hash, &encoded).map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
+        store
+            .put_scene(&job.spec.scene_hash, &encoded)
+            .map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
         store.put_job(&job).map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
     }
     let body = job_json(&job);
@@ -246,11 +292,21 @@ async fn cancel_job(State(s): S, Path(id): Path<String>) -> Result<Json<Value>, 
 }
 
 async fn download(State(s): S, Path(id): Path<String>) -> Result<Response, ApiError> {
-    let state = lock(&s.farm).jobs.get(&id).map(|j| j.state.clone()).ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no job '{id}'")))?;
+    let state = lock(&s.farm)
+        .jobs
+        .get(&id)
+        .map(|j| j.state.clone())
+        .ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no job '{id}'")))?;
     if state != JobState::Done {
-        return Err(err(StatusCode::CONFLICT, format!("job '{id}' is {}, not done: no image yet (the preview is at /preview.png)", state.as_str())));
+        return Err(err(
+            StatusCode::CONFLICT,
+            format!("job '{id}' is {}, not done: no image yet (the preview is at /preview.png)", state.as_str()),
+        ));
     }
-    let exr = lock(&s.store).image(&id).map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?.ok_or_else(|| err(StatusCode::NOT_FOUND, "image missing"))?;
+    let exr = lock(&s.store)
+        .image(&id)
+        .map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
+        .ok_or_else(|| err(StatusCode::NOT_FOUND, "image missing"))?;
     Ok(([(header::CONTENT_TYPE, "image/x-exr")], Bytes::from(exr)).into_response())
 }
 

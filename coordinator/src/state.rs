@@ -60,7 +60,10 @@ pub struct JobSpec {
 #[derive(Clone, Debug, PartialEq)]
 enum UnitState {
     Pending,
-    Leased { worker: String, deadline_ms: i64 },
+    Leased {
+        worker: String,
+        deadline_ms: i64,
+    },
     /// The result arrived (it may still wait for earlier passes before it is folded).
     Received,
 }
@@ -232,10 +235,19 @@ impl Farm {
         let mut candidates: Vec<&mut Job> = self
             .jobs
             .values_mut()
-            .filter(|j| !j.state.is_final() && !j.bad_workers.contains(worker) && j.units.iter().any(|u| *u == UnitState::Pending))
+            .filter(|j| {
+                !j.state.is_final()
+                    && !j.bad_workers.contains(worker)
+                    && j.units.iter().any(|u| *u == UnitState::Pending)
+            })
             .collect();
         candidates.sort_by(|a, b| {
-            b.spec.priority.cmp(&a.spec.priority).then(a.last_served.cmp(&b.last_served)).then(a.submitted_ms.cmp(&b.submitted_ms)).then(a.id.cmp(&b.id))
+            b.spec
+                .priority
+                .cmp(&a.spec.priority)
+                .then(a.last_served.cmp(&b.last_served))
+                .then(a.submitted_ms.cmp(&b.submitted_ms))
+                .then(a.id.cmp(&b.id))
         });
         let job = candidates.into_iter().next()?;
         let idx = job.units.iter().position(|u| *u == UnitState::Pending)?;
@@ -413,9 +425,15 @@ mod tests {
         let units: Vec<WorkUnit> = (0..4).map(|_| f.lease("w", 0, 1000).unwrap()).collect();
         // Tile 0, pass 1 first: waits for pass 0.
         let u = &units[2];
-        assert_eq!(f.submit("w", &u.unit_id, Ok(sums(u.rect, 4, 2.0))), SubmitOutcome::Merged { tiles_changed: vec![], job_complete: false });
+        assert_eq!(
+            f.submit("w", &u.unit_id, Ok(sums(u.rect, 4, 2.0))),
+            SubmitOutcome::Merged { tiles_changed: vec![], job_complete: false }
+        );
         let u = &units[0];
-        assert_eq!(f.submit("w", &u.unit_id, Ok(sums(u.rect, 4, 1.0))), SubmitOutcome::Merged { tiles_changed: vec![0], job_complete: false });
+        assert_eq!(
+            f.submit("w", &u.unit_id, Ok(sums(u.rect, 4, 1.0))),
+            SubmitOutcome::Merged { tiles_changed: vec![0], job_complete: false }
+        );
         assert_eq!(f.jobs["a"].folded[0], 2);
         assert_eq!(f.submit("w2", &u.unit_id, Ok(sums(u.rect, 4, 1.0))), SubmitOutcome::Duplicate);
         for u in [&units[1], &units[3]] {

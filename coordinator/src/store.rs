@@ -22,7 +22,8 @@ pub struct Store {
 
 impl Store {
     pub fn open(dir: &Path) -> Result<Self, StoreError> {
-        std::fs::create_dir_all(dir).map_err(|e| StoreError::Corrupt(format!("cannot create {}: {e}", dir.display())))?;
+        std::fs::create_dir_all(dir)
+            .map_err(|e| StoreError::Corrupt(format!("cannot create {}: {e}", dir.display())))?;
         let db = Connection::open(dir.join("tessera.db"))?;
         db.execute_batch(
             "PRAGMA journal_mode=WAL;
@@ -94,7 +95,8 @@ impl Store {
 
     /// Every job, with unfinished ones restored to their checkpointed progress.
     pub fn load_jobs(&self) -> Result<Vec<Job>, StoreError> {
-        let mut stmt = self.db.prepare("SELECT id, spec, state, error, submitted_ms, started_ms, finished_ms FROM jobs")?;
+        let mut stmt =
+            self.db.prepare("SELECT id, spec, state, error, submitted_ms, started_ms, finished_ms FROM jobs")?;
         let rows = stmt.query_map([], |r| {
             Ok((
                 r.get::<_, String>(0)?,
@@ -109,19 +111,24 @@ impl Store {
         let mut jobs = Vec::new();
         for row in rows {
             let (id, spec, state, error, submitted, started, finished) = row?;
-            let spec: JobSpec = serde_json::from_str(&spec).map_err(|e| StoreError::Corrupt(format!("job {id}: {e}")))?;
+            let spec: JobSpec =
+                serde_json::from_str(&spec).map_err(|e| StoreError::Corrupt(format!("job {id}: {e}")))?;
             let mut job = Job::new(id.clone(), spec, submitted);
-            job.state = JobState::parse(&state).ok_or_else(|| StoreError::Corrupt(format!("job {id}: state '{state}'")))?;
+            job.state =
+                JobState::parse(&state).ok_or_else(|| StoreError::Corrupt(format!("job {id}: state '{state}'")))?;
             job.error = error;
             job.started_ms = started;
             job.finished_ms = finished;
             if !job.state.is_final() {
                 let mut t = self.db.prepare("SELECT tile, folded, sums FROM tiles WHERE job_id = ?1")?;
-                let tiles = t.query_map(params![id], |r| Ok((r.get::<_, i64>(0)?, r.get::<_, i64>(1)?, r.get::<_, Vec<u8>>(2)?)))?;
+                let tiles = t.query_map(params![id], |r| {
+                    Ok((r.get::<_, i64>(0)?, r.get::<_, i64>(1)?, r.get::<_, Vec<u8>>(2)?))
+                })?;
                 for tile in tiles {
                     let (tile, folded, blob) = tile?;
                     let Some(rect) = job.tiles.get(tile as usize).copied() else { continue };
-                    let sums = PartialSums::decode(rect, &blob).map_err(|e| StoreError::Corrupt(format!("job {id} tile {tile}: {e}")))?;
+                    let sums = PartialSums::decode(rect, &blob)
+                        .map_err(|e| StoreError::Corrupt(format!("job {id} tile {tile}: {e}")))?;
                     job.restore_tile(tile as usize, folded as u32, sums);
                 }
             }

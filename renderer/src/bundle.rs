@@ -79,7 +79,8 @@ impl SceneBundle {
         let mut files = Vec::with_capacity(count);
         for _ in 0..count {
             let nlen = r.u32()? as usize;
-            let name = std::str::from_utf8(r.take(nlen)?).map_err(|_| "file name is not UTF-8".to_string())?.to_string();
+            let name =
+                std::str::from_utf8(r.take(nlen)?).map_err(|_| "file name is not UTF-8".to_string())?.to_string();
             let dlen = r.u64()?;
             let data = r.take(usize::try_from(dlen).map_err(|_| "file too large".to_string())?)?.to_vec();
             files.push((name, data));
@@ -119,7 +120,11 @@ struct Reader<'a> {
 
 impl Reader<'_> {
     fn take(&mut self, n: usize) -> Result<&[u8], String> {
-        let end = self.at.checked_add(n).filter(|&e| e <= self.b.len()).ok_or_else(|| format!("truncated bundle: {n} bytes wanted at offset {}", self.at))?;
+        let end = self
+            .at
+            .checked_add(n)
+            .filter(|&e| e <= self.b.len())
+            .ok_or_else(|| format!("truncated bundle: {n} bytes wanted at offset {}", self.at))?;
         let s = &self.b[self.at..end];
         self.at = end;
         Ok(s)
@@ -142,7 +147,10 @@ mod tests {
 
     #[test]
     fn round_trip_and_rejections() {
-        let b = SceneBundle { main: "a.gltf".into(), files: vec![("a.gltf".into(), b"{}".to_vec()), ("tex/b.png".into(), vec![1, 2, 3])] };
+        let b = SceneBundle {
+            main: "a.gltf".into(),
+            files: vec![("a.gltf".into(), b"{}".to_vec()), ("tex/b.png".into(), vec![1, 2, 3])],
+        };
         let e = b.encode();
         assert_eq!(SceneBundle::decode(&e).unwrap(), b);
         for cut in [0, 3, 8, 13, e.len() - 1] {
@@ -154,7 +162,8 @@ mod tests {
         for bad in ["../x", "/etc/passwd", "a/../../b", ".hidden", "a\\b", ""] {
             assert!(!valid_name(bad), "{bad}");
         }
-        let escaping = SceneBundle { main: "a.gltf".into(), files: vec![("a.gltf".into(), vec![]), ("../x".into(), vec![])] };
+        let escaping =
+            SceneBundle { main: "a.gltf".into(), files: vec![("a.gltf".into(), vec![]), ("../x".into(), vec![])] };
         assert!(escaping.validate().is_err());
     }
 }

@@ -210,7 +210,12 @@ impl PartialSums {
         let n = rect.pixels();
         let expected = n.checked_mul(ENCODED_PIXEL_BYTES).ok_or("rect too large")?;
         if bytes.len() != expected {
-            return Err(format!("{} bytes of sums for a {}x{} rect, expected {expected}", bytes.len(), rect.width, rect.height));
+            return Err(format!(
+                "{} bytes of sums for a {}x{} rect, expected {expected}",
+                bytes.len(),
+                rect.width,
+                rect.height
+            ));
         }
         let mut p = PartialSums::new(rect);
         let f = |b: &[u8]| f64::from_le_bytes(b.try_into().unwrap_or([0; 8]));

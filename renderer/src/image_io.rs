@@ -12,14 +12,29 @@ pub const VARIANCE_CHANNEL: &str = "variance";
 /// Name of the EXR channel holding each pixel's sample count.
 pub const SPP_CHANNEL: &str = "spp";
 
-/// The header attributes every Tessera EXR carries (the same for a local and a farm render, so the
-/// files are byte-identical): the settings that made the image, and the version.
+/// The header attribute every Tessera EXR carries (the same for a local and a farm render, so the
+/// files are byte-identical): `tessera`, the version and the settings that made the image. One
+/// attribute, because the EXR writer keeps custom attributes in a hash map whose order would vary.
 pub fn standard_attributes(s: &crate::RenderSettings) -> Vec<(&'static str, String)> {
-    let settings = format!(
-        "width={} height={} spp={} pass_spp={} integrator={:?} mis_heuristic={:?} sampler={:?} seed={} max_depth={} rr_depth={} camera={:?} filter={:?}",
-        s.width, s.height, s.spp, s.pass_spp, s.integrator, s.mis_heuristic, s.sampler, s.seed, s.max_depth, s.rr_depth, s.camera, s.filter
-    );
-    vec![("tessera.settings", settings), ("tessera.version", env!("CARGO_PKG_VERSION").to_string())]
+    vec![(
+        "tessera",
+        format!(
+            "version={} width={} height={} spp={} pass_spp={} integrator={:?} mis_heuristic={:?} sampler={:?} seed={} max_depth={} rr_depth={} camera={:?} filter={:?}",
+            env!("CARGO_PKG_VERSION"),
+            s.width,
+            s.height,
+            s.spp,
+            s.pass_spp,
+            s.integrator,
+            s.mis_heuristic,
+            s.sampler,
+            s.seed,
+            s.max_depth,
+            s.rr_depth,
+            s.camera,
+            s.filter
+        ),
+    )]
 }
 
 /// A finished image, in the form written to disk.

@@ -1,1 +1,170 @@
-//! Helpers for the farm's integration tests.
+//! Helpers for the farm's integration tests: run the real `tessera` binary as coordinator, workers
+//! and client on loopback with ephemeral ports, and kill or restart them.
+
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// The `tessera` binary built alongside these tests (target/<profile>/tessera).
+pub fn tessera_bin() -> PathBuf {
+    let exe = std::env::current_exe().expect("test executable path");
+    let dir = exe.parent().and_then(Path::parent).expect("target dir");
+    let bin = dir.join("tessera");
+    assert!(bin.exists(), "{} not built: run the tests with `cargo test --workspace`", bin.display());
+    bin
+}
+
+pub fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// A free TCP port on 127.0.0.1.
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0").and_then(|l| l.local_addr()).map(|a| a.port()).expect("ephemeral port")
+}
+
+/// A child process killed when dropped.
+pub struct Proc {
+    pub child: Child,
+    pub name: String,
+}
+
+impl Proc {
+    pub fn kill9(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        self.kill9();
+    }
+}
+
+pub struct Farm {
+    pub url: String,
+    pub port: u16,
+    pub data_dir: PathBuf,
+    pub env: Vec<(String, String)>,
+    pub coordinator: Option<Proc>,
+    pub workers: Vec<Proc>,
+    pub tmp: PathBuf,
+}
+
+pub fn temp_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("tessera-test-{name}-{}-{}", std::process::id(), free_port()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).expect("temp dir");
+    d
+}
+
+impl Farm {
+    /// Starts a coordinator (lease 1.5 s so tests see expiry quickly) with extra env vars.
+    pub fn start(name: &str, env: &[(&str, &str)]) -> Farm {
+        let port = free_port();
+        let tmp = temp_dir(name);
+        let mut f = Farm {
+            url: format!("http://127.0.0.1:{port}"),
+            port,
+            data_dir: tmp.join("data"),
+            env: env.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect(),
+            coordinator: None,
+            workers: Vec::new(),
+            tmp,
+        };
+        f.start_coordinator();
+        f
+    }
+
+    pub fn start_coordinator(&mut self) {
+        let log = std::fs::File::create(self.tmp.join(format!("coordinator-{}.log", free_port()))).expect("log");
+        let child = Command::new(tessera_bin())
+            .args(["coordinator", "--listen", &format!("127.0.0.1:{}", self.port), "--data-dir"])
+            .arg(&self.data_dir)
+            .args(["--lease-seconds", "1.5", "--max-side", "4096"])
+            .envs(self.env.iter().map(|(k, v)| (k.as_str(), v.as_str())))
+            .env("TESSERA_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(log)
+            .spawn()
+            .expect("start coordinator");
+        self.coordinator = Some(Proc { child, name: "coordinator".into() });
+        let t = Instant::now();
+        while t.elapsed() < Duration::from_secs(20) {
+            if ureq::get(&format!("{}/healthz", self.url)).call().is_ok() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        panic!("coordinator did not come up on {}", self.url);
+    }
+
+    pub fn start_worker(&mut self, threads: usize) -> usize {
+        let log = std::fs::File::create(self.tmp.join(format!("worker-{}.log", self.workers.len()))).expect("log");
+        let child = Command::new(tessera_bin())
+            .args(["worker", "--coordinator", &self.url, "--threads", &threads.to_string(), "--cache-dir"])
+            .arg(self.tmp.join(format!("cache-{}", self.workers.len())))
+            .envs(self.env.iter().map(|(k, v)| (k.as_str(), v.as_str())))
+            .env("TESSERA_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(log)
+            .spawn()
+            .expect("start worker");
+        self.workers.push(Proc { child, name: format!("worker{}", self.workers.len()) });
+        self.workers.len() - 1
+    }
+
+    /// Runs the CLI against this farm; returns (exit code, stdout, stderr).
+    pub fn cli(&self, args: &[&str]) -> (i32, String, String) {
+        let out = Command::new(tessera_bin())
+            .args(args)
+            .env("TESSERA_COORDINATOR", &self.url)
+            .envs(self.env.iter().map(|(k, v)| (k.as_str(), v.as_str())))
+            .output()
+            .expect("run tessera");
+        (
+            out.status.code().unwrap_or(-1),
+            String::from_utf8_lossy(&out.stdout).into_owned(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    }
+
+    pub fn job(&self, id: &str) -> Value {
+        let (code, out, err) = self.cli(&["status", id]);
+        assert_eq!(code, 0, "status failed: {err}");
+        serde_json::from_str(&out).expect("status JSON")
+    }
+
+    /// Waits until `pred(job)` holds, or panics after `timeout`.
+    pub fn wait_job(&self, id: &str, timeout: Duration, pred: impl Fn(&Value) -> bool) -> Value {
+        let t = Instant::now();
+        loop {
+            let j = self.job(id);
+            if pred(&j) {
+                return j;
+            }
+            assert!(t.elapsed() < timeout, "job {id} did not reach the expected state in {timeout:?}: {j}");
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+}
+
+/// Renders locally with the CLI and returns the EXR bytes.
+pub fn local_render(scene: &Path, args: &[&str], out: &Path) -> Vec<u8> {
+    let status = Command::new(tessera_bin())
+        .arg("render")
+        .arg(scene)
+        .arg("-o")
+        .arg(out)
+        .args(args)
+        .stderr(Stdio::null())
+        .status()
+        .expect("tessera render");
+    assert!(status.success());
+    std::fs::read(out).expect("local EXR")
+}

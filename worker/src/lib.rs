@@ -55,17 +55,29 @@ impl tonic::service::Interceptor for Auth {
 /// Runs until `stop` is set (then finishes the unit in hand) or the coordinator refuses us.
 pub async fn run(config: WorkerConfig, stop: Arc<AtomicBool>) -> Result<(), WorkerError> {
     let pool = Arc::new(
-        rayon::ThreadPoolBuilder::new().num_threads(config.threads.unwrap_or(0)).build().map_err(|e| WorkerError::Other(e.to_string()))?,
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(config.threads.unwrap_or(0))
+            .build()
+            .map_err(|e| WorkerError::Other(e.to_string()))?,
     );
     let auth = Auth(match &config.secret {
-        Some(s) => Some(format!("Bearer {s}").parse().map_err(|_| WorkerError::Other("the worker secret has characters not allowed in a header".into()))?),
+        Some(s) => Some(
+            format!("Bearer {s}")
+                .parse()
+                .map_err(|_| WorkerError::Other("the worker secret has characters not allowed in a header".into()))?,
+        ),
         None => None,
     });
-    std::fs::create_dir_all(&config.cache_dir).map_err(|e| WorkerError::Other(format!("cache dir {}: {e}", config.cache_dir.display())))?;
+    std::fs::create_dir_all(&config.cache_dir)
+        .map_err(|e| WorkerError::Other(format!("cache dir {}: {e}", config.cache_dir.display())))?;
     let mut backoff = Duration::from_millis(200);
     let mut loaded: Option<(String, Arc<Scene>)> = None;
     while !stop.load(Ordering::Relaxed) {
-        let channel = match Channel::from_shared(config.coordinator.clone()).map_err(|_| WorkerError::BadUrl(config.coordinator.clone()))?.connect().await {
+        let channel = match Channel::from_shared(config.coordinator.clone())
+            .map_err(|_| WorkerError::BadUrl(config.coordinator.clone()))?
+            .connect()
+            .await
+        {
             Ok(c) => c,
             Err(e) => {
                 tracing::warn!(error = %e, retry_in = ?backoff, "cannot reach the coordinator");
@@ -77,7 +89,9 @@ pub async fn run(config: WorkerConfig, stop: Arc<AtomicBool>) -> Result<(), Work
         let mut client = FarmClient::with_interceptor(channel, auth.clone()).max_decoding_message_size(64 << 20);
         match session(&config, &mut client, pool.clone(), &stop, &mut loaded).await {
             Ok(()) => return Ok(()),
-            Err(s) if s.code() == Code::FailedPrecondition || s.code() == Code::Unauthenticated => return Err(WorkerError::Refused(s.message().to_string())),
+            Err(s) if s.code() == Code::FailedPrecondition || s.code() == Code::Unauthenticated => {
+                return Err(WorkerError::Refused(s.message().to_string()))
+            }
             Err(s) => {
                 tracing::warn!(error = %s.message(), code = ?s.code(), "lost the coordinator; reconnecting");
                 tokio::time::sleep(backoff).await;
@@ -89,9 +103,20 @@ pub async fn run(config: WorkerConfig, stop: Arc<AtomicBool>) -> Result<(), Work
 }
 
 /// One connection's worth of work: register, then lease and render until stopped or disconnected.
-async fn session(config: &WorkerConfig, client: &mut Client, pool: Arc<rayon::ThreadPool>, stop: &AtomicBool, loaded: &mut Option<(String, Arc<Scene>)>) -> Result<(), Status> {
+async fn session(
+    config: &WorkerConfig,
+    client: &mut Client,
+    pool: Arc<rayon::ThreadPool>,
+    stop: &AtomicBool,
+    loaded: &mut Option<(String, Arc<Scene>)>,
+) -> Result<(), Status> {
     let reg = client
-        .register(RegisterRequest { version: env!("CARGO_PKG_VERSION").into(), protocol: proto::PROTOCOL_VERSION, cores: pool.current_num_threads() as u32, name: config.name.clone() })
+        .register(RegisterRequest {
+            version: env!("CARGO_PKG_VERSION").into(),
+            protocol: proto::PROTOCOL_VERSION,
+            cores: pool.current_num_threads() as u32,
+            name: config.name.clone(),
+        })
         .await?
         .into_inner();
     tracing::info!(worker = %reg.worker_id, "registered");
@@ -121,7 +146,13 @@ async fn session(config: &WorkerConfig, client: &mut Client, pool: Arc<rayon::Th
         let Some(r) = unit.rect else { continue };
         let rect = FilmRect { x0: r.x0, y0: r.y0, width: r.width, height: r.height };
         let samples = unit.sample_start..unit.sample_end;
-        if settings.validate().is_err() || samples.end <= samples.start || rect.width == 0 || rect.height == 0 || rect.x0 + rect.width > settings.width || rect.y0 + rect.height > settings.height {
+        if settings.validate().is_err()
+            || samples.end <= samples.start
+            || rect.width == 0
+            || rect.height == 0
+            || rect.x0 + rect.width > settings.width
+            || rect.y0 + rect.height > settings.height
+        {
             tracing::error!(unit = %unit.unit_id, "malformed unit");
             continue;
         }
@@ -167,15 +198,38 @@ pub async fn submit(client: &mut Client, header: ResultHeader, payload: Vec<u8>)
 
 /// Connects and registers, for tools and tests that speak the protocol directly.
 pub async fn connect(url: &str, secret: Option<&str>) -> Result<(Client, String), Status> {
-    let channel = Channel::from_shared(url.to_string()).map_err(|e| Status::invalid_argument(e.to_string()))?.connect().await.map_err(|e| Status::unavailable(e.to_string()))?;
-    let auth = Auth(secret.map(|s| format!("Bearer {s}").parse()).transpose().map_err(|_| Status::invalid_argument("bad secret"))?);
+    let channel = Channel::from_shared(url.to_string())
+        .map_err(|e| Status::invalid_argument(e.to_string()))?
+        .connect()
+        .await
+        .map_err(|e| Status::unavailable(e.to_string()))?;
+    let auth = Auth(
+        secret
+            .map(|s| format!("Bearer {s}").parse())
+            .transpose()
+            .map_err(|_| Status::invalid_argument("bad secret"))?,
+    );
     let mut client = FarmClient::with_interceptor(channel, auth);
-    let reg = client.register(RegisterRequest { version: env!("CARGO_PKG_VERSION").into(), protocol: proto::PROTOCOL_VERSION, cores: 1, name: "probe".into() }).await?.into_inner();
+    let reg = client
+        .register(RegisterRequest {
+            version: env!("CARGO_PKG_VERSION").into(),
+            protocol: proto::PROTOCOL_VERSION,
+            cores: 1,
+            name: "probe".into(),
+        })
+        .await?
+        .into_inner();
     Ok((client, reg.worker_id))
 }
 
 /// The unit's scene: from memory, from the disk cache, or fetched from the coordinator.
-async fn scene_for(config: &WorkerConfig, client: &mut Client, worker_id: &str, unit: &WorkUnit, loaded: &mut Option<(String, Arc<Scene>)>) -> Result<Arc<Scene>, String> {
+async fn scene_for(
+    config: &WorkerConfig,
+    client: &mut Client,
+    worker_id: &str,
+    unit: &WorkUnit,
+    loaded: &mut Option<(String, Arc<Scene>)>,
+) -> Result<Arc<Scene>, String> {
     if let Some((h, s)) = loaded {
         if *h == unit.scene_hash {
             return Ok(s.clone());
@@ -188,12 +242,20 @@ async fn scene_for(config: &WorkerConfig, client: &mut Client, worker_id: &str, 
     let marker = dir.join(".complete");
     if !marker.exists() {
         if unit.scene_size > config.cache_limit_bytes {
-            return Err(format!("scene of {} bytes exceeds the cache limit of {} bytes", unit.scene_size, config.cache_limit_bytes));
+            return Err(format!(
+                "scene of {} bytes exceeds the cache limit of {} bytes",
+                unit.scene_size, config.cache_limit_bytes
+            ));
         }
-        let mut stream = client.fetch_scene(FetchSceneRequest { worker_id: worker_id.into(), scene_hash: unit.scene_hash.clone() }).await.map_err(|e| e.message().to_string())?.into_inner();
+        let mut stream = client
+            .fetch_scene(FetchSceneRequest { worker_id: worker_id.into(), scene_hash: unit.scene_hash.clone() })
+            .await
+            .map_err(|e| e.message().to_string())?
+            .into_inner();
         let mut data = Vec::new();
         while let Some(chunk) = stream.message().await.map_err(|e| e.message().to_string())? {
-            if chunk.total_size > config.cache_limit_bytes || data.len() + chunk.data.len() > chunk.total_size as usize {
+            if chunk.total_size > config.cache_limit_bytes || data.len() + chunk.data.len() > chunk.total_size as usize
+            {
                 return Err("scene stream larger than announced or than the cache limit".into());
             }
             data.extend_from_slice(&chunk.data);
@@ -211,7 +273,10 @@ async fn scene_for(config: &WorkerConfig, client: &mut Client, worker_id: &str, 
     }
     let main = std::fs::read_to_string(dir.join(".main")).map_err(|e| e.to_string())?;
     let path = dir.join(main.trim());
-    let scene = tokio::task::spawn_blocking(move || renderer::gltf_loader::load(&path)).await.map_err(|e| e.to_string())?.map_err(|e| e.to_string())?;
+    let scene = tokio::task::spawn_blocking(move || renderer::gltf_loader::load(&path))
+        .await
+        .map_err(|e| e.to_string())?
+        .map_err(|e| e.to_string())?;
     let scene = Arc::new(scene);
     *loaded = Some((unit.scene_hash.clone(), scene.clone()));
     Ok(scene)
@@ -219,11 +284,13 @@ async fn scene_for(config: &WorkerConfig, client: &mut Client, worker_id: &str, 
 
 fn dir_size(p: &std::path::Path) -> u64 {
     std::fs::read_dir(p).map_or(0, |rd| {
-        rd.flatten().map(|e| match e.metadata() {
-            Ok(m) if m.is_dir() => dir_size(&e.path()),
-            Ok(m) => m.len(),
-            Err(_) => 0,
-        }).sum()
+        rd.flatten()
+            .map(|e| match e.metadata() {
+                Ok(m) if m.is_dir() => dir_size(&e.path()),
+                Ok(m) => m.len(),
+                Err(_) => 0,
+            })
+            .sum()
     })
 }
 

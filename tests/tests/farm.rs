@@ -1,0 +1,109 @@
+//! The farm end to end: coordinator and worker processes on loopback, driven through the CLI.
+//! Results must be bit-identical to `tessera render` whatever happens to the workers or the
+//! coordinator.
+
+use std::time::Duration;
+use tessera_tests::*;
+
+const SETTINGS: &[&str] = &["--width", "96", "--height", "96", "--spp"];
+
+fn cornell() -> std::path::PathBuf {
+    repo_root().join("scenes/cornell/cornell.gltf")
+}
+
+fn submit(farm: &Farm, spp: &str) -> String {
+    let scene = cornell();
+    let mut args = vec!["submit", scene.to_str().unwrap()];
+    args.extend_from_slice(SETTINGS);
+    args.push(spp);
+    let (code, out, err) = farm.cli(&args);
+    assert_eq!(code, 0, "submit failed: {err}");
+    out.trim().to_string()
+}
+
+fn download_and_compare(farm: &Farm, id: &str, name: &str, spp: &str) {
+    let out = farm.tmp.join(format!("{name}.exr"));
+    let (code, _, err) = farm.cli(&["download", id, "-o", out.to_str().unwrap()]);
+    assert_eq!(code, 0, "download failed: {err}");
+    let mut args = SETTINGS.to_vec();
+    args.push(spp);
+    let local = local_render(&cornell(), &args, &farm.tmp.join(format!("{name}-local.exr")));
+    let remote = std::fs::read(&out).unwrap();
+    assert!(
+        remote == local,
+        "{name}: the farm's EXR differs from tessera render's ({} vs {} bytes)",
+        remote.len(),
+        local.len()
+    );
+}
+
+#[test]
+fn two_workers_give_the_local_image_bit_for_bit() {
+    let mut farm = Farm::start("two-workers", &[]);
+    farm.start_worker(1);
+    farm.start_worker(1);
+    let scene = cornell();
+    let out = farm.tmp.join("farm.exr");
+    let mut args = vec!["submit", scene.to_str().unwrap(), "--wait", "-o", out.to_str().unwrap()];
+    args.extend_from_slice(SETTINGS);
+    args.push("64");
+    let (code, stdout, err) = farm.cli(&args);
+    assert_eq!(code, 0, "submit --wait failed: {err}");
+    let mut local_args = SETTINGS.to_vec();
+    local_args.push("64");
+    let local = local_render(&scene, &local_args, &farm.tmp.join("local.exr"));
+    assert!(std::fs::read(&out).unwrap() == local, "farm EXR differs from the local render");
+    // Both workers took part.
+    let (_, workers, _) = farm.cli(&["workers"]);
+    let busy = workers
+        .lines()
+        .skip(1)
+        .filter(|l| l.split_whitespace().nth(3).and_then(|n| n.parse::<u32>().ok()).unwrap_or(0) > 0)
+        .count();
+    assert_eq!(busy, 2, "both workers should have rendered units:\n{workers}");
+    let j = farm.job(stdout.trim());
+    assert_eq!(j["state"], "done");
+    assert!(j["noise"]["estimated_rel_error"].as_f64().unwrap() > 0.0);
+}
+
+#[test]
+fn a_killed_worker_units_are_re_leased() {
+    let mut farm = Farm::start("kill-worker", &[]);
+    let doomed = farm.start_worker(1);
+    farm.start_worker(1);
+    let id = submit(&farm, "256");
+    farm.wait_job(&id, Duration::from_secs(60), |j| j["progress"]["units_done"].as_u64().unwrap_or(0) >= 4);
+    farm.workers[doomed].kill9();
+    let j = farm.wait_job(&id, Duration::from_secs(180), |j| j["state"] == "done");
+    assert_eq!(j["progress"]["units_done"], j["progress"]["units_total"]);
+    let metrics = ureq::get(&format!("{}/metrics", farm.url)).call().unwrap().into_body().read_to_string().unwrap();
+    let expired: u64 = metrics
+        .lines()
+        .find(|l| l.starts_with("tessera_leases_expired_total"))
+        .and_then(|l| l.split_whitespace().nth(1)?.parse().ok())
+        .unwrap_or(0);
+    assert!(expired >= 1, "the dead worker's lease must have expired and been re-leased:\n{metrics}");
+    download_and_compare(&farm, &id, "kill-worker", "256");
+}
+
+#[test]
+fn a_restarted_coordinator_finishes_from_its_checkpoint() {
+    let mut farm = Farm::start("restart", &[]);
+    farm.start_worker(1);
+    farm.start_worker(1);
+    let id = submit(&farm, "64");
+    let before =
+        farm.wait_job(&id, Duration::from_secs(60), |j| j["progress"]["units_done"].as_u64().unwrap_or(0) >= 6);
+    if let Some(c) = farm.coordinator.as_mut() {
+        c.kill9();
+    }
+    farm.start_coordinator();
+    let after = farm.job(&id);
+    assert!(
+        after["state"] == "done"
+            || after["progress"]["units_done"].as_u64().unwrap() >= before["progress"]["units_done"].as_u64().unwrap(),
+        "checkpointed progress was lost: {before} -> {after}"
+    );
+    farm.wait_job(&id, Duration::from_secs(120), |j| j["state"] == "done");
+    download_and_compare(&farm, &id, "restart", "64");
+}

@@ -170,6 +170,12 @@ pub async fn serve_on(
     });
     let app = rest::router(shared.clone()).merge(grpc::router(shared.clone()));
     tracing::info!(addr = %listener.local_addr()?, "coordinator listening (REST, web, gRPC)");
+    // TCP_NODELAY: a streamed result (header, then data) would otherwise stall ~40 ms per unit
+    // on Nagle's algorithm meeting delayed ACKs.
+    use axum::serve::ListenerExt;
+    let listener = listener.tap_io(|tcp| {
+        let _ = tcp.set_nodelay(true);
+    });
     axum::serve(listener, app).await?;
     Ok(())
 }

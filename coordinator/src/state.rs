@@ -238,7 +238,7 @@ impl Farm {
             .filter(|j| {
                 !j.state.is_final()
                     && !j.bad_workers.contains(worker)
-                    && j.units.iter().any(|u| *u == UnitState::Pending)
+                    && j.units.contains(&UnitState::Pending)
             })
             .collect();
         candidates.sort_by(|a, b| {

@@ -174,13 +174,19 @@ pub fn post_job(url: &str, token: Option<&str>, files: &[(&str, &[u8])], setting
     let b = "xTESSERAx";
     let mut body = Vec::new();
     for (name, data) in files {
-        body.extend_from_slice(format!("--{b}\r\nContent-Disposition: form-data; name=\"scene\"; filename=\"{name}\"\r\n\r\n").as_bytes());
+        body.extend_from_slice(
+            format!("--{b}\r\nContent-Disposition: form-data; name=\"scene\"; filename=\"{name}\"\r\n\r\n").as_bytes(),
+        );
         body.extend_from_slice(data);
         body.extend_from_slice(b"\r\n");
     }
-    body.extend_from_slice(format!("--{b}\r\nContent-Disposition: form-data; name=\"settings\"\r\n\r\n{settings}\r\n--{b}--\r\n").as_bytes());
+    body.extend_from_slice(
+        format!("--{b}\r\nContent-Disposition: form-data; name=\"settings\"\r\n\r\n{settings}\r\n--{b}--\r\n")
+            .as_bytes(),
+    );
     let agent: ureq::Agent = ureq::Agent::config_builder().http_status_as_error(false).build().into();
-    let mut req = agent.post(&format!("{url}/api/v1/jobs")).header("Content-Type", &format!("multipart/form-data; boundary={b}"));
+    let mut req =
+        agent.post(&format!("{url}/api/v1/jobs")).header("Content-Type", &format!("multipart/form-data; boundary={b}"));
     if let Some(t) = token {
         req = req.header("Authorization", &format!("Bearer {t}"));
     }

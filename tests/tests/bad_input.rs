@@ -15,7 +15,8 @@ fn bad_requests_get_clear_4xx_answers_and_the_coordinator_keeps_serving() {
     let farm = Farm::start("bad-input", &[("TESSERA_TOKEN", "let-me-in"), ("TESSERA_WORKER_SECRET", "workers-only")]);
     let tok = Some("let-me-in");
     let glb = cornell_bytes();
-    let cases: Vec<(&str, Option<&str>, Vec<(&str, Vec<u8>)>, &str, u16, &str)> = vec![
+    type Case<'a> = (&'a str, Option<&'a str>, Vec<(&'a str, Vec<u8>)>, &'a str, u16, &'a str);
+    let cases: Vec<Case> = vec![
         ("missing token", None, vec![("c.glb", glb.clone())], "{}", 401, "token"),
         ("wrong token", Some("guess"), vec![("c.glb", glb.clone())], "{}", 401, "token"),
         ("garbage glb", tok, vec![("bad.glb", b"this is not a glb at all".to_vec())], "{}", 422, "bad.glb"),
@@ -23,7 +24,14 @@ fn bad_requests_get_clear_4xx_answers_and_the_coordinator_keeps_serving() {
         ("unknown settings field", tok, vec![("c.glb", glb.clone())], r#"{"spp": 4, "colour": "red"}"#, 400, "colour"),
         ("malformed settings", tok, vec![("c.glb", glb.clone())], "{spp:", 400, "settings JSON"),
         ("spp 0", tok, vec![("c.glb", glb.clone())], r#"{"spp": 0}"#, 422, "spp 0"),
-        ("resolution over the limit", tok, vec![("c.glb", glb.clone())], r#"{"width": 5000, "height": 100}"#, 422, "limit of 4096"),
+        (
+            "resolution over the limit",
+            tok,
+            vec![("c.glb", glb.clone())],
+            r#"{"width": 5000, "height": 100}"#,
+            422,
+            "limit of 4096",
+        ),
         ("no scene file", tok, vec![("notes.txt", b"hi".to_vec())], "{}", 422, ".gltf or .glb"),
         ("escaping file name", tok, vec![("c.glb", glb.clone()), ("../evil.bin", vec![1])], "{}", 422, "not allowed"),
     ];
@@ -38,22 +46,26 @@ fn bad_requests_get_clear_4xx_answers_and_the_coordinator_keeps_serving() {
     let (code, _, err) = farm.cli(&["status", "nope"]);
     assert_eq!(code, 4, "{err}");
     assert!(err.contains("no job 'nope'"), "{err}");
-    let (code, _, err) = Farm { url: format!("http://127.0.0.1:{}", free_port()), ..Farm::start("unreachable", &[]) }.cli(&["list"]);
+    let (code, _, err) =
+        Farm { url: format!("http://127.0.0.1:{}", free_port()), ..Farm::start("unreachable", &[]) }.cli(&["list"]);
     assert_eq!(code, 3, "{err}");
 
     // Workers: wrong secret and wrong protocol version are refused with the right gRPC status.
     let rt = tokio::runtime::Runtime::new().unwrap();
     rt.block_on(async {
-        let e = worker::connect(&farm.url, Some("wrong")).await.err().expect("wrong secret refused");
+        let e = worker::connect(&farm.url, Some("wrong")).await.err().unwrap_or_else(|| panic!("wrong secret refused"));
         assert_eq!(e.code(), tonic::Code::Unauthenticated, "{e}");
-        let e = worker::connect(&farm.url, None).await.err().expect("missing secret refused");
+        let e = worker::connect(&farm.url, None).await.err().unwrap_or_else(|| panic!("missing secret refused"));
         assert_eq!(e.code(), tonic::Code::Unauthenticated, "{e}");
         let channel = tonic::transport::Channel::from_shared(farm.url.clone()).unwrap().connect().await.unwrap();
         let mut raw = farm_client::FarmClient::with_interceptor(channel, |mut r: tonic::Request<()>| {
             r.metadata_mut().insert("authorization", "Bearer workers-only".parse().unwrap());
             Ok(r)
         });
-        let e = raw.register(RegisterRequest { version: "0.0.0".into(), protocol: 999, cores: 1, name: "old".into() }).await.err().expect("old protocol refused");
+        let e = raw
+            .register(RegisterRequest { version: "0.0.0".into(), protocol: 999, cores: 1, name: "old".into() })
+            .await
+            .err().unwrap_or_else(|| panic!("old protocol refused"));
         assert_eq!(e.code(), tonic::Code::FailedPrecondition);
         assert!(e.message().contains("incompatible"), "{}", e.message());
     });
@@ -75,7 +87,13 @@ fn a_lying_worker_is_rejected_and_listed_and_the_job_still_completes_identically
         let mut liars = Vec::new();
         for lie in ["nan", "wrong-size", "wrong-count"] {
             let (mut client, wid) = worker::connect(&farm.url, None).await.expect("connect");
-            let unit = client.lease(LeaseRequest { worker_id: wid.clone(), wait_ms: 2000 }).await.unwrap().into_inner().unit.expect("a unit");
+            let unit = client
+                .lease(LeaseRequest { worker_id: wid.clone(), wait_ms: 2000 })
+                .await
+                .unwrap()
+                .into_inner()
+                .unit
+                .expect("a unit");
             let r = unit.rect.unwrap();
             let rect = renderer::film::Rect { x0: r.x0, y0: r.y0, width: r.width, height: r.height };
             let n = unit.sample_end - unit.sample_start;
@@ -96,8 +114,18 @@ fn a_lying_worker_is_rejected_and_listed_and_the_job_still_completes_identically
                     sums.encode()
                 }
             };
-            let header = ResultHeader { worker_id: wid.clone(), unit_id: unit.unit_id.clone(), rect: Some(r), sample_start: unit.sample_start, sample_end: unit.sample_end, payload_size: payload.len() as u64 };
-            let e = worker::submit(&mut client, header, payload).await.err().unwrap_or_else(|| panic!("{lie}: the lie was accepted"));
+            let header = ResultHeader {
+                worker_id: wid.clone(),
+                unit_id: unit.unit_id.clone(),
+                rect: Some(r),
+                sample_start: unit.sample_start,
+                sample_end: unit.sample_end,
+                payload_size: payload.len() as u64,
+            };
+            let e = worker::submit(&mut client, header, payload)
+                .await
+                .err()
+                .unwrap_or_else(|| panic!("{lie}: the lie was accepted"));
             assert_eq!(e.code(), tonic::Code::InvalidArgument, "{lie}: {e}");
             assert!(e.message().contains("rejected"), "{lie}: {}", e.message());
             // The liar gets no more units of this job.
@@ -109,12 +137,20 @@ fn a_lying_worker_is_rejected_and_listed_and_the_job_still_completes_identically
     });
     let j = farm.job(&id);
     for l in &liars {
-        assert!(j["bad_workers"].as_array().unwrap().iter().any(|b| b == l.as_str()), "{l} not listed as bad: {}", j["bad_workers"]);
+        assert!(
+            j["bad_workers"].as_array().unwrap().iter().any(|b| b == l.as_str()),
+            "{l} not listed as bad: {}",
+            j["bad_workers"]
+        );
     }
     farm.start_worker(2);
     farm.wait_job(&id, Duration::from_secs(120), |j| j["state"] == "done");
     let out = farm.tmp.join("liar.exr");
     assert_eq!(farm.cli(&["download", &id, "-o", out.to_str().unwrap()]).0, 0);
-    let local = local_render(&repo_root().join("scenes/cornell/cornell.glb"), &["--spp", "32", "--width", "64", "--height", "64"], &farm.tmp.join("local.exr"));
+    let local = local_render(
+        &repo_root().join("scenes/cornell/cornell.glb"),
+        &["--spp", "32", "--width", "64", "--height", "64"],
+        &farm.tmp.join("local.exr"),
+    );
     assert!(std::fs::read(&out).unwrap() == local, "the job's image must not contain the lies");
 }

@@ -235,11 +235,7 @@ impl Farm {
         let mut candidates: Vec<&mut Job> = self
             .jobs
             .values_mut()
-            .filter(|j| {
-                !j.state.is_final()
-                    && !j.bad_workers.contains(worker)
-                    && j.units.contains(&UnitState::Pending)
-            })
+            .filter(|j| !j.state.is_final() && !j.bad_workers.contains(worker) && j.units.contains(&UnitState::Pending))
             .collect();
         candidates.sort_by(|a, b| {
             b.spec

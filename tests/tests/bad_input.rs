@@ -65,7 +65,8 @@ fn bad_requests_get_clear_4xx_answers_and_the_coordinator_keeps_serving() {
         let e = raw
             .register(RegisterRequest { version: "0.0.0".into(), protocol: 999, cores: 1, name: "old".into() })
             .await
-            .err().unwrap_or_else(|| panic!("old protocol refused"));
+            .err()
+            .unwrap_or_else(|| panic!("old protocol refused"));
         assert_eq!(e.code(), tonic::Code::FailedPrecondition);
         assert!(e.message().contains("incompatible"), "{}", e.message());
     });

@@ -1,4 +1,4 @@
-//! Farm benchmarks (not tests): `cargo bench -p tessera-tests --bench farm`.
+//! Farm benchmarks (not tests): `cargo bench -p tessera-cli --bench farm`.
 //!
 //! 1. Overhead: the same Cornell job rendered by `tessera render --threads 2` and by a coordinator
 //!    with two 1-thread workers (submit → EXR downloaded), median of several runs each, alternating.
@@ -8,6 +8,7 @@
 use proto::v1::*;
 use std::time::{Duration, Instant};
 use tessera_tests::*;
+use tessera_tests::{renderer, worker};
 
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);

@@ -1,6 +1,9 @@
 //! Helpers for the farm's integration tests: run the real `tessera` binary as coordinator, workers
 //! and client on loopback with ephemeral ports, and kill or restart them.
 
+pub use renderer;
+pub use worker;
+
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -11,7 +14,11 @@ pub fn tessera_bin() -> PathBuf {
     let exe = std::env::current_exe().expect("test executable path");
     let dir = exe.parent().and_then(Path::parent).expect("target dir");
     let bin = dir.join("tessera");
-    assert!(bin.exists(), "{} not built: run the tests with `cargo test --workspace`", bin.display());
+    assert!(
+        bin.exists(),
+        "{} not built: these tests run as tests of tessera-cli (`cargo test --workspace --release`)",
+        bin.display()
+    );
     bin
 }
 

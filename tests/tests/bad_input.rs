@@ -5,6 +5,7 @@
 use proto::v1::*;
 use std::time::Duration;
 use tessera_tests::*;
+use tessera_tests::{renderer, worker};
 
 fn cornell_bytes() -> Vec<u8> {
     std::fs::read(repo_root().join("scenes/cornell/cornell.glb")).unwrap()

@@ -45,17 +45,24 @@ struct Api {
 }
 
 impl Api {
-    fn new(c: &Conn) -> Self {
-        let agent: ureq::Agent = ureq::Agent::config_builder()
-            .http_status_as_error(false)
-            .timeout_global(Some(Duration::from_secs(600)))
-            .build()
-            .into();
-        Api {
+    fn new(c: &Conn) -> anyhow::Result<Self> {
+        let mut cfg =
+            ureq::Agent::config_builder().http_status_as_error(false).timeout_global(Some(Duration::from_secs(600)));
+        // An https coordinator with a private CA: trust the PEM certificate in TESSERA_CA_CERT.
+        if let Some(path) = std::env::var("TESSERA_CA_CERT").ok().filter(|p| !p.is_empty()) {
+            let pem = std::fs::read(&path).map_err(|e| fail(1, format!("TESSERA_CA_CERT {path}: {e}")))?;
+            let cert =
+                ureq::tls::Certificate::from_pem(&pem).map_err(|e| fail(1, format!("TESSERA_CA_CERT {path}: {e}")))?;
+            cfg = cfg.tls_config(
+                ureq::tls::TlsConfig::builder().root_certs(ureq::tls::RootCerts::new_with_certs(&[cert])).build(),
+            );
+        }
+        let agent: ureq::Agent = cfg.build().into();
+        Ok(Api {
             base: c.coordinator.trim_end_matches('/').to_string(),
             token: std::env::var("TESSERA_TOKEN").ok().filter(|t| !t.is_empty()),
             agent,
-        }
+        })
     }
 
     fn auth<B>(&self, r: ureq::RequestBuilder<B>) -> ureq::RequestBuilder<B> {
@@ -185,7 +192,7 @@ pub fn submit(a: SubmitArgs) -> anyhow::Result<()> {
     if let Some(h) = f.height {
         settings["height"] = json!(h);
     }
-    let api = Api::new(&a.conn);
+    let api = Api::new(&a.conn)?;
     let (ctype, body) = multipart(&files, &settings);
     let mut r = api.check(
         api.auth(api.agent.post(&format!("{}/api/v1/jobs", api.base))).header("Content-Type", &ctype).send(&body[..]),
@@ -241,13 +248,13 @@ pub struct JobArgs {
 }
 
 pub fn status(a: JobArgs) -> anyhow::Result<()> {
-    let j = Api::new(&a.conn).get_json(&format!("/jobs/{}", a.job))?;
+    let j = Api::new(&a.conn)?.get_json(&format!("/jobs/{}", a.job))?;
     println!("{}", serde_json::to_string_pretty(&j).unwrap_or_default());
     Ok(())
 }
 
 pub fn cancel(a: JobArgs) -> anyhow::Result<()> {
-    let j = Api::new(&a.conn).post_json(&format!("/jobs/{}/cancel", a.job))?;
+    let j = Api::new(&a.conn)?.post_json(&format!("/jobs/{}/cancel", a.job))?;
     println!("{} {}", a.job, j["state"].as_str().unwrap_or("?"));
     Ok(())
 }
@@ -262,7 +269,7 @@ pub struct DownloadArgs {
 }
 
 pub fn download(a: DownloadArgs) -> anyhow::Result<()> {
-    let exr = Api::new(&a.conn).get_bytes(&format!("/jobs/{}/image.exr", a.job))?;
+    let exr = Api::new(&a.conn)?.get_bytes(&format!("/jobs/{}/image.exr", a.job))?;
     std::fs::write(&a.output, exr).map_err(|e| fail(1, format!("{}: {e}", a.output.display())))?;
     Ok(())
 }
@@ -274,7 +281,7 @@ pub struct ListArgs {
 }
 
 pub fn list(a: ListArgs) -> anyhow::Result<()> {
-    let v = Api::new(&a.conn).get_json("/jobs")?;
+    let v = Api::new(&a.conn)?.get_json("/jobs")?;
     println!("{:<16} {:<10} {:>7} {:>9} {:>10}  name", "id", "state", "done", "elapsed", "rel.err");
     for j in v["jobs"].as_array().cloned().unwrap_or_default() {
         println!(
@@ -291,7 +298,7 @@ pub fn list(a: ListArgs) -> anyhow::Result<()> {
 }
 
 pub fn workers(a: ListArgs) -> anyhow::Result<()> {
-    let v = Api::new(&a.conn).get_json("/workers")?;
+    let v = Api::new(&a.conn)?.get_json("/workers")?;
     println!("{:<16} {:<24} {:>5} {:>6} {:>8} {:>10}", "id", "name", "cores", "done", "rejected", "last seen");
     for w in v["workers"].as_array().cloned().unwrap_or_default() {
         println!(

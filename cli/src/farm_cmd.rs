@@ -29,6 +29,12 @@ pub struct CoordinatorArgs {
     /// Most unfinished jobs held at once.
     #[arg(long, default_value_t = 256, env = "TESSERA_MAX_QUEUED_JOBS")]
     pub max_queued_jobs: usize,
+    /// PEM certificate chain: serve HTTPS and gRPC over TLS (with --tls-key).
+    #[arg(long, env = "TESSERA_TLS_CERT", requires = "tls_key")]
+    pub tls_cert: Option<PathBuf>,
+    /// PEM private key for --tls-cert.
+    #[arg(long, env = "TESSERA_TLS_KEY", requires = "tls_cert")]
+    pub tls_key: Option<PathBuf>,
 }
 
 pub fn coordinator(a: CoordinatorArgs) -> Result<()> {
@@ -49,6 +55,7 @@ pub fn coordinator(a: CoordinatorArgs) -> Result<()> {
             max_queued_jobs: a.max_queued_jobs,
         },
         lease: std::time::Duration::from_secs_f64(a.lease_seconds),
+        tls: a.tls_cert.zip(a.tls_key),
     };
     let rt = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
     rt.block_on(async move {
@@ -98,6 +105,10 @@ pub fn worker(a: WorkerArgs) -> Result<()> {
     let config = worker::WorkerConfig {
         coordinator: a.coordinator,
         secret: std::env::var("TESSERA_WORKER_SECRET").ok().filter(|t| !t.is_empty()),
+        ca_cert: match std::env::var("TESSERA_CA_CERT").ok().filter(|p| !p.is_empty()) {
+            Some(p) => Some(std::fs::read(&p).with_context(|| format!("TESSERA_CA_CERT {p}"))?),
+            None => None,
+        },
         threads: a.threads,
         cache_dir: a
             .cache_dir

@@ -9,6 +9,7 @@ pub mod grpc;
 pub mod rest;
 pub mod state;
 pub mod store;
+pub mod tls;
 mod web;
 
 use state::{Farm, Job, JobState};
@@ -45,6 +46,8 @@ pub struct Config {
     pub limits: Limits,
     /// How long a lease lasts without a heartbeat.
     pub lease: Duration,
+    /// PEM certificate chain and private key: serve HTTPS (and gRPC over TLS) instead of plain HTTP.
+    pub tls: Option<(PathBuf, PathBuf)>,
 }
 
 #[derive(Clone, Debug, serde::Serialize)]
@@ -151,6 +154,10 @@ pub async fn serve_on(
     if config.worker_secret.is_none() {
         tracing::warn!("TESSERA_WORKER_SECRET is not set: any worker may join");
     }
+    let tls = match &config.tls {
+        Some((cert, key)) => Some(tls::server_config(cert, key)?),
+        None => None,
+    };
     let shared = Shared::open(config)?;
     // Lease expiry: units of dead, partitioned or slow workers go back to the queue.
     let s = shared.clone();
@@ -169,7 +176,11 @@ pub async fn serve_on(
         }
     });
     let app = rest::router(shared.clone()).merge(grpc::router(shared.clone()));
-    tracing::info!(addr = %listener.local_addr()?, "coordinator listening (REST, web, gRPC)");
+    tracing::info!(addr = %listener.local_addr()?, tls = tls.is_some(), "coordinator listening (REST, web, gRPC)");
+    if let Some(cfg) = tls {
+        axum::serve(tls::TlsListener { inner: listener, acceptor: tokio_rustls::TlsAcceptor::from(cfg) }, app).await?;
+        return Ok(());
+    }
     // TCP_NODELAY: a streamed result (header, then data) would otherwise stall ~40 ms per unit
     // on Nagle's algorithm meeting delayed ACKs.
     use axum::serve::ListenerExt;

@@ -75,8 +75,9 @@ impl Farm {
     pub fn start(name: &str, env: &[(&str, &str)]) -> Farm {
         let port = free_port();
         let tmp = temp_dir(name);
+        let scheme = if env.iter().any(|(k, _)| *k == "TESSERA_TLS_CERT") { "https" } else { "http" };
         let mut f = Farm {
-            url: format!("http://127.0.0.1:{port}"),
+            url: format!("{scheme}://127.0.0.1:{port}"),
             port,
             data_dir: tmp.join("data"),
             env: env.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect(),
@@ -103,7 +104,7 @@ impl Farm {
         self.coordinator = Some(Proc { child, name: "coordinator".into() });
         let t = Instant::now();
         while t.elapsed() < Duration::from_secs(20) {
-            if ureq::get(&format!("{}/healthz", self.url)).call().is_ok() {
+            if std::net::TcpStream::connect(("127.0.0.1", self.port)).is_ok() {
                 return;
             }
             std::thread::sleep(Duration::from_millis(50));

@@ -107,3 +107,33 @@ fn a_restarted_coordinator_finishes_from_its_checkpoint() {
     farm.wait_job(&id, Duration::from_secs(120), |j| j["state"] == "done");
     download_and_compare(&farm, &id, "restart", "64");
 }
+
+#[test]
+fn tls_carries_rest_and_grpc_on_one_port() {
+    let dir = temp_dir("tls-certs");
+    let ck = rcgen::generate_simple_self_signed(vec!["localhost".to_string(), "127.0.0.1".to_string()])
+        .expect("self-signed certificate");
+    let (cert, key) = (dir.join("cert.pem"), dir.join("key.pem"));
+    std::fs::write(&cert, ck.cert.pem()).unwrap();
+    std::fs::write(&key, ck.signing_key.serialize_pem()).unwrap();
+    let (c, k) = (cert.to_str().unwrap(), key.to_str().unwrap());
+    let mut farm = Farm::start(
+        "tls",
+        &[("TESSERA_TLS_CERT", c), ("TESSERA_TLS_KEY", k), ("TESSERA_CA_CERT", c), ("TESSERA_WORKER_SECRET", "s3cret")],
+    );
+    assert!(farm.url.starts_with("https://"));
+    farm.start_worker(2);
+    let id = submit(&farm, "32");
+    farm.wait_job(&id, Duration::from_secs(120), |j| j["state"] == "done");
+    download_and_compare(&farm, &id, "tls", "32");
+    // The port does not speak plaintext HTTP.
+    let plain = ureq::get(&format!("http://127.0.0.1:{}/healthz", farm.port)).call();
+    assert!(plain.is_err(), "plaintext must not be served on a TLS port");
+    // And a client that does not trust the certificate is refused.
+    let out = std::process::Command::new(tessera_bin())
+        .args(["list", "--coordinator", &farm.url])
+        .env_remove("TESSERA_CA_CERT")
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(3), "{}", String::from_utf8_lossy(&out.stderr));
+}

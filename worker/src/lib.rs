@@ -36,6 +36,21 @@ pub struct WorkerConfig {
     pub cache_dir: PathBuf,
     /// Scene cache size limit; the least recently used scenes are evicted past it.
     pub cache_limit_bytes: u64,
+    /// PEM CA certificate to trust for an `https://` coordinator (else the webpki roots).
+    pub ca_cert: Option<Vec<u8>>,
+}
+
+/// A channel to the coordinator, over TLS when the URL is `https://`.
+async fn open_channel(url: &str, ca_cert: Option<&[u8]>) -> Result<Channel, String> {
+    let mut endpoint = Channel::from_shared(url.to_string()).map_err(|_| format!("invalid coordinator URL '{url}'"))?;
+    if url.starts_with("https://") {
+        let mut tls = tonic::transport::ClientTlsConfig::new().with_webpki_roots();
+        if let Some(pem) = ca_cert {
+            tls = tls.ca_certificate(tonic::transport::Certificate::from_pem(pem));
+        }
+        endpoint = endpoint.tls_config(tls).map_err(|e| e.to_string())?;
+    }
+    endpoint.tcp_nodelay(true).connect().await.map_err(|e| e.to_string())
 }
 
 type Client = FarmClient<InterceptedService<Channel, Auth>>;
@@ -73,11 +88,10 @@ pub async fn run(config: WorkerConfig, stop: Arc<AtomicBool>) -> Result<(), Work
     let mut backoff = Duration::from_millis(200);
     let mut loaded: Option<(String, Arc<Scene>)> = None;
     while !stop.load(Ordering::Relaxed) {
-        let channel = match Channel::from_shared(config.coordinator.clone())
-            .map_err(|_| WorkerError::BadUrl(config.coordinator.clone()))?
-            .connect()
-            .await
-        {
+        if Channel::from_shared(config.coordinator.clone()).is_err() {
+            return Err(WorkerError::BadUrl(config.coordinator.clone()));
+        }
+        let channel = match open_channel(&config.coordinator, config.ca_cert.as_deref()).await {
             Ok(c) => c,
             Err(e) => {
                 tracing::warn!(error = %e, retry_in = ?backoff, "cannot reach the coordinator");
@@ -198,11 +212,7 @@ pub async fn submit(client: &mut Client, header: ResultHeader, payload: Vec<u8>)
 
 /// Connects and registers, for tools and tests that speak the protocol directly.
 pub async fn connect(url: &str, secret: Option<&str>) -> Result<(Client, String), Status> {
-    let channel = Channel::from_shared(url.to_string())
-        .map_err(|e| Status::invalid_argument(e.to_string()))?
-        .connect()
-        .await
-        .map_err(|e| Status::unavailable(e.to_string()))?;
+    let channel = open_channel(url, None).await.map_err(Status::unavailable)?;
     let auth = Auth(
         secret
             .map(|s| format!("Bearer {s}").parse())

@@ -217,6 +217,24 @@ def veach():
     g.write(os.path.join(HERE, "veach", "veach.gltf"))
 
 
+def envlit():
+    """Lit only by scenes/env/sunset.exr (sun ≈ 6e3): a white Lambert sphere, a rough white metal sphere
+    and a grey Lambert ground, seen slightly from above."""
+    g = Gltf()
+    ground = g.material("ground", (0.5, 0.5, 0.5))
+    white = g.material("white", (0.8, 0.8, 0.8))
+    metal = g.material("metal", (1, 1, 1), metallic=1.0, roughness=0.3, lambert=False)
+    p, t = quad([0, 0, 0], [0, 0, 3.0], [3.0, 0, 0])
+    g.mesh("ground", p, t, ground, normals=True)
+    p, t = icosphere([-0.6, 0.5, 0], 0.5, 3)
+    g.mesh("lambert_sphere", p, t, white)
+    p, t = icosphere([0.6, 0.5, 0], 0.5, 3)
+    g.mesh("metal_sphere", p, t, metal)
+    g.camera([0, 1.6, 3.6], [0, 0.4, 0], 35.0, 4 / 3)
+    g.write(os.path.join(HERE, "envlit", "envlit.gltf"))
+
+
 if __name__ == "__main__":
     cornell()
     veach()
+    envlit()

@@ -111,9 +111,6 @@ impl Api {
 pub struct SubmitArgs {
     /// Scene file (.gltf with its sibling files, or .glb).
     pub scene: PathBuf,
-    /// Environment map (not supported yet: refused by the coordinator).
-    #[arg(long)]
-    pub env: Option<PathBuf>,
     #[command(flatten)]
     pub flags: RenderFlags,
     /// Higher runs first.
@@ -161,7 +158,7 @@ fn scene_files(scene: &Path) -> anyhow::Result<Vec<(String, Vec<u8>)>> {
     Ok(files)
 }
 
-fn multipart(files: &[(String, Vec<u8>)], settings: &Value) -> (String, Vec<u8>) {
+fn multipart(files: &[(String, Vec<u8>)], env: Option<&(String, Vec<u8>)>, settings: &Value) -> (String, Vec<u8>) {
     let boundary = format!(
         "tessera-{:016x}",
         std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos() as u64).unwrap_or(7)
@@ -172,14 +169,20 @@ fn multipart(files: &[(String, Vec<u8>)], settings: &Value) -> (String, Vec<u8>)
         body.extend_from_slice(data);
         body.extend_from_slice(b"\r\n");
     }
+    if let Some((name, data)) = env {
+        let head = format!(
+            "--{boundary}\r\nContent-Disposition: form-data; name=\"env\"; filename=\"{}\"\r\n\r\n",
+            name.replace('"', "")
+        );
+        body.extend_from_slice(head.as_bytes());
+        body.extend_from_slice(data);
+        body.extend_from_slice(b"\r\n");
+    }
     body.extend_from_slice(format!("--{boundary}\r\nContent-Disposition: form-data; name=\"settings\"\r\nContent-Type: application/json\r\n\r\n{settings}\r\n--{boundary}--\r\n").as_bytes());
     (format!("multipart/form-data; boundary={boundary}"), body)
 }
 
 pub fn submit(a: SubmitArgs) -> anyhow::Result<()> {
-    if a.env.is_some() {
-        return Err(fail(1, "--env: environment maps are not supported yet"));
-    }
     let files = scene_files(&a.scene)?;
     let f = &a.flags;
     let mut settings = json!({
@@ -192,8 +195,22 @@ pub fn submit(a: SubmitArgs) -> anyhow::Result<()> {
     if let Some(h) = f.height {
         settings["height"] = json!(h);
     }
+    settings["env_strength"] = json!(f.env_strength);
+    settings["env_rotate"] = json!(f.env_rotate);
+    settings["env_sampling"] = json!(f.env_sampling == "on");
+    if let Some(c) = f.env_color {
+        settings["env_color"] = json!(c);
+    }
+    let env = match &f.env {
+        Some(p) => {
+            let data = std::fs::read(p).map_err(|e| fail(1, format!("{}: {e}", p.display())))?;
+            let name = p.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_else(|| "env.exr".into());
+            Some((name, data))
+        }
+        None => None,
+    };
     let api = Api::new(&a.conn)?;
-    let (ctype, body) = multipart(&files, &settings);
+    let (ctype, body) = multipart(&files, env.as_ref(), &settings);
     let mut r = api.check(
         api.auth(api.agent.post(&format!("{}/api/v1/jobs", api.base))).header("Content-Type", &ctype).send(&body[..]),
     )?;

@@ -50,6 +50,32 @@ pub struct RenderFlags {
     /// Samples per pass, the unit of accumulation (part of the image's identity: see ARCHITECTURE.md).
     #[arg(long, default_value_t = 16)]
     pub pass_spp: u32,
+    /// Environment map: lat-long OpenEXR or Radiance .hdr.
+    #[arg(long)]
+    pub env: Option<PathBuf>,
+    /// Uniform environment radiance R,G,B (when there is no --env).
+    #[arg(long, value_parser = parse_rgb)]
+    pub env_color: Option<[f32; 3]>,
+    /// Multiplier of the environment's radiance.
+    #[arg(long, default_value_t = 1.0)]
+    pub env_strength: f32,
+    /// Rotation of the environment about +Y, degrees (right-handed).
+    #[arg(long, default_value_t = 0.0)]
+    pub env_rotate: f32,
+    /// Importance-sample the environment for NEE: on or off (off: only BSDF sampling finds it).
+    #[arg(long, default_value = "on", value_parser = ["on", "off"])]
+    pub env_sampling: String,
+}
+
+fn parse_rgb(s: &str) -> Result<[f32; 3], String> {
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f32>().map_err(|_| format!("'{x}' is not a number")))
+        .collect::<Result<_, _>>()?;
+    match v[..] {
+        [r, g, b] if v.iter().all(|x| x.is_finite() && *x >= 0.0) => Ok([r, g, b]),
+        _ => Err(format!("expected R,G,B (three non-negative numbers), got '{s}'")),
+    }
 }
 
 impl RenderFlags {
@@ -73,6 +99,13 @@ impl RenderFlags {
             rr_depth: self.rr_depth,
             camera: self.camera,
             filter: self.filter,
+            environment: renderer::environment::EnvironmentSettings {
+                map: self.env.as_ref().map(|p| p.to_string_lossy().into_owned()),
+                color: self.env_color,
+                strength: self.env_strength,
+                rotate_deg: self.env_rotate,
+                sampling: self.env_sampling == "on",
+            },
         };
         s.validate().map_err(anyhow::Error::msg)?;
         Ok(s)
@@ -120,7 +153,9 @@ pub fn run(args: RenderArgs) -> Result<()> {
     init_threads(args.threads)?;
     let t0 = Instant::now();
     let scene = load_scene(args.scene.as_deref())?;
+    let mut scene = scene;
     let settings = args.flags.settings(&scene)?;
+    scene.attach_environment(&settings.environment, Path::new("."))?;
     let load_time = t0.elapsed();
     let counters = Counters::default();
     let total = settings.width as u64 * settings.height as u64 * settings.spp as u64;

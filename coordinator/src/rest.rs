@@ -84,6 +84,10 @@ struct SubmitSettings {
     max_depth: Option<u32>,
     rr_depth: Option<u32>,
     filter: Option<PixelFilter>,
+    env_color: Option<[f32; 3]>,
+    env_strength: Option<f32>,
+    env_rotate: Option<f32>,
+    env_sampling: Option<bool>,
     pass_spp: Option<u32>,
 }
 
@@ -98,6 +102,7 @@ async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Va
     let mut files: Vec<(String, Vec<u8>)> = Vec::new();
     let mut settings = SubmitSettings::default();
     let mut total = 0usize;
+    let mut env_map: Option<String> = None;
     loop {
         let field = match form.next_field().await {
             Ok(Some(f)) => f,
@@ -137,7 +142,22 @@ async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Va
                 settings = serde_json::from_str(&text)
                     .map_err(|e| err(StatusCode::BAD_REQUEST, format!("settings JSON: {e}")))?;
             }
-            "env" => return Err(err(StatusCode::UNPROCESSABLE_ENTITY, "environment maps are not supported yet")),
+            "env" => {
+                let file_name = field
+                    .file_name()
+                    .map(str::to_string)
+                    .ok_or_else(|| err(StatusCode::BAD_REQUEST, "the 'env' part needs a file name"))?;
+                let data = field.bytes().await.map_err(|e| {
+                    err(
+                        StatusCode::PAYLOAD_TOO_LARGE,
+                        format!("upload failed or exceeds the limit of {} bytes: {e}", limits.max_upload_bytes),
+                    )
+                })?;
+                total += data.len();
+                let name = format!("env/{}", file_name.rsplit('/').next().unwrap_or("map"));
+                env_map = Some(name.clone());
+                files.push((name, data.to_vec()));
+            }
             other => {
                 return Err(err(
                     StatusCode::BAD_REQUEST,
@@ -164,10 +184,20 @@ async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Va
     let dir = s.config.data_dir.join("tmp").join(format!("upload-{}-{}", now_ms(), std::process::id()));
     let b = bundle.clone();
     let d = dir.clone();
+    let env_default = renderer::environment::EnvironmentSettings::default();
+    let environment = renderer::environment::EnvironmentSettings {
+        map: env_map,
+        color: settings.env_color,
+        strength: settings.env_strength.unwrap_or(env_default.strength),
+        rotate_deg: settings.env_rotate.unwrap_or(env_default.rotate_deg),
+        sampling: settings.env_sampling.unwrap_or(env_default.sampling),
+    };
+    let env = environment.clone();
     let loaded = tokio::task::spawn_blocking(move || -> Result<Option<f32>, String> {
         let main = b.unpack(&d).map_err(|e| format!("cannot unpack the scene: {e}"))?;
-        let scene =
-            renderer::gltf_loader::load(&main).map_err(|e| e.to_string().replace(&format!("{}/", d.display()), ""))?;
+        let strip = |e: String| e.replace(&format!("{}/", d.display()), "");
+        let mut scene = renderer::gltf_loader::load(&main).map_err(|e| strip(e.to_string()))?;
+        scene.attach_environment(&env, &d).map_err(|e| strip(e.to_string()))?;
         Ok(scene.camera(None).ok().and_then(|c| c.aspect_ratio))
     })
     .await
@@ -190,6 +220,7 @@ async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Va
         rr_depth: settings.rr_depth.unwrap_or(d.rr_depth),
         camera: settings.camera,
         filter: settings.filter.unwrap_or(d.filter),
+        environment,
     };
     rs.validate().map_err(|e| err(StatusCode::UNPROCESSABLE_ENTITY, e))?;
     if rs.width > limits.max_side || rs.height > limits.max_side {

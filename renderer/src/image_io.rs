@@ -19,7 +19,7 @@ pub fn standard_attributes(s: &crate::RenderSettings) -> Vec<(&'static str, Stri
     vec![(
         "tessera",
         format!(
-            "version={} width={} height={} spp={} pass_spp={} integrator={:?} mis_heuristic={:?} sampler={:?} seed={} max_depth={} rr_depth={} camera={:?} filter={:?}",
+            "version={} width={} height={} spp={} pass_spp={} integrator={:?} mis_heuristic={:?} sampler={:?} seed={} max_depth={} rr_depth={} camera={:?} filter={:?} environment={:?}",
             env!("CARGO_PKG_VERSION"),
             s.width,
             s.height,
@@ -32,7 +32,8 @@ pub fn standard_attributes(s: &crate::RenderSettings) -> Vec<(&'static str, Stri
             s.max_depth,
             s.rr_depth,
             s.camera,
-            s.filter
+            s.filter,
+            s.environment
         ),
     )]
 }

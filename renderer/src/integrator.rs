@@ -39,6 +39,21 @@ pub fn radiance(
     loop {
         *rays += 1;
         let Some(hit) = scene.intersect(o, d, f32::INFINITY) else {
+            if let Some(env) = &scene.lights.environment {
+                let le = env.eval(d);
+                match (settings.integrator, prev) {
+                    (_, None) | (IntegratorKind::Bsdf, _) => l += beta * le,
+                    // NEE already sampled the environment, unless its sampling is off.
+                    (IntegratorKind::Nee, Some(_)) => {
+                        if !env.is_sampled() {
+                            l += beta * le;
+                        }
+                    }
+                    (IntegratorKind::Mis, Some((_, bsdf_pdf))) => {
+                        l += beta * le * mis_weight(settings.mis_heuristic, bsdf_pdf, scene.lights.environment_pdf(d));
+                    }
+                }
+            }
             break;
         };
         let sp = mesh.surface_point(hit.triangle, hit.b1, hit.b2);
@@ -118,11 +133,16 @@ pub fn radiance(
                 if ls.le != Vec3::ZERO && wi.z > 0.0 && ls.wi.dot(ng) > 0.0 {
                     let f = bsdf.eval(wo, wi);
                     if f != Vec3::ZERO {
-                        let target = offset_ray_origin(ls.p, ls.n);
-                        let to = target - origin;
-                        let dist = to.length();
                         *rays += 1;
-                        if dist > 0.0 && !scene.occluded(origin, to / dist, dist) {
+                        let visible = if ls.dist.is_infinite() {
+                            !scene.occluded(origin, ls.wi, f32::INFINITY)
+                        } else {
+                            let target = offset_ray_origin(ls.p, ls.n);
+                            let to = target - origin;
+                            let dist = to.length();
+                            dist > 0.0 && !scene.occluded(origin, to / dist, dist)
+                        };
+                        if visible {
                             let w = match settings.integrator {
                                 IntegratorKind::Mis => mis_weight(settings.mis_heuristic, ls.pdf, bsdf.pdf(wo, wi)),
                                 _ => 1.0,

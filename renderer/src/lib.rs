@@ -13,6 +13,8 @@ pub mod bsdf;
 pub mod bundle;
 pub mod bvh;
 pub mod camera;
+pub mod distribution;
+pub mod environment;
 pub mod error;
 pub mod film;
 pub mod gltf_loader;

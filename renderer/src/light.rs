@@ -3,6 +3,7 @@
 //! (pbrt-v4 §12.2 and §12.5; Veach 1997 §9).
 
 use crate::alias::AliasTable;
+use crate::environment::Environment;
 use crate::material::Material;
 use crate::math::{luminance, sample_uniform_triangle, Vec2, Vec3, PI};
 use crate::mesh::Mesh;
@@ -21,6 +22,7 @@ pub struct LightSample {
     pub p: Vec3,
     /// Geometric normal of the emitter at `p`, oriented to the emitting side facing the reference.
     pub n: Vec3,
+    // For the environment, `dist` is infinite and `p` is merely a point along `wi`.
     /// Unit direction from the reference point to `p`.
     pub wi: Vec3,
     pub dist: f32,
@@ -36,6 +38,9 @@ pub struct LightSet {
     selection: AliasTable,
     /// For each scene triangle, its light index or `u32::MAX`.
     triangle_light: Vec<u32>,
+    /// The environment, if the scene has one. When it is importance-sampled it is one more entry of
+    /// the selection table, at index `lights.len()`.
+    pub environment: Option<Environment>,
 }
 
 /// Radiance leaving an emissive surface point towards direction `w` (pointing away from the
@@ -63,7 +68,15 @@ fn mean_emission(mesh: &Mesh, m: &Material, textures: &[Texture], tri: u32) -> V
 }
 
 impl LightSet {
-    pub fn build(mesh: &Mesh, materials: &[Material], textures: &[Texture]) -> Self {
+    /// `scene_radius` sizes the environment's power for light selection: pbrt-v4's
+    /// `ImageInfiniteLight::Phi` = 4π² r² × mean radiance.
+    pub fn build(
+        mesh: &Mesh,
+        materials: &[Material],
+        textures: &[Texture],
+        environment: Option<Environment>,
+        scene_radius: f32,
+    ) -> Self {
         let mut lights = Vec::new();
         let mut power = Vec::new();
         let mut triangle_light = vec![u32::MAX; mesh.triangles.len()];
@@ -85,12 +98,25 @@ impl LightSet {
             lights.push(AreaLight { triangle: i as u32, area, two_sided: m.double_sided });
             power.push(p);
         }
+        if let Some(env) = environment.as_ref().filter(|e| e.is_sampled()) {
+            let r = scene_radius.max(1e-3);
+            power.push((4.0 * PI * PI * r * r * env.mean_luminance).max(1e-12));
+        }
         let selection = AliasTable::new(&power).unwrap_or_default();
-        LightSet { lights, selection, triangle_light }
+        LightSet { lights, selection, triangle_light, environment }
     }
 
+    /// True when next-event estimation has nothing to sample.
     pub fn is_empty(&self) -> bool {
-        self.lights.is_empty()
+        self.selection.is_empty()
+    }
+
+    /// The probability that NEE samples the environment from direction `d` (0 when it is not sampled).
+    pub fn environment_pdf(&self, d: Vec3) -> f32 {
+        match &self.environment {
+            Some(env) if env.is_sampled() => self.selection.pmf(self.lights.len()) * env.pdf(d),
+            _ => 0.0,
+        }
     }
 
     /// Samples a light and a point on it as seen from `reference`.
@@ -103,10 +129,19 @@ impl LightSet {
         u_select: f32,
         u: Vec2,
     ) -> Option<LightSample> {
-        if self.lights.is_empty() {
+        if self.selection.is_empty() {
             return None;
         }
         let (idx, pmf) = self.selection.sample(u_select);
+        if idx == self.lights.len() {
+            let env = self.environment.as_ref()?;
+            let (wi, le, pdf) = env.sample(u)?;
+            let pdf = pmf * pdf;
+            if !(pdf > 0.0) || !pdf.is_finite() {
+                return None;
+            }
+            return Some(LightSample { p: reference + wi, n: -wi, wi, dist: f32::INFINITY, le, pdf });
+        }
         let light = &self.lights[idx];
         let b = sample_uniform_triangle(u);
         let (p, ng, uv) = mesh.position_normal_uv(light.triangle, b.y, b.z);

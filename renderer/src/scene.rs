@@ -34,9 +34,41 @@ impl Scene {
             max = Vec3::splat(1.0);
         }
         let accel = Accel::build(&mesh);
-        let lights = LightSet::build(&mesh, &materials, &textures);
+        let lights = LightSet::build(&mesh, &materials, &textures, None, (max - min).length() * 0.5);
         tracing::debug!(triangles = mesh.triangles.len(), lights = lights.lights.len(), "scene built");
         Scene { mesh, materials, textures, cameras, accel, lights, bounds: (min, max) }
+    }
+
+    /// Lights the scene with an environment (rebuilds the light set so NEE can select it).
+    pub fn set_environment(&mut self, env: Option<crate::environment::Environment>) {
+        let radius = (self.bounds.1 - self.bounds.0).length() * 0.5;
+        self.lights = LightSet::build(&self.mesh, &self.materials, &self.textures, env, radius);
+    }
+
+    /// Loads and attaches the environment described by `settings`; `base` resolves a relative map path.
+    pub fn attach_environment(
+        &mut self,
+        settings: &crate::environment::EnvironmentSettings,
+        base: &std::path::Path,
+    ) -> Result<(), crate::RenderError> {
+        use crate::environment::Environment;
+        let env = match (&settings.map, settings.color) {
+            (Some(map), _) => {
+                Some(Environment::load(&base.join(map), settings.strength, settings.rotate_deg, settings.sampling)?)
+            }
+            (None, Some(c)) => {
+                let c = crate::math::Vec3::from(c) * settings.strength;
+                if !c.is_finite() || c.min_element() < 0.0 {
+                    return Err(crate::RenderError::Settings(format!(
+                        "environment color {c:?} must be finite and non-negative"
+                    )));
+                }
+                Some(Environment::uniform(c, settings.sampling))
+            }
+            (None, None) => None,
+        };
+        self.set_environment(env);
+        Ok(())
     }
 
     /// Rebuilds the ray-query structure with another BVH (benchmarks compare them).

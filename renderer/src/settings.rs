@@ -92,6 +92,7 @@ pub struct RenderSettings {
     pub rr_depth: u32,
     pub camera: Option<usize>,
     pub filter: PixelFilter,
+    pub environment: crate::environment::EnvironmentSettings,
 }
 
 impl Default for RenderSettings {
@@ -109,6 +110,7 @@ impl Default for RenderSettings {
             rr_depth: 5,
             camera: None,
             filter: PixelFilter::Box,
+            environment: Default::default(),
         }
     }
 }

@@ -79,3 +79,29 @@ fn ggx_metals_never_gain_energy() {
         previous_mean = mean;
     }
 }
+
+#[test]
+fn white_lambert_sphere_vanishes_under_a_uniform_environment() {
+    use renderer::environment::EnvironmentSettings;
+    use renderer::testing::SceneBuilder;
+    for sampling in [true, false] {
+        let mut b = SceneBuilder::default();
+        let m = b.material(lambert(Vec3::ONE));
+        b.sphere(Vec3::ZERO, 1.0, 3, false, m);
+        b.look_at(Vec3::new(0.0, 0.0, 4.0), Vec3::ZERO, 35.0);
+        let mut scene = b.build();
+        let env = EnvironmentSettings { color: Some([1.0, 1.0, 1.0]), sampling, ..Default::default() };
+        scene.attach_environment(&env, std::path::Path::new(".")).unwrap();
+        for integrator in [IntegratorKind::Bsdf, IntegratorKind::Nee, IntegratorKind::Mis] {
+            let s = RenderSettings { environment: env.clone(), ..settings(integrator, 32) };
+            let sums = render_tile(&scene, &s, Rect { x0: 0, y0: 0, width: 24, height: 24 }, 0..s.spp);
+            let mut worst = 0.0f32;
+            for i in 0..sums.rect.pixels() {
+                let m = sums.mean(i)[0];
+                let sd = sums.variance_of_mean(i).sqrt();
+                worst = worst.max((m - 1.0).abs() / sd.max(1e-4));
+            }
+            assert!(worst < 5.0, "sampling {sampling}, {integrator:?}: worst z {worst}");
+        }
+    }
+}

@@ -34,6 +34,12 @@ ROOT = os.path.dirname(HERE)
 SCENES = {
     "cornell": ("cornell/cornell.gltf", 128, 128),
     "veach": ("veach/veach.gltf", 128, 96),
+    "envlit": ("envlit/envlit.gltf", 128, 96),
+}
+# scene name -> (environment map under scenes/, Tessera --env-rotate degrees). Tessera's mapping equals
+# Mitsuba's envmap with to_world = rotate(Y, 90° + rotate) (../shared/guide; checked with a probe render).
+ENVIRONMENTS = {
+    "envlit": ("env/sunset.exr", 0.0),
 }
 TESSERA_MAX_DEPTH = 64
 
@@ -106,12 +112,16 @@ def material_dict(m):
     sys.exit(f"material {m.get('name')}: not in the subset this script maps to Mitsuba")
 
 
-def build_scene(gltf_path, width, height, spp, tmp):
+def build_scene(gltf_path, width, height, spp, tmp, env=None):
     with open(gltf_path) as f:
         doc = json.load(f)
     buffers = load_buffers(doc, os.path.dirname(gltf_path))
     scene = {"type": "scene",
              "integrator": {"type": "path", "max_depth": TESSERA_MAX_DEPTH + 1, "rr_depth": 5, "hide_emitters": False}}
+    if env is not None:
+        import mitsuba as mi
+        scene["environment"] = {"type": "envmap", "filename": os.path.join(ROOT, env[0]),
+                                "to_world": mi.ScalarTransform4f().rotate([0, 1, 0], 90.0 + env[1])}
     stack = [(n, np.eye(4)) for n in doc["scenes"][doc.get("scene", 0)]["nodes"]]
     k = 0
     while stack:
@@ -163,7 +173,7 @@ def main():
         rel, w, h = SCENES[name]
         per = args.spp // args.passes
         with tempfile.TemporaryDirectory() as tmp:
-            scene = mi.load_dict(build_scene(os.path.join(ROOT, rel), w, h, per, tmp))
+            scene = mi.load_dict(build_scene(os.path.join(ROOT, rel), w, h, per, tmp, ENVIRONMENTS.get(name)))
             imgs = []
             t0 = time.time()
             for p in range(args.passes):

@@ -143,17 +143,17 @@ async fn session(
             Err(s) => return Err(s),
         };
         let Some(unit) = reply.unit else { continue };
-        let scene = match scene_for(config, client, &reg.worker_id, &unit, loaded).await {
-            Ok(s) => s,
-            Err(e) => {
-                tracing::error!(unit = %unit.unit_id, error = %e, "cannot load the unit's scene; leaving the unit to expire");
-                continue;
-            }
-        };
         let settings: RenderSettings = match serde_json::from_str(&unit.settings_json) {
             Ok(s) => s,
             Err(e) => {
                 tracing::error!(unit = %unit.unit_id, error = %e, "bad settings in the unit");
+                continue;
+            }
+        };
+        let scene = match scene_for(config, client, &reg.worker_id, &unit, &settings, loaded).await {
+            Ok(s) => s,
+            Err(e) => {
+                tracing::error!(unit = %unit.unit_id, error = %e, "cannot load the unit's scene; leaving the unit to expire");
                 continue;
             }
         };
@@ -238,10 +238,13 @@ async fn scene_for(
     client: &mut Client,
     worker_id: &str,
     unit: &WorkUnit,
+    settings: &RenderSettings,
     loaded: &mut Option<(String, Arc<Scene>)>,
 ) -> Result<Arc<Scene>, String> {
-    if let Some((h, s)) = loaded {
-        if *h == unit.scene_hash {
+    // The loaded scene depends on the bundle and on the environment settings.
+    let key = format!("{} {:?}", unit.scene_hash, settings.environment);
+    if let Some((k, s)) = loaded {
+        if *k == key {
             return Ok(s.clone());
         }
     }
@@ -283,12 +286,16 @@ async fn scene_for(
     }
     let main = std::fs::read_to_string(dir.join(".main")).map_err(|e| e.to_string())?;
     let path = dir.join(main.trim());
-    let scene = tokio::task::spawn_blocking(move || renderer::gltf_loader::load(&path))
-        .await
-        .map_err(|e| e.to_string())?
-        .map_err(|e| e.to_string())?;
+    let env = settings.environment.clone();
+    let scene = tokio::task::spawn_blocking(move || -> Result<Scene, String> {
+        let mut scene = renderer::gltf_loader::load(&path).map_err(|e| e.to_string())?;
+        scene.attach_environment(&env, &dir).map_err(|e| e.to_string())?;
+        Ok(scene)
+    })
+    .await
+    .map_err(|e| e.to_string())??;
     let scene = Arc::new(scene);
-    *loaded = Some((unit.scene_hash.clone(), scene.clone()));
+    *loaded = Some((key, scene.clone()));
     Ok(scene)
 }
 

@@ -16,6 +16,9 @@ pub const SPP_CHANNEL: &str = "spp";
 /// files are byte-identical): `tessera`, the version and the settings that made the image. One
 /// attribute, because the EXR writer keeps custom attributes in a hash map whose order would vary.
 pub fn standard_attributes(s: &crate::RenderSettings) -> Vec<(&'static str, String)> {
+    // The map by file name only: a local path and the farm's bundle path name the same file.
+    let mut env = s.environment.clone();
+    env.map = env.map.map(|m| m.rsplit(['/', '\\']).next().unwrap_or(&m).to_string());
     vec![(
         "tessera",
         format!(
@@ -33,7 +36,7 @@ pub fn standard_attributes(s: &crate::RenderSettings) -> Vec<(&'static str, Stri
             s.rr_depth,
             s.camera,
             s.filter,
-            s.environment
+            env
         ),
     )]
 }

@@ -137,3 +137,19 @@ fn tls_carries_rest_and_grpc_on_one_port() {
         .unwrap();
     assert_eq!(out.status.code(), Some(3), "{}", String::from_utf8_lossy(&out.stderr));
 }
+
+#[test]
+fn an_environment_map_travels_with_the_job() {
+    let mut farm = Farm::start("env", &[]);
+    farm.start_worker(2);
+    let scene = repo_root().join("scenes/envlit/envlit.gltf");
+    let env = repo_root().join("scenes/env/sunset.exr");
+    let args = ["--env", env.to_str().unwrap(), "--env-rotate", "40", "--spp", "16", "--width", "64", "--height", "48"];
+    let out = farm.tmp.join("env.exr");
+    let mut submit = vec!["submit", scene.to_str().unwrap(), "--wait", "-o", out.to_str().unwrap()];
+    submit.extend_from_slice(&args);
+    let (code, _, err) = farm.cli(&submit);
+    assert_eq!(code, 0, "{err}");
+    let local = local_render(&scene, &args, &farm.tmp.join("env-local.exr"));
+    assert!(std::fs::read(&out).unwrap() == local, "the farm's env-lit EXR differs from tessera render's");
+}

@@ -27,7 +27,7 @@ const MAX_NODE_DEPTH: usize = 256;
 /// Extensions this renderer implements. Anything else listed in `extensionsUsed` changes how the
 /// scene should look, so it is refused.
 const SUPPORTED_EXTENSIONS: &[&str] =
-    &["KHR_materials_emissive_strength", "KHR_materials_specular", "KHR_materials_ior"];
+    &["KHR_materials_emissive_strength", "KHR_materials_specular", "KHR_materials_ior", "KHR_lights_punctual"];
 /// Extensions that carry only metadata and cannot change the image.
 const HARMLESS_EXTENSIONS: &[&str] = &["KHR_xmp_json_ld", "KHR_xmp"];
 
@@ -259,6 +259,7 @@ impl Loader {
 
         let mut mesh = Mesh::default();
         let mut cameras = Vec::new();
+        let mut punctual = Vec::new();
         let roots: Vec<gltf::Node> = match doc.default_scene().or_else(|| doc.scenes().next()) {
             Some(s) => s.nodes().collect(),
             None => {
@@ -283,6 +284,9 @@ impl Loader {
             }
             if node.skin().is_some() {
                 return Err(self.unsupported(format!("skin on node {} (skeletal animation)", node.index())));
+            }
+            if let Some(light) = node.light() {
+                punctual.push(self.punctual_light(&light, world)?);
             }
             if let Some(cam) = node.camera() {
                 match cam.projection() {
@@ -314,7 +318,11 @@ impl Loader {
                 stack.push((child, world, depth + 1));
             }
         }
-        Ok(Scene::new(mesh, materials, textures, cameras))
+        let mut scene = Scene::new(mesh, materials, textures, cameras);
+        if !punctual.is_empty() {
+            scene.set_punctual(punctual);
+        }
+        Ok(scene)
     }
 
     fn primitive(
@@ -459,6 +467,38 @@ impl Loader {
             mesh.generate_tangents(first..mesh.triangles.len());
         }
         Ok(())
+    }
+
+    fn punctual_light(
+        &self,
+        light: &gltf::khr_lights_punctual::Light,
+        world: Mat4,
+    ) -> Result<crate::punctual::PunctualLight, SceneError> {
+        use crate::punctual::{PunctualKind, PunctualLight};
+        use gltf::khr_lights_punctual::Kind;
+        let name = light.name().map(str::to_owned).unwrap_or_else(|| format!("light {}", light.index()));
+        let intensity = Vec3::from(light.color()) * light.intensity();
+        if !intensity.is_finite() || intensity.min_element() < 0.0 {
+            return Err(self.invalid(format!("{name}: color × intensity must be finite and non-negative")));
+        }
+        let kind = match light.kind() {
+            Kind::Point => PunctualKind::Point,
+            Kind::Directional => PunctualKind::Directional,
+            Kind::Spot { inner_cone_angle, outer_cone_angle } => {
+                if !(inner_cone_angle >= 0.0
+                    && inner_cone_angle < outer_cone_angle
+                    && outer_cone_angle <= std::f32::consts::FRAC_PI_2)
+                {
+                    return Err(self.invalid(format!("{name}: spot cone angles must satisfy 0 <= inner < outer <= π/2 (got {inner_cone_angle}, {outer_cone_angle})")));
+                }
+                PunctualKind::Spot { cos_inner: inner_cone_angle.cos(), cos_outer: outer_cone_angle.cos() }
+            }
+        };
+        let direction = world.transform_vector3(-Vec3::Z).normalize_or_zero();
+        if direction == Vec3::ZERO && kind != PunctualKind::Point {
+            return Err(self.invalid(format!("{name}: its node transform has no direction")));
+        }
+        Ok(PunctualLight { kind, intensity, position: world.transform_point3(Vec3::ZERO), direction })
     }
 
     fn expect_count(&self, got: usize, want: usize, what: &str) -> Result<(), SceneError> {

@@ -134,7 +134,12 @@ pub fn radiance(
                     let f = bsdf.eval(wo, wi);
                     if f != Vec3::ZERO {
                         *rays += 1;
-                        let visible = if ls.dist.is_infinite() {
+                        let visible = if ls.delta && ls.dist.is_finite() {
+                            // A point light: no surface to offset from; stop just short of it.
+                            let to = ls.p - origin;
+                            let dist = to.length();
+                            dist > 0.0 && !scene.occluded(origin, to / dist, dist * (1.0 - 1e-5))
+                        } else if ls.dist.is_infinite() {
                             !scene.occluded(origin, ls.wi, f32::INFINITY)
                         } else {
                             let target = offset_ray_origin(ls.p, ls.n);
@@ -144,7 +149,9 @@ pub fn radiance(
                         };
                         if visible {
                             let w = match settings.integrator {
-                                IntegratorKind::Mis => mis_weight(settings.mis_heuristic, ls.pdf, bsdf.pdf(wo, wi)),
+                                IntegratorKind::Mis if !ls.delta => {
+                                    mis_weight(settings.mis_heuristic, ls.pdf, bsdf.pdf(wo, wi))
+                                }
                                 _ => 1.0,
                             };
                             l += beta * f * ls.le * (wi.z * w / ls.pdf);

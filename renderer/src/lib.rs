@@ -25,6 +25,7 @@ pub mod material;
 pub mod math;
 pub mod mesh;
 pub mod microfacet;
+pub mod punctual;
 pub mod render;
 pub mod sampler;
 pub mod scene;

@@ -7,6 +7,7 @@ use crate::environment::Environment;
 use crate::material::Material;
 use crate::math::{luminance, sample_uniform_triangle, Vec2, Vec3, PI};
 use crate::mesh::Mesh;
+use crate::punctual::PunctualLight;
 use crate::texture::Texture;
 
 #[derive(Clone, Copy, Debug)]
@@ -28,8 +29,10 @@ pub struct LightSample {
     pub dist: f32,
     /// Emitted radiance towards the reference point (zero from a one-sided emitter's back).
     pub le: Vec3,
-    /// Solid-angle pdf including the light-selection probability.
+    /// Solid-angle pdf including the light-selection probability; for a delta light, the selection
+    /// probability alone, and `le` is the irradiance it delivers (so f·le·cos/pdf still holds).
     pub pdf: f32,
+    pub delta: bool,
 }
 
 #[derive(Default)]
@@ -38,8 +41,11 @@ pub struct LightSet {
     selection: AliasTable,
     /// For each scene triangle, its light index or `u32::MAX`.
     triangle_light: Vec<u32>,
-    /// The environment, if the scene has one. When it is importance-sampled it is one more entry of
-    /// the selection table, at index `lights.len()`.
+    /// Punctual (delta) lights: entries `lights.len() .. lights.len() + punctual.len()` of the
+    /// selection table.
+    pub punctual: Vec<PunctualLight>,
+    /// The environment, if the scene has one. When it is importance-sampled it is the last entry of
+    /// the selection table.
     pub environment: Option<Environment>,
 }
 
@@ -74,6 +80,7 @@ impl LightSet {
         mesh: &Mesh,
         materials: &[Material],
         textures: &[Texture],
+        punctual: Vec<PunctualLight>,
         environment: Option<Environment>,
         scene_radius: f32,
     ) -> Self {
@@ -98,12 +105,21 @@ impl LightSet {
             lights.push(AreaLight { triangle: i as u32, area, two_sided: m.double_sided });
             power.push(p);
         }
+        let punctual: Vec<PunctualLight> =
+            punctual.into_iter().filter(|p| p.power(scene_radius.max(1e-3)) > 0.0).collect();
+        for p in &punctual {
+            power.push(p.power(scene_radius.max(1e-3)));
+        }
         if let Some(env) = environment.as_ref().filter(|e| e.is_sampled()) {
             let r = scene_radius.max(1e-3);
             power.push((4.0 * PI * PI * r * r * env.mean_luminance).max(1e-12));
         }
         let selection = AliasTable::new(&power).unwrap_or_default();
-        LightSet { lights, selection, triangle_light, environment }
+        LightSet { lights, selection, triangle_light, punctual, environment }
+    }
+
+    fn environment_index(&self) -> usize {
+        self.lights.len() + self.punctual.len()
     }
 
     /// True when next-event estimation has nothing to sample.
@@ -114,7 +130,7 @@ impl LightSet {
     /// The probability that NEE samples the environment from direction `d` (0 when it is not sampled).
     pub fn environment_pdf(&self, d: Vec3) -> f32 {
         match &self.environment {
-            Some(env) if env.is_sampled() => self.selection.pmf(self.lights.len()) * env.pdf(d),
+            Some(env) if env.is_sampled() => self.selection.pmf(self.environment_index()) * env.pdf(d),
             _ => 0.0,
         }
     }
@@ -133,14 +149,26 @@ impl LightSet {
             return None;
         }
         let (idx, pmf) = self.selection.sample(u_select);
-        if idx == self.lights.len() {
+        if idx >= self.lights.len() && idx < self.environment_index() {
+            let (wi, dist, e) = self.punctual[idx - self.lights.len()].illuminate(reference)?;
+            return Some(LightSample {
+                p: reference + wi * dist.min(1e30),
+                n: -wi,
+                wi,
+                dist,
+                le: e,
+                pdf: pmf,
+                delta: true,
+            });
+        }
+        if idx == self.environment_index() {
             let env = self.environment.as_ref()?;
             let (wi, le, pdf) = env.sample(u)?;
             let pdf = pmf * pdf;
             if !(pdf > 0.0) || !pdf.is_finite() {
                 return None;
             }
-            return Some(LightSample { p: reference + wi, n: -wi, wi, dist: f32::INFINITY, le, pdf });
+            return Some(LightSample { p: reference + wi, n: -wi, wi, dist: f32::INFINITY, le, pdf, delta: false });
         }
         let light = &self.lights[idx];
         let b = sample_uniform_triangle(u);
@@ -163,7 +191,7 @@ impl LightSet {
             return None;
         }
         let n = if cos_l > 0.0 { ng } else { -ng };
-        Some(LightSample { p, n, wi, dist, le, pdf })
+        Some(LightSample { p, n, wi, dist, le, pdf, delta: false })
     }
 
     /// Solid-angle pdf with which `sample()` from `reference` would have produced the point `p` on

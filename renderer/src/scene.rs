@@ -34,7 +34,7 @@ impl Scene {
             max = Vec3::splat(1.0);
         }
         let accel = Accel::build(&mesh);
-        let lights = LightSet::build(&mesh, &materials, &textures, None, (max - min).length() * 0.5);
+        let lights = LightSet::build(&mesh, &materials, &textures, Vec::new(), None, (max - min).length() * 0.5);
         tracing::debug!(triangles = mesh.triangles.len(), lights = lights.lights.len(), "scene built");
         Scene { mesh, materials, textures, cameras, accel, lights, bounds: (min, max) }
     }
@@ -42,7 +42,15 @@ impl Scene {
     /// Lights the scene with an environment (rebuilds the light set so NEE can select it).
     pub fn set_environment(&mut self, env: Option<crate::environment::Environment>) {
         let radius = (self.bounds.1 - self.bounds.0).length() * 0.5;
-        self.lights = LightSet::build(&self.mesh, &self.materials, &self.textures, env, radius);
+        let punctual = std::mem::take(&mut self.lights.punctual);
+        self.lights = LightSet::build(&self.mesh, &self.materials, &self.textures, punctual, env, radius);
+    }
+
+    /// Adds KHR_lights_punctual lights (rebuilds the light set).
+    pub fn set_punctual(&mut self, punctual: Vec<crate::punctual::PunctualLight>) {
+        let radius = (self.bounds.1 - self.bounds.0).length() * 0.5;
+        let env = self.lights.environment.take();
+        self.lights = LightSet::build(&self.mesh, &self.materials, &self.textures, punctual, env, radius);
     }
 
     /// Loads and attaches the environment described by `settings`; `base` resolves a relative map path.

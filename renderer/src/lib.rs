@@ -13,6 +13,7 @@ pub mod bsdf;
 pub mod bundle;
 pub mod bvh;
 pub mod camera;
+pub mod dielectric;
 pub mod distribution;
 pub mod environment;
 pub mod error;

@@ -13,6 +13,7 @@
 //! When alpha is below [`Ggx::DELTA_ALPHA`] the specular lobe is a mirror: it is only reachable by
 //! `sample()` (flagged `delta`), contributes nothing to `eval()`/`pdf()`, and takes no MIS weight.
 
+use crate::dielectric::Dielectric;
 use crate::math::{cosine_hemisphere_pdf, luminance, reflect, sample_cosine_hemisphere, Vec2, Vec3, INV_PI};
 use crate::microfacet::Ggx;
 
@@ -26,6 +27,10 @@ pub struct Bsdf {
     pub specular: f32,
     /// Dielectric F0 (already multiplied by specularColor and clamped to 1).
     pub f0_dielectric: Vec3,
+    /// KHR_materials_transmission: the share of the non-metal part that is a glass interface.
+    pub transmission: f32,
+    /// Relative index of refraction across the surface for the glass part: n(far side)/n(wo's side).
+    pub eta: f32,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -69,8 +74,9 @@ impl Bsdf {
     fn specular_probability(&self, cos_o: f32) -> f32 {
         let fd = schlick(self.f0_dielectric, cos_o);
         let fm = schlick(self.base_color, cos_o);
-        let spec = self.metallic * luminance(fm) + (1.0 - self.metallic) * self.specular * luminance(fd);
-        let diff = (1.0 - self.metallic) * luminance(self.base_color) * (1.0 - self.specular * fd.max_element());
+        let opaque = (1.0 - self.metallic) * (1.0 - self.transmission);
+        let spec = self.metallic * luminance(fm) + opaque * self.specular * luminance(fd);
+        let diff = opaque * luminance(self.base_color) * (1.0 - self.specular * fd.max_element());
         let (spec, diff) = (spec.max(0.0), diff.max(0.0));
         if spec + diff <= 0.0 {
             return 0.0;
@@ -87,11 +93,61 @@ impl Bsdf {
 
     #[inline]
     fn diffuse_scale(&self, c: f32) -> f32 {
-        (1.0 - self.metallic) * (1.0 - self.specular * schlick(self.f0_dielectric, c).max_element())
+        (1.0 - self.metallic)
+            * (1.0 - self.transmission)
+            * (1.0 - self.specular * schlick(self.f0_dielectric, c).max_element())
     }
 
-    /// f(wo, wi) without delta lobes. Both in the local frame; reflection only (`wo.z`, `wi.z` > 0).
+    /// Weight (and sampling probability) of the glass part.
+    #[inline]
+    fn glass_weight(&self) -> f32 {
+        (1.0 - self.metallic) * self.transmission
+    }
+
+    #[inline]
+    fn glass(&self) -> Dielectric {
+        Dielectric { eta: self.eta, ggx: self.ggx, tint: self.base_color }
+    }
+
+    /// f(wo, wi) without delta lobes, in the local frame (`wo.z` > 0; `wi.z` < 0 only through glass).
     pub fn eval(&self, wo: Vec3, wi: Vec3) -> Vec3 {
+        let g = self.glass_weight();
+        let mut f = if g > 0.0 { self.glass().eval(wo, wi) * g } else { Vec3::ZERO };
+        if g < 1.0 {
+            f += self.eval_opaque(wo, wi);
+        }
+        f
+    }
+
+    /// Solid-angle pdf of `sample()` producing `wi` (non-delta part).
+    pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
+        let g = self.glass_weight();
+        let mut p = if g > 0.0 { g * self.glass().pdf(wo, wi) } else { 0.0 };
+        if g < 1.0 {
+            p += (1.0 - g) * self.pdf_opaque(wo, wi);
+        }
+        p
+    }
+
+    /// Samples wi given wo. `u_lobe` picks the lobe, `u` the direction within it.
+    pub fn sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
+        let g = self.glass_weight();
+        if u_lobe < g {
+            let (wi, f, pdf, delta) = self.glass().sample(wo, u_lobe / g, u)?;
+            if delta {
+                return Some(BsdfSample { wi, f: f * g, pdf: pdf * g, delta: true });
+            }
+            return self.finish(wo, wi);
+        }
+        let mut s = self.sample_opaque(wo, ((u_lobe - g) / (1.0 - g)).min(1.0 - f32::EPSILON), u)?;
+        if s.delta {
+            s.pdf *= 1.0 - g;
+            return Some(s);
+        }
+        self.finish(wo, s.wi)
+    }
+
+    fn eval_opaque(&self, wo: Vec3, wi: Vec3) -> Vec3 {
         if wo.z <= 0.0 || wi.z <= 0.0 {
             return Vec3::ZERO;
         }
@@ -108,8 +164,7 @@ impl Bsdf {
         f
     }
 
-    /// Solid-angle pdf of `sample()` producing `wi` (non-delta part).
-    pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
+    fn pdf_opaque(&self, wo: Vec3, wi: Vec3) -> f32 {
         if wo.z <= 0.0 || wi.z <= 0.0 {
             return 0.0;
         }
@@ -125,8 +180,7 @@ impl Bsdf {
         pdf
     }
 
-    /// Samples wi given wo. `u_lobe` picks the lobe, `u` the direction within it.
-    pub fn sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
+    fn sample_opaque(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
         if wo.z <= 0.0 {
             return None;
         }
@@ -159,9 +213,15 @@ impl Bsdf {
         Some(BsdfSample { wi, f: self.eval(wo, wi), pdf, delta: false })
     }
 
-    /// True when no part of this BSDF can be evaluated for NEE (pure mirror, or black).
+    /// True when no part of this BSDF can be evaluated for NEE (mirror, smooth glass, or black).
     pub fn is_delta_only(&self) -> bool {
-        self.ggx.is_delta() && self.diffuse_scale(1.0) * luminance(self.base_color) <= 0.0
+        let opaque_delta = self.ggx.is_delta() && self.diffuse_scale(1.0) * luminance(self.base_color) <= 0.0;
+        opaque_delta && (self.glass_weight() <= 0.0 || self.glass().is_delta())
+    }
+
+    /// True when light can pass through (so NEE must look on both sides).
+    pub fn transmits(&self) -> bool {
+        self.glass_weight() > 0.0
     }
 }
 
@@ -176,6 +236,8 @@ pub(crate) mod tests {
             ggx: Ggx::from_roughness(1.0),
             specular: 0.0,
             f0_dielectric: Vec3::splat(0.04),
+            transmission: 0.0,
+            eta: 1.5,
         }
     }
 
@@ -186,6 +248,8 @@ pub(crate) mod tests {
             ggx: Ggx::from_roughness(roughness),
             specular: 1.0,
             f0_dielectric: Vec3::splat(0.04),
+            transmission: 0.0,
+            eta: 1.5,
         }
     }
 
@@ -196,6 +260,8 @@ pub(crate) mod tests {
             ggx: Ggx::from_roughness(roughness),
             specular: 1.0,
             f0_dielectric: Bsdf::f0_from_ior(1.5, Vec3::ONE),
+            transmission: 0.0,
+            eta: 1.5,
         }
     }
 

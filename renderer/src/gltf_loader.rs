@@ -26,8 +26,13 @@ const MAX_NODE_DEPTH: usize = 256;
 
 /// Extensions this renderer implements. Anything else listed in `extensionsUsed` changes how the
 /// scene should look, so it is refused.
-const SUPPORTED_EXTENSIONS: &[&str] =
-    &["KHR_materials_emissive_strength", "KHR_materials_specular", "KHR_materials_ior", "KHR_lights_punctual"];
+const SUPPORTED_EXTENSIONS: &[&str] = &[
+    "KHR_materials_emissive_strength",
+    "KHR_materials_specular",
+    "KHR_materials_ior",
+    "KHR_lights_punctual",
+    "KHR_materials_transmission",
+];
 /// Extensions that carry only metadata and cannot change the image.
 const HARMLESS_EXTENSIONS: &[&str] = &["KHR_xmp_json_ld", "KHR_xmp"];
 
@@ -571,6 +576,13 @@ impl Loader {
             specular_color,
             specular_color_texture,
             ior: checked(m.ior().unwrap_or(1.5), "ior")?,
+            transmission: checked(m.transmission().map_or(0.0, |t| t.transmission_factor()), "transmissionFactor")?,
+            transmission_texture: match m.transmission().and_then(|t| t.transmission_texture()) {
+                Some(info) => {
+                    Some(self.texture_ref(&info.texture(), info.tex_coord(), false, buffers, textures, ids)?)
+                }
+                None => None,
+            },
             double_sided: m.double_sided(),
             name,
         })

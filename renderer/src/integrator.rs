@@ -117,11 +117,17 @@ pub fn radiance(
                 break;
             }
         }
-        let bsdf = material.bsdf(textures, sp.uv);
+        let mut bsdf = material.bsdf(textures, sp.uv);
+        // Glass: entering through the front (winding) face goes from outside (n = 1) into ior;
+        // leaving through it from inside, the relative index inverts.
+        if sp.ng.dot(wo_world) < 0.0 {
+            bsdf.eta = 1.0 / bsdf.eta;
+        }
         let base = dims::BOUNCE_BASE + dims::BOUNCE_STRIDE * depth;
         // The two 4D sets of this bounce, each evaluated once.
         let u_bsdf = sampler.get_4d((base + dims::BSDF_DIR) / 4);
         let origin = offset_ray_origin(sp.p, ng);
+        let origin_below = offset_ray_origin(sp.p, -ng);
 
         // Next-event estimation.
         if settings.integrator != IntegratorKind::Bsdf && !scene.lights.is_empty() && !bsdf.is_delta_only() {
@@ -130,8 +136,12 @@ pub fn radiance(
             let u = Vec2::new(u_light[(dims::LIGHT_POS % 4) as usize], u_light[(dims::LIGHT_POS % 4 + 1) as usize]);
             if let Some(ls) = scene.lights.sample(mesh, materials, textures, sp.p, u_sel, u) {
                 let wi = frame.to_local(ls.wi);
-                if ls.le != Vec3::ZERO && wi.z > 0.0 && ls.wi.dot(ng) > 0.0 {
+                // Reflection needs the light above the true surface; transmission (glass), below.
+                let above = wi.z > 0.0 && ls.wi.dot(ng) > 0.0;
+                let below = bsdf.transmits() && wi.z < 0.0 && ls.wi.dot(ng) < 0.0;
+                if ls.le != Vec3::ZERO && (above || below) {
                     let f = bsdf.eval(wo, wi);
+                    let origin = if above { origin } else { origin_below };
                     if f != Vec3::ZERO {
                         *rays += 1;
                         let visible = if ls.delta && ls.dist.is_finite() {
@@ -154,7 +164,7 @@ pub fn radiance(
                                 }
                                 _ => 1.0,
                             };
-                            l += beta * f * ls.le * (wi.z * w / ls.pdf);
+                            l += beta * f * ls.le * (wi.z.abs() * w / ls.pdf);
                         }
                     }
                 }
@@ -165,8 +175,10 @@ pub fn radiance(
         let u_dir = Vec2::new(u_bsdf[(dims::BSDF_DIR % 4) as usize], u_bsdf[(dims::BSDF_DIR % 4 + 1) as usize]);
         let Some(bs) = bsdf.sample(wo, u_bsdf[(dims::BSDF_LOBE % 4) as usize], u_dir) else { break };
         let wi_world = frame.to_world(bs.wi);
-        if wi_world.dot(ng) <= 0.0 {
-            // A shading normal can send a reflected direction under the true surface; that energy is lost.
+        let transmitted = bs.wi.z < 0.0;
+        if (wi_world.dot(ng) <= 0.0) != transmitted || wi_world.dot(ng) == 0.0 {
+            // A shading normal can send a direction to the wrong side of the true surface; that
+            // energy is lost.
             break;
         }
         beta *= bs.weight();
@@ -174,7 +186,7 @@ pub fn radiance(
             break;
         }
         prev = if bs.delta { None } else { Some((sp.p, bs.pdf)) };
-        o = origin;
+        o = if transmitted { origin_below } else { origin };
         d = wi_world;
         depth += 1;
 

@@ -26,6 +26,9 @@ pub struct Material {
     pub specular_color_texture: Option<TextureRef>,
     /// KHR_materials_ior (glTF default 1.5).
     pub ior: f32,
+    /// KHR_materials_transmission factor (and texture, red channel).
+    pub transmission: f32,
+    pub transmission_texture: Option<TextureRef>,
     /// glTF `doubleSided`: here it decides whether an emissive surface emits from its back face too.
     pub double_sided: bool,
 }
@@ -49,6 +52,8 @@ impl Default for Material {
             specular_color: Vec3::ONE,
             specular_color_texture: None,
             ior: 1.5,
+            transmission: 0.0,
+            transmission_texture: None,
             double_sided: false,
         }
     }
@@ -109,6 +114,14 @@ impl Material {
                 if self.ior.is_finite() { self.ior.max(1.0) } else { 1.5 },
                 specular_color.max(Vec3::ZERO),
             ),
+            transmission: {
+                let mut t = self.transmission;
+                if let Some(tex) = lookup(textures, &self.transmission_texture, uv) {
+                    t *= tex.x;
+                }
+                sanitize(t)
+            },
+            eta: if self.ior.is_finite() { self.ior.max(1.0) } else { 1.5 },
         }
     }
 

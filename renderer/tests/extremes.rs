@@ -25,6 +25,8 @@ fn bsdf_eval_sample_pdf_are_finite_everywhere() {
                         ggx: Ggx::from_roughness(r),
                         specular,
                         f0_dielectric: Bsdf::f0_from_ior(1.5, Vec3::ONE),
+                        transmission: 0.0,
+                        eta: 1.5,
                     };
                     for &co in &COS_THETA {
                         let wo = Vec3::new((1.0 - co * co).sqrt(), 0.0, co);

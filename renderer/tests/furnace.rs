@@ -105,3 +105,42 @@ fn white_lambert_sphere_vanishes_under_a_uniform_environment() {
         }
     }
 }
+
+fn glass(roughness: f32, ior: f32) -> renderer::material::Material {
+    renderer::material::Material {
+        name: "glass".into(),
+        base_color: renderer::math::Vec4::ONE,
+        metallic: 0.0,
+        roughness,
+        transmission: 1.0,
+        ior,
+        ..Default::default()
+    }
+}
+
+#[test]
+fn smooth_glass_vanishes_in_the_furnace_and_rough_glass_never_gains() {
+    for (roughness, ior) in [(0.0f32, 1.5f32), (0.0, 1.0001), (0.0, 3.0), (0.3, 1.5), (1.0, 1.5)] {
+        let scene = furnace(glass(roughness, ior));
+        for integrator in [IntegratorKind::Bsdf, IntegratorKind::Mis] {
+            let s = settings(integrator, 64);
+            let sums = render_tile(&scene, &s, Rect { x0: 0, y0: 0, width: 24, height: 24 }, 0..s.spp);
+            let (mut worst_low, mut worst_high) = (0.0f32, 0.0f32);
+            for i in 0..sums.rect.pixels() {
+                let m = sums.mean(i)[0];
+                let sd = sums.variance_of_mean(i).sqrt().max(1e-4);
+                assert!(m.is_finite());
+                worst_high = worst_high.max((m - 1.0) / sd);
+                worst_low = worst_low.max((1.0 - m) / sd);
+            }
+            assert!(worst_high < 5.0, "roughness {roughness} ior {ior} {integrator:?}: gains energy (z {worst_high})");
+            if roughness == 0.0 {
+                // Smooth glass loses nothing: every path eventually leaves and sees radiance 1.
+                assert!(
+                    worst_low < 5.0,
+                    "roughness {roughness} ior {ior} {integrator:?}: loses energy (z {worst_low})"
+                );
+            }
+        }
+    }
+}

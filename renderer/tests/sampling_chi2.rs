@@ -22,6 +22,8 @@ fn bsdf(metallic: f32, roughness: f32, specular: f32) -> Bsdf {
         ggx: Ggx::from_roughness(roughness),
         specular,
         f0_dielectric: Bsdf::f0_from_ior(1.5, Vec3::ONE),
+        transmission: 0.0,
+        eta: 1.5,
     }
 }
 

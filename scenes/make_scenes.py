@@ -81,10 +81,15 @@ class Gltf:
                     "scene": 0, "scenes": [{"nodes": []}], "nodes": [], "meshes": [], "materials": [],
                     "accessors": [], "bufferViews": [], "buffers": []}
 
-    def material(self, name, base=(0.8, 0.8, 0.8), metallic=0.0, roughness=1.0, lambert=True, emission=None):
+    def material(self, name, base=(0.8, 0.8, 0.8), metallic=0.0, roughness=1.0, lambert=True, emission=None, glass_ior=None):
         m = {"name": name, "pbrMetallicRoughness": {"baseColorFactor": list(base) + [1.0], "metallicFactor": metallic, "roughnessFactor": roughness}}
         if lambert:
             m["extensions"] = {"KHR_materials_specular": {"specularFactor": 0.0}}
+        if glass_ior is not None:
+            for ext in ("KHR_materials_transmission", "KHR_materials_ior"):
+                if ext not in self.doc["extensionsUsed"]:
+                    self.doc["extensionsUsed"].append(ext)
+            m["extensions"] = {"KHR_materials_transmission": {"transmissionFactor": 1.0}, "KHR_materials_ior": {"ior": glass_ior}}
         if emission is not None:
             s = max(emission)
             m["emissiveFactor"] = [e / s for e in emission]
@@ -234,7 +239,34 @@ def envlit():
     g.write(os.path.join(HERE, "envlit", "envlit.gltf"))
 
 
+def glass():
+    """A smooth and a rough (0.3) glass sphere of ior 1.5 on a two-tone Lambert floor before a wall,
+    lit by one area light: refraction, total internal reflection, caustics."""
+    g = Gltf()
+    floor_a = g.material("floor_a", (0.7, 0.7, 0.7))
+    floor_b = g.material("floor_b", (0.2, 0.3, 0.6))
+    wall = g.material("wall", (0.6, 0.4, 0.3))
+    light = g.material("light", (0, 0, 0), emission=(30.0, 28.0, 24.0))
+    smooth = g.material("smooth_glass", (1, 1, 1), roughness=0.0, lambert=False, glass_ior=1.5)
+    rough = g.material("rough_glass", (1, 1, 1), roughness=0.3, lambert=False, glass_ior=1.5)
+    X, Y, Z = [1, 0, 0], [0, 1, 0], [0, 0, 1]
+    for i in range(4):  # floor stripes, so refraction shows
+        p, t = quad([-1.5 + i, 0, 0], mul(Z, 3.0), mul(X, 0.5))
+        g.mesh(f"floor{i}", p, t, floor_a if i % 2 == 0 else floor_b, normals=True)
+    p, t = quad([0, 1.5, -2.0], mul(X, 2.0), mul(Y, 1.5))
+    g.mesh("wall", p, t, wall, normals=True)
+    p, t = quad([0.5, 2.5, 1.0], mul(X, 0.4), mul(Z, 0.4))
+    g.mesh("light", p, t, light, normals=True)
+    p, t = icosphere([-0.6, 0.5, 0.2], 0.5, 3)
+    g.mesh("smooth_sphere", p, t, smooth)
+    p, t = icosphere([0.6, 0.5, 0.2], 0.5, 3)
+    g.mesh("rough_sphere", p, t, rough)
+    g.camera([0, 1.4, 4.0], [0, 0.5, 0], 35.0, 4 / 3)
+    g.write(os.path.join(HERE, "glass", "glass.gltf"))
+
+
 if __name__ == "__main__":
     cornell()
     veach()
     envlit()
+    glass()

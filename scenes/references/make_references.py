@@ -35,6 +35,7 @@ SCENES = {
     "cornell": ("cornell/cornell.gltf", 128, 128),
     "veach": ("veach/veach.gltf", 128, 96),
     "envlit": ("envlit/envlit.gltf", 128, 96),
+    "glass": ("glass/glass.gltf", 128, 96),
 }
 # scene name -> (environment map under scenes/, Tessera --env-rotate degrees). Tessera's mapping equals
 # Mitsuba's envmap with to_world = rotate(Y, 90° + rotate) (../shared/guide; checked with a probe render).
@@ -102,6 +103,12 @@ def material_dict(m):
     metallic = pbr.get("metallicFactor", 1.0)
     rough = pbr.get("roughnessFactor", 1.0)
     spec = ext.get("KHR_materials_specular", {}).get("specularFactor", 1.0)
+    if ext.get("KHR_materials_transmission", {}).get("transmissionFactor", 0.0) == 1.0 and metallic == 0.0 and base == [1, 1, 1]:
+        ior = ext.get("KHR_materials_ior", {}).get("ior", 1.5)
+        alpha = rough * rough
+        if alpha < 1e-3:
+            return {"type": "dielectric", "int_ior": ior, "ext_ior": 1.0}
+        return {"type": "roughdielectric", "int_ior": ior, "ext_ior": 1.0, "distribution": "ggx", "alpha": alpha, "sample_visible": True}
     if metallic == 0.0 and spec == 0.0:
         return {"type": "diffuse", "reflectance": {"type": "rgb", "value": base}}
     if metallic == 1.0 and base == [1, 1, 1]:

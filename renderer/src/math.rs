@@ -59,12 +59,14 @@ impl Frame {
 /// Moves a ray origin off a surface along `n` (pointing to the side the ray leaves towards) by a few
 /// ULPs of the position, so the new ray cannot re-hit the surface it starts on at any distance from the
 /// origin. Wächter & Binder, "A Fast and Robust Method for Avoiding Self-Intersection", Ray Tracing
-/// Gems ch. 6 (2019).
+/// Gems ch. 6 (2019), with a smaller integer scale (16 ulps at most, not 256): our hit points are
+/// interpolated relative to a vertex and carry about one ulp of error, and 256 ulps is already two
+/// units at 1e5 from the origin — enough to push a ray through thin walls.
 #[inline]
 pub fn offset_ray_origin(p: Vec3, n: Vec3) -> Vec3 {
     const ORIGIN: f32 = 1.0 / 32.0;
     const FLOAT_SCALE: f32 = 1.0 / 65536.0;
-    const INT_SCALE: f32 = 256.0;
+    const INT_SCALE: f32 = 16.0;
     let of_i = [(INT_SCALE * n.x) as i32, (INT_SCALE * n.y) as i32, (INT_SCALE * n.z) as i32];
     let offset = |p: f32, o: i32| -> f32 { f32::from_bits((p.to_bits() as i32 + if p < 0.0 { -o } else { o }) as u32) };
     let pi = Vec3::new(offset(p.x, of_i[0]), offset(p.y, of_i[1]), offset(p.z, of_i[2]));

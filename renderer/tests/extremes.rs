@@ -156,8 +156,7 @@ fn a_scene_far_from_the_origin_renders_like_the_same_scene_at_it() {
     let scale = 1.0;
     let render_mean = |offset: Vec3| -> (f64, f64) {
         let s = renderer::gltf_loader::load(&path).unwrap();
-        let mut mesh = renderer::mesh::Mesh::default();
-        std::mem::swap(&mut mesh, &mut { s.mesh });
+        let mut mesh = s.mesh;
         for p in &mut mesh.positions {
             *p = *p * scale + offset;
         }

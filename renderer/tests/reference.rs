@@ -136,3 +136,15 @@ fn envlit_bsdf_matches_mitsuba() {
     // BSDF sampling finds the sun (6e3, 0.3° wide) in a handful of paths per block: heavy tails.
     check_blocks("envlit", IntegratorKind::Bsdf, 1024, 32);
 }
+
+// Glass: light reaches the floor and wall through the smooth sphere only by BSDF sampling (a
+// caustic NEE cannot connect), so every integrator has heavy tails there: blocks.
+#[test]
+fn glass_mis_matches_mitsuba() {
+    check_blocks("glass", IntegratorKind::Mis, 256, 16);
+}
+
+#[test]
+fn glass_bsdf_matches_mitsuba() {
+    check_blocks("glass", IntegratorKind::Bsdf, 256, 16);
+}

@@ -124,18 +124,9 @@ async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Va
         let name = field.name().unwrap_or("").to_string();
         match name.as_str() {
             "scene" => {
-                let file_name = field
-                    .file_name()
-                    .map(str::to_string)
-                    .ok_or_else(|| err(StatusCode::BAD_REQUEST, "a 'scene' part needs a file name"))?;
-                let data = field.bytes().await.map_err(|e| {
-                    err(
-                        StatusCode::PAYLOAD_TOO_LARGE,
-                        format!("upload failed or exceeds the limit of {} bytes: {e}", limits.max_upload_bytes),
-                    )
-                })?;
+                let (file_name, data) = file_part(field, "scene", limits.max_upload_bytes).await?;
                 total += data.len();
-                files.push((file_name, data.to_vec()));
+                files.push((file_name, data));
             }
             "settings" => {
                 let text = field.text().await.map_err(|e| err(StatusCode::BAD_REQUEST, format!("settings: {e}")))?;
@@ -143,20 +134,11 @@ async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Va
                     .map_err(|e| err(StatusCode::BAD_REQUEST, format!("settings JSON: {e}")))?;
             }
             "env" => {
-                let file_name = field
-                    .file_name()
-                    .map(str::to_string)
-                    .ok_or_else(|| err(StatusCode::BAD_REQUEST, "the 'env' part needs a file name"))?;
-                let data = field.bytes().await.map_err(|e| {
-                    err(
-                        StatusCode::PAYLOAD_TOO_LARGE,
-                        format!("upload failed or exceeds the limit of {} bytes: {e}", limits.max_upload_bytes),
-                    )
-                })?;
+                let (file_name, data) = file_part(field, "env", limits.max_upload_bytes).await?;
                 total += data.len();
                 let name = format!("env/{}", file_name.rsplit('/').next().unwrap_or("map"));
                 env_map = Some(name.clone());
-                files.push((name, data.to_vec()));
+                files.push((name, data));
             }
             other => {
                 return Err(err(
@@ -265,6 +247,22 @@ async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Va
     s.work_available.notify_waiters();
     tracing::info!(job = %id, "job submitted");
     Ok((StatusCode::CREATED, Json(body)))
+}
+
+/// A file part of the upload: its file name and bytes (bounded by the body limit layer).
+async fn file_part(
+    field: axum::extract::multipart::Field<'_>,
+    part: &str,
+    limit: usize,
+) -> Result<(String, Vec<u8>), ApiError> {
+    let file_name = field
+        .file_name()
+        .map(str::to_string)
+        .ok_or_else(|| err(StatusCode::BAD_REQUEST, format!("a '{part}' part needs a file name")))?;
+    let data = field.bytes().await.map_err(|e| {
+        err(StatusCode::PAYLOAD_TOO_LARGE, format!("upload failed or exceeds the limit of {limit} bytes: {e}"))
+    })?;
+    Ok((file_name, data.to_vec()))
 }
 
 fn job_json(j: &Job) -> Value {

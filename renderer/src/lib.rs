@@ -22,6 +22,7 @@ pub mod gltf_loader;
 pub mod image_io;
 pub mod integrator;
 pub mod light;
+pub mod light_tree;
 pub mod material;
 pub mod math;
 pub mod mesh;

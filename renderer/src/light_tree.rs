@@ -298,8 +298,8 @@ mod tests {
                 assert!((pmf - tree.pmf(p, n, l)).abs() <= 1e-5 * pmf.max(1e-3));
                 counts[l] += 1;
             }
-            for l in 0..lights.len() {
-                let f = counts[l] as f32 / m as f32;
+            for (l, &c) in counts.iter().enumerate() {
+                let f = c as f32 / m as f32;
                 assert!((f - tree.pmf(p, n, l)).abs() < 2e-3, "light {l}: {f} vs {}", tree.pmf(p, n, l));
             }
         }

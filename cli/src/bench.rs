@@ -44,7 +44,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
     scene.use_accel(args.accel);
     let build = t.elapsed().as_secs_f64();
     let settings = args.flags.settings(&scene)?;
-    scene.attach_environment(&settings.environment, std::path::Path::new("."))?;
+    scene.prepare(&settings, std::path::Path::new("."))?;
     let paths = settings.width as f64 * settings.height as f64 * settings.spp as f64;
     println!(
         "scene {} | {}x{} {} spp | integrator {:?} sampler {:?} | {} threads | accel {:?} built in {:.3}s",

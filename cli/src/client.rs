@@ -195,6 +195,7 @@ pub fn submit(a: SubmitArgs) -> anyhow::Result<()> {
     if let Some(h) = f.height {
         settings["height"] = json!(h);
     }
+    settings["light_sampler"] = json!(f.light_sampler);
     settings["env_strength"] = json!(f.env_strength);
     settings["env_rotate"] = json!(f.env_rotate);
     settings["env_sampling"] = json!(f.env_sampling == "on");

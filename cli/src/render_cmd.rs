@@ -62,6 +62,9 @@ pub struct RenderFlags {
     /// Rotation of the environment about +Y, degrees (right-handed).
     #[arg(long, default_value_t = 0.0)]
     pub env_rotate: f32,
+    /// Light selection for NEE: uniform, power, or tree (light BVH: power, distance, orientation).
+    #[arg(long, default_value = "power")]
+    pub light_sampler: renderer::light::LightSamplerKind,
     /// Importance-sample the environment for NEE: on or off (off: only BSDF sampling finds it).
     #[arg(long, default_value = "on", value_parser = ["on", "off"])]
     pub env_sampling: String,
@@ -106,6 +109,7 @@ impl RenderFlags {
                 rotate_deg: self.env_rotate,
                 sampling: self.env_sampling == "on",
             },
+            light_sampler: self.light_sampler,
         };
         s.validate().map_err(anyhow::Error::msg)?;
         Ok(s)
@@ -155,7 +159,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     let scene = load_scene(args.scene.as_deref())?;
     let mut scene = scene;
     let settings = args.flags.settings(&scene)?;
-    scene.attach_environment(&settings.environment, Path::new("."))?;
+    scene.prepare(&settings, Path::new("."))?;
     let load_time = t0.elapsed();
     let counters = Counters::default();
     let total = settings.width as u64 * settings.height as u64 * settings.spp as u64;

@@ -88,6 +88,7 @@ struct SubmitSettings {
     env_strength: Option<f32>,
     env_rotate: Option<f32>,
     env_sampling: Option<bool>,
+    light_sampler: Option<renderer::light::LightSamplerKind>,
     pass_spp: Option<u32>,
 }
 
@@ -203,6 +204,7 @@ async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Va
         camera: settings.camera,
         filter: settings.filter.unwrap_or(d.filter),
         environment,
+        light_sampler: settings.light_sampler.unwrap_or(d.light_sampler),
     };
     rs.validate().map_err(|e| err(StatusCode::UNPROCESSABLE_ENTITY, e))?;
     if rs.width > limits.max_side || rs.height > limits.max_side {
@@ -293,7 +295,7 @@ fn job_json(j: &Job) -> Value {
             "units_done": j.units_done(), "units_leased": j.units_leased(), "units_total": j.unit_count(),
         },
         "noise": { "estimated_rel_mse": rel_mse, "estimated_rel_error": rel_mse.map(f64::sqrt) },
-        "techniques": { "integrator": s.integrator, "mis_heuristic": s.mis_heuristic, "sampler": s.sampler, "light_sampler": "power", "filter": s.filter },
+        "techniques": { "integrator": s.integrator, "mis_heuristic": s.mis_heuristic, "sampler": s.sampler, "light_sampler": s.light_sampler, "filter": s.filter },
         "settings": s,
         "bad_workers": j.bad_workers.iter().collect::<Vec<_>>(),
     })

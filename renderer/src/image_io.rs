@@ -22,7 +22,7 @@ pub fn standard_attributes(s: &crate::RenderSettings) -> Vec<(&'static str, Stri
     vec![(
         "tessera",
         format!(
-            "version={} width={} height={} spp={} pass_spp={} integrator={:?} mis_heuristic={:?} sampler={:?} seed={} max_depth={} rr_depth={} camera={:?} filter={:?} environment={:?}",
+            "version={} width={} height={} spp={} pass_spp={} integrator={:?} mis_heuristic={:?} sampler={:?} seed={} max_depth={} rr_depth={} camera={:?} filter={:?} environment={:?} light_sampler={:?}",
             env!("CARGO_PKG_VERSION"),
             s.width,
             s.height,
@@ -36,7 +36,8 @@ pub fn standard_attributes(s: &crate::RenderSettings) -> Vec<(&'static str, Stri
             s.rr_depth,
             s.camera,
             s.filter,
-            env
+            env,
+            s.light_sampler
         ),
     )]
 }

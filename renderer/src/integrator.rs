@@ -33,7 +33,7 @@ pub fn radiance(
     let mut beta = Vec3::ONE;
     // The previous vertex and its BSDF pdf, when the last bounce was not a delta event (camera rays
     // and mirror bounces leave it None: NEE cannot have sampled what they hit).
-    let mut prev: Option<(Vec3, f32)> = None;
+    let mut prev: Option<(Vec3, Vec3, f32)> = None;
     let (mesh, materials, textures) = (&scene.mesh, &scene.materials, &scene.textures);
     let mut depth = 0u32;
     loop {
@@ -49,8 +49,9 @@ pub fn radiance(
                             l += beta * le;
                         }
                     }
-                    (IntegratorKind::Mis, Some((_, bsdf_pdf))) => {
-                        l += beta * le * mis_weight(settings.mis_heuristic, bsdf_pdf, scene.lights.environment_pdf(d));
+                    (IntegratorKind::Mis, Some((p_prev, n_prev, bsdf_pdf))) => {
+                        let light_pdf = scene.lights.environment_pdf(d, p_prev, Some(n_prev));
+                        l += beta * le * mis_weight(settings.mis_heuristic, bsdf_pdf, light_pdf);
                     }
                 }
             }
@@ -70,8 +71,8 @@ pub fn radiance(
                             l += beta * le;
                         }
                     }
-                    (IntegratorKind::Mis, Some((p_prev, bsdf_pdf))) => {
-                        let light_pdf = scene.lights.pdf(hit.triangle, p_prev, sp.p, sp.ng);
+                    (IntegratorKind::Mis, Some((p_prev, n_prev, bsdf_pdf))) => {
+                        let light_pdf = scene.lights.pdf(hit.triangle, p_prev, Some(n_prev), sp.p, sp.ng);
                         l += beta * le * mis_weight(settings.mis_heuristic, bsdf_pdf, light_pdf);
                     }
                 }
@@ -134,7 +135,7 @@ pub fn radiance(
             let u_light = sampler.get_4d((base + dims::LIGHT_POS) / 4);
             let u_sel = u_light[(dims::LIGHT_SELECT % 4) as usize];
             let u = Vec2::new(u_light[(dims::LIGHT_POS % 4) as usize], u_light[(dims::LIGHT_POS % 4 + 1) as usize]);
-            if let Some(ls) = scene.lights.sample(mesh, materials, textures, sp.p, u_sel, u) {
+            if let Some(ls) = scene.lights.sample(mesh, materials, textures, sp.p, Some(ns), u_sel, u) {
                 let wi = frame.to_local(ls.wi);
                 // Reflection needs the light above the true surface; transmission (glass), below.
                 let above = wi.z > 0.0 && ls.wi.dot(ng) > 0.0;
@@ -185,7 +186,7 @@ pub fn radiance(
         if !beta.is_finite() || beta == Vec3::ZERO {
             break;
         }
-        prev = if bs.delta { None } else { Some((sp.p, bs.pdf)) };
+        prev = if bs.delta { None } else { Some((sp.p, ns, bs.pdf)) };
         o = if transmitted { origin_below } else { origin };
         d = wi_world;
         depth += 1;

@@ -4,10 +4,11 @@
 
 use crate::alias::AliasTable;
 use crate::environment::Environment;
+use crate::light_tree::{LightBounds, LightTree};
 use crate::material::Material;
 use crate::math::{luminance, sample_uniform_triangle, Vec2, Vec3, PI};
 use crate::mesh::Mesh;
-use crate::punctual::PunctualLight;
+use crate::punctual::{PunctualKind, PunctualLight};
 use crate::texture::Texture;
 
 #[derive(Clone, Copy, Debug)]
@@ -47,6 +48,41 @@ pub struct LightSet {
     /// The environment, if the scene has one. When it is importance-sampled it is the last entry of
     /// the selection table.
     pub environment: Option<Environment>,
+    /// How lights are chosen (see `LightSamplerKind`).
+    pub kind: LightSamplerKind,
+    /// With `Tree`: the light BVH over the finite lights (area, point, spot)...
+    tree: Option<LightTree>,
+    /// ...the global index of each tree light...
+    tree_lights: Vec<usize>,
+    /// ...each global index's tree light (or u32::MAX)...
+    tree_index: Vec<u32>,
+    /// ...and the lights at infinity (directional, environment), chosen uniformly beside the tree.
+    infinite: Vec<usize>,
+}
+
+/// Light selection for next-event estimation (`--light-sampler`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LightSamplerKind {
+    /// Every light equally likely.
+    Uniform,
+    /// In proportion to emitted power (alias table).
+    #[default]
+    Power,
+    /// By a light BVH's importance for the shading point (power, distance, orientation).
+    Tree,
+}
+
+impl std::str::FromStr for LightSamplerKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "uniform" => Ok(Self::Uniform),
+            "power" => Ok(Self::Power),
+            "tree" => Ok(Self::Tree),
+            o => Err(format!("unknown light sampler '{o}' (expected uniform, power or tree)")),
+        }
+    }
 }
 
 /// Radiance leaving an emissive surface point towards direction `w` (pointing away from the
@@ -115,7 +151,133 @@ impl LightSet {
             power.push((4.0 * PI * PI * r * r * env.mean_luminance).max(1e-12));
         }
         let selection = AliasTable::new(&power).unwrap_or_default();
-        LightSet { lights, selection, triangle_light, punctual, environment }
+        LightSet {
+            lights,
+            selection,
+            triangle_light,
+            punctual,
+            environment,
+            kind: LightSamplerKind::Power,
+            tree: None,
+            tree_lights: Vec::new(),
+            tree_index: Vec::new(),
+            infinite: Vec::new(),
+        }
+    }
+
+    fn count(&self) -> usize {
+        self.selection.len()
+    }
+
+    /// Switches the selection strategy; `Tree` builds the light BVH (only when there are at least
+    /// two finite lights: with one, every strategy picks it).
+    pub fn set_kind(&mut self, kind: LightSamplerKind, mesh: &Mesh) {
+        self.kind = kind;
+        self.tree = None;
+        if kind != LightSamplerKind::Tree {
+            return;
+        }
+        let n = self.count();
+        self.tree_index = vec![u32::MAX; n];
+        self.tree_lights.clear();
+        self.infinite.clear();
+        let mut bounds = Vec::new();
+        for g in 0..n {
+            let b = if g < self.lights.len() {
+                let l = &self.lights[g];
+                let [a, b, c] = mesh.vertices(l.triangle);
+                let ng = (b - a).cross(c - a).normalize_or_zero();
+                Some(LightBounds {
+                    min: a.min(b).min(c),
+                    max: a.max(b).max(c),
+                    phi: self.selection.pmf(g),
+                    w: ng,
+                    cos_theta_o: 1.0,
+                    cos_theta_e: 0.0,
+                    two_sided: l.two_sided,
+                })
+            } else if g < self.environment_index() {
+                let p = &self.punctual[g - self.lights.len()];
+                match p.kind {
+                    PunctualKind::Directional => None,
+                    PunctualKind::Point => Some(LightBounds {
+                        min: p.position,
+                        max: p.position,
+                        phi: self.selection.pmf(g),
+                        w: Vec3::Y,
+                        cos_theta_o: -1.0,
+                        cos_theta_e: 0.0,
+                        two_sided: false,
+                    }),
+                    PunctualKind::Spot { cos_outer, .. } => Some(LightBounds {
+                        min: p.position,
+                        max: p.position,
+                        phi: self.selection.pmf(g),
+                        w: p.direction,
+                        cos_theta_o: cos_outer,
+                        cos_theta_e: 0.0,
+                        two_sided: false,
+                    }),
+                }
+            } else {
+                None
+            };
+            match b {
+                Some(b) => {
+                    self.tree_index[g] = bounds.len() as u32;
+                    self.tree_lights.push(g);
+                    bounds.push(b);
+                }
+                None => self.infinite.push(g),
+            }
+        }
+        if bounds.len() >= 2 {
+            self.tree = LightTree::build(&bounds);
+        }
+    }
+
+    /// Chooses a light for a shading point: (global index, probability).
+    fn select(&self, reference: Vec3, normal: Option<Vec3>, u: f32) -> Option<(usize, f32)> {
+        let n = self.count();
+        if n == 0 {
+            return None;
+        }
+        match (self.kind, &self.tree) {
+            (LightSamplerKind::Uniform, _) => Some((((u * n as f32) as usize).min(n - 1), 1.0 / n as f32)),
+            (LightSamplerKind::Tree, Some(tree)) => {
+                let ni = self.infinite.len();
+                let p_inf = ni as f32 / (ni as f32 + 1.0);
+                if u < p_inf {
+                    let k = ((u / p_inf * ni as f32) as usize).min(ni - 1);
+                    Some((self.infinite[k], p_inf / ni as f32))
+                } else {
+                    let u = ((u - p_inf) / (1.0 - p_inf)).min(1.0 - f32::EPSILON);
+                    let (t, pmf) = tree.sample(reference, normal, u)?;
+                    Some((self.tree_lights[t], pmf * (1.0 - p_inf)))
+                }
+            }
+            _ => Some(self.selection.sample(u)),
+        }
+    }
+
+    /// Probability that `select` picks global light `g` for this shading point.
+    fn select_pmf(&self, g: usize, reference: Vec3, normal: Option<Vec3>) -> f32 {
+        let n = self.count();
+        if g >= n {
+            return 0.0;
+        }
+        match (self.kind, &self.tree) {
+            (LightSamplerKind::Uniform, _) => 1.0 / n as f32,
+            (LightSamplerKind::Tree, Some(tree)) => {
+                let ni = self.infinite.len() as f32;
+                let p_inf = ni / (ni + 1.0);
+                match self.tree_index[g] {
+                    u32::MAX => p_inf / ni,
+                    t => tree.pmf(reference, normal, t as usize) * (1.0 - p_inf),
+                }
+            }
+            _ => self.selection.pmf(g),
+        }
     }
 
     fn environment_index(&self) -> usize {
@@ -128,27 +290,27 @@ impl LightSet {
     }
 
     /// The probability that NEE samples the environment from direction `d` (0 when it is not sampled).
-    pub fn environment_pdf(&self, d: Vec3) -> f32 {
+    pub fn environment_pdf(&self, d: Vec3, reference: Vec3, normal: Option<Vec3>) -> f32 {
         match &self.environment {
-            Some(env) if env.is_sampled() => self.selection.pmf(self.environment_index()) * env.pdf(d),
+            Some(env) if env.is_sampled() => self.select_pmf(self.environment_index(), reference, normal) * env.pdf(d),
             _ => 0.0,
         }
     }
 
-    /// Samples a light and a point on it as seen from `reference`.
+    /// Samples a light and a point on it as seen from `reference` (on a surface with `normal`, which
+    /// the light tree uses to discount lights behind it).
+    #[allow(clippy::too_many_arguments)] // the scene's three tables, the shading point, two random numbers
     pub fn sample(
         &self,
         mesh: &Mesh,
         materials: &[Material],
         textures: &[Texture],
         reference: Vec3,
+        normal: Option<Vec3>,
         u_select: f32,
         u: Vec2,
     ) -> Option<LightSample> {
-        if self.selection.is_empty() {
-            return None;
-        }
-        let (idx, pmf) = self.selection.sample(u_select);
+        let (idx, pmf) = self.select(reference, normal, u_select)?;
         if idx >= self.lights.len() && idx < self.environment_index() {
             let (wi, dist, e) = self.punctual[idx - self.lights.len()].illuminate(reference)?;
             return Some(LightSample {
@@ -196,7 +358,7 @@ impl LightSet {
 
     /// Solid-angle pdf with which `sample()` from `reference` would have produced the point `p` on
     /// triangle `tri` (geometric normal `ng`); 0 for a triangle that is not a light.
-    pub fn pdf(&self, tri: u32, reference: Vec3, p: Vec3, ng: Vec3) -> f32 {
+    pub fn pdf(&self, tri: u32, reference: Vec3, normal: Option<Vec3>, p: Vec3, ng: Vec3) -> f32 {
         let Some(&li) = self.triangle_light.get(tri as usize) else {
             return 0.0;
         };
@@ -210,7 +372,7 @@ impl LightSet {
         if !(cos_l > 0.0) {
             return 0.0;
         }
-        self.selection.pmf(li as usize) * dist2 / (cos_l * light.area)
+        self.select_pmf(li as usize, reference, normal) * dist2 / (cos_l * light.area)
     }
 
     /// True when triangle `tri` is in the light set (NEE can sample it).
@@ -218,7 +380,7 @@ impl LightSet {
         self.triangle_light.get(tri as usize).is_some_and(|&l| l != u32::MAX)
     }
 
-    /// The light-selection probability of light `i`.
+    /// The power-proportional selection probability of light `i`.
     pub fn pmf(&self, i: usize) -> f32 {
         self.selection.pmf(i)
     }

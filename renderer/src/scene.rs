@@ -43,14 +43,35 @@ impl Scene {
     pub fn set_environment(&mut self, env: Option<crate::environment::Environment>) {
         let radius = (self.bounds.1 - self.bounds.0).length() * 0.5;
         let punctual = std::mem::take(&mut self.lights.punctual);
+        let kind = self.lights.kind;
         self.lights = LightSet::build(&self.mesh, &self.materials, &self.textures, punctual, env, radius);
+        self.lights.set_kind(kind, &self.mesh);
+    }
+
+    /// Chooses how NEE selects lights (builds the light tree only when asked for).
+    pub fn set_light_sampler(&mut self, kind: crate::light::LightSamplerKind) {
+        self.lights.set_kind(kind, &self.mesh);
+    }
+
+    /// Everything a render with `settings` needs beyond the glTF: the environment (map paths relative
+    /// to `base`) and the light sampler.
+    pub fn prepare(
+        &mut self,
+        settings: &crate::RenderSettings,
+        base: &std::path::Path,
+    ) -> Result<(), crate::RenderError> {
+        self.attach_environment(&settings.environment, base)?;
+        self.set_light_sampler(settings.light_sampler);
+        Ok(())
     }
 
     /// Adds KHR_lights_punctual lights (rebuilds the light set).
     pub fn set_punctual(&mut self, punctual: Vec<crate::punctual::PunctualLight>) {
         let radius = (self.bounds.1 - self.bounds.0).length() * 0.5;
         let env = self.lights.environment.take();
+        let kind = self.lights.kind;
         self.lights = LightSet::build(&self.mesh, &self.materials, &self.textures, punctual, env, radius);
+        self.lights.set_kind(kind, &self.mesh);
     }
 
     /// Loads and attaches the environment described by `settings`; `base` resolves a relative map path.

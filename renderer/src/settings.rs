@@ -93,6 +93,7 @@ pub struct RenderSettings {
     pub camera: Option<usize>,
     pub filter: PixelFilter,
     pub environment: crate::environment::EnvironmentSettings,
+    pub light_sampler: crate::light::LightSamplerKind,
 }
 
 impl Default for RenderSettings {
@@ -111,6 +112,7 @@ impl Default for RenderSettings {
             camera: None,
             filter: PixelFilter::Box,
             environment: Default::default(),
+            light_sampler: Default::default(),
         }
     }
 }

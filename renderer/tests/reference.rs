@@ -22,6 +22,16 @@ fn check(scene_name: &str, integrator: IntegratorKind, spp: u32) {
 /// affordable sample counts (BSDF sampling of tiny lights), the test then sees enough samples per
 /// cell that rare large contributions are not mistaken for zero variance.
 fn check_blocks(scene_name: &str, integrator: IntegratorKind, spp: u32, block: u32) {
+    check_with(scene_name, integrator, spp, block, renderer::light::LightSamplerKind::Power);
+}
+
+fn check_with(
+    scene_name: &str,
+    integrator: IntegratorKind,
+    spp: u32,
+    block: u32,
+    light_sampler: renderer::light::LightSamplerKind,
+) {
     let mut scene = renderer::gltf_loader::load(&root().join(format!("scenes/{scene_name}/{scene_name}.gltf")))
         .expect("scene loads");
     // The environment each scene is lit by (as in make_references.py's ENVIRONMENTS).
@@ -33,10 +43,19 @@ fn check_blocks(scene_name: &str, integrator: IntegratorKind, spp: u32, block: u
         _ => Default::default(),
     };
     scene.attach_environment(&environment, &root()).expect("environment loads");
+    scene.set_light_sampler(light_sampler);
     let reference = read_exr(&root().join(format!("scenes/references/{scene_name}.exr"))).expect("reference EXR");
     let (w, h) = (reference.width, reference.height);
-    let settings =
-        RenderSettings { width: w, height: h, spp, integrator, seed: 1234, environment, ..RenderSettings::default() };
+    let settings = RenderSettings {
+        width: w,
+        height: h,
+        spp,
+        integrator,
+        seed: 1234,
+        environment,
+        light_sampler,
+        ..RenderSettings::default()
+    };
     let sums = render_tile(&scene, &settings, Rect { x0: 0, y0: 0, width: w, height: h }, 0..spp);
     let n = (w * h) as usize;
     let mean: Vec<f32> = (0..n).map(|i| lum(sums.mean(i))).collect();
@@ -147,4 +166,12 @@ fn glass_mis_matches_mitsuba() {
 #[test]
 fn glass_bsdf_matches_mitsuba() {
     check_blocks("glass", IntegratorKind::Bsdf, 256, 16);
+}
+
+#[test]
+fn the_light_tree_and_uniform_selection_agree_with_mitsuba() {
+    use renderer::light::LightSamplerKind::{Tree, Uniform};
+    check_with("veach", IntegratorKind::Mis, 256, 1, Tree);
+    check_with("veach", IntegratorKind::Mis, 256, 1, Uniform);
+    check_with("envlit", IntegratorKind::Mis, 64, 1, Tree);
 }

@@ -3,6 +3,7 @@
 //! pooled, family-wise α = 0.01 with a Šidák correction over every configuration in this file.
 
 use renderer::bsdf::Bsdf;
+use renderer::light::LightSamplerKind;
 use renderer::math::{cosine_hemisphere_pdf, sample_cosine_hemisphere, Vec3};
 use renderer::microfacet::Ggx;
 use renderer::sampler::{PixelSample, SamplerKind};
@@ -90,29 +91,34 @@ fn every_sampler_matches_its_pdf() {
         bright,
     );
     b.triangles(&[Vec3::new(1.5, -0.5, -0.5), Vec3::new(1.5, 0.5, -0.5), Vec3::new(1.5, 0.0, 1.5)], &[[0, 2, 1]], dim);
-    let scene = b.build();
+    let mut scene = b.build();
     let reference = Vec3::new(0.1, -0.2, 0.05);
-    let light_chi2 = chi2_directions(
-        N,
-        40,
-        80,
-        64,
-        |i| {
-            let s = rng(i, 400);
-            scene
-                .lights
-                .sample(&scene.mesh, &scene.materials, &scene.textures, reference, s.get_1d(0), s.get_2d(2))
-                .map(|ls| ls.wi)
-        },
-        |w| match scene.intersect(reference, w, f32::INFINITY) {
-            Some(h) => {
-                let sp = scene.mesh.surface_point(h.triangle, h.b1, h.b2);
-                scene.lights.pdf(h.triangle, reference, sp.p, sp.ng) as f64
-            }
-            None => 0.0,
-        },
-    );
-    results.push(("area lights from a point".into(), light_chi2));
+    let normal = Some(Vec3::new(0.3, 0.9, 0.1).normalize());
+    for kind in [LightSamplerKind::Uniform, LightSamplerKind::Power, LightSamplerKind::Tree] {
+        scene.lights.set_kind(kind, &scene.mesh);
+        let scene = &scene;
+        let light_chi2 = chi2_directions(
+            N,
+            40,
+            80,
+            64,
+            |i| {
+                let s = rng(i, 400);
+                scene
+                    .lights
+                    .sample(&scene.mesh, &scene.materials, &scene.textures, reference, normal, s.get_1d(0), s.get_2d(2))
+                    .map(|ls| ls.wi)
+            },
+            |w| match scene.intersect(reference, w, f32::INFINITY) {
+                Some(h) => {
+                    let sp = scene.mesh.surface_point(h.triangle, h.b1, h.b2);
+                    scene.lights.pdf(h.triangle, reference, normal, sp.p, sp.ng) as f64
+                }
+                None => 0.0,
+            },
+        );
+        results.push((format!("area lights from a point, {kind:?} selection"), light_chi2));
+    }
 
     let alpha = sidak(0.01, results.len());
     let mut failures = Vec::new();

@@ -242,7 +242,7 @@ async fn scene_for(
     loaded: &mut Option<(String, Arc<Scene>)>,
 ) -> Result<Arc<Scene>, String> {
     // The loaded scene depends on the bundle and on the environment settings.
-    let key = format!("{} {:?}", unit.scene_hash, settings.environment);
+    let key = format!("{} {:?} {:?}", unit.scene_hash, settings.environment, settings.light_sampler);
     if let Some((k, s)) = loaded {
         if *k == key {
             return Ok(s.clone());
@@ -286,10 +286,10 @@ async fn scene_for(
     }
     let main = std::fs::read_to_string(dir.join(".main")).map_err(|e| e.to_string())?;
     let path = dir.join(main.trim());
-    let env = settings.environment.clone();
+    let st = settings.clone();
     let scene = tokio::task::spawn_blocking(move || -> Result<Scene, String> {
         let mut scene = renderer::gltf_loader::load(&path).map_err(|e| e.to_string())?;
-        scene.attach_environment(&env, &dir).map_err(|e| e.to_string())?;
+        scene.prepare(&st, &dir).map_err(|e| e.to_string())?;
         Ok(scene)
     })
     .await

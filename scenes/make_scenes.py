@@ -265,8 +265,38 @@ def glass():
     g.write(os.path.join(HERE, "glass", "glass.gltf"))
 
 
+def many_lights():
+    """1024 small emissive quads (0.08 × 0.08, facing down, colours and strengths varying) over a
+    40 × 40 grey floor with a few white boxes: from any shading point almost every light is far away,
+    so power-proportional selection wastes most samples and the light tree pays off."""
+    g = Gltf()
+    floor = g.material("floor", (0.5, 0.5, 0.5))
+    white = g.material("white", (0.8, 0.8, 0.8))
+    X, Y, Z = [1, 0, 0], [0, 1, 0], [0, 0, 1]
+    p, t = quad([0, 0, 0], mul(Z, 20.0), mul(X, 20.0))
+    g.mesh("floor", p, t, floor, normals=True)
+    for k, (x, z, h) in enumerate([(-3, -2, 1.0), (2, 1, 0.6), (6, -6, 1.4), (-8, 5, 0.8)]):
+        p, t = cuboid([x, h / 2, z], [0.5, h / 2, 0.5], 20 * k)
+        g.mesh(f"box{k}", p, t, white, normals=True)
+    palette = [(1.0, 0.6, 0.3), (0.3, 0.6, 1.0), (1.0, 1.0, 1.0), (0.6, 1.0, 0.4)]
+    pos, idx, mats = [], [], {}
+    for i in range(32):
+        for j in range(32):
+            c = palette[(i * 7 + j * 3) % 4]
+            strength = 40.0 * (1 + ((i * 13 + j * 5) % 5))
+            key = (c, strength)
+            if key not in mats:
+                mats[key] = g.material(f"lamp{len(mats)}", (0, 0, 0), emission=tuple(strength * x for x in c))
+            x, z = -19.0 + i * 38.0 / 31, -19.0 + j * 38.0 / 31
+            qp, qt = quad([x, 2.0, z], mul(X, 0.04), mul(Z, 0.04))  # X × Z = −Y: facing down
+            g.mesh(f"lamp_{i}_{j}", qp, qt, mats[key])
+    g.camera([0, 3.0, 14.0], [0, 0.5, 0], 45.0, 4 / 3)
+    g.write(os.path.join(HERE, "many_lights", "many_lights.gltf"))
+
+
 if __name__ == "__main__":
     cornell()
     veach()
     envlit()
     glass()
+    many_lights()

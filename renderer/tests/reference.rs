@@ -175,3 +175,12 @@ fn the_light_tree_and_uniform_selection_agree_with_mitsuba() {
     check_with("veach", IntegratorKind::Mis, 256, 1, Uniform);
     check_with("envlit", IntegratorKind::Mis, 64, 1, Tree);
 }
+
+#[test]
+fn many_lights_match_mitsuba_with_every_light_sampler() {
+    use renderer::light::LightSamplerKind::{Power, Tree, Uniform};
+    check_with("many_lights", IntegratorKind::Mis, 64, 1, Tree);
+    // Uniform and power selection find the few nearby lights rarely: heavy tails, so blocks.
+    check_with("many_lights", IntegratorKind::Mis, 64, 8, Power);
+    check_with("many_lights", IntegratorKind::Mis, 64, 8, Uniform);
+}

@@ -36,6 +36,7 @@ SCENES = {
     "veach": ("veach/veach.gltf", 128, 96),
     "envlit": ("envlit/envlit.gltf", 128, 96),
     "glass": ("glass/glass.gltf", 128, 96),
+    "many_lights": ("many_lights/many_lights.gltf", 128, 96),
 }
 # scene name -> (environment map under scenes/, Tessera --env-rotate degrees). Tessera's mapping equals
 # Mitsuba's envmap with to_world = rotate(Y, 90° + rotate) (../shared/guide; checked with a probe render).

@@ -62,8 +62,9 @@ pub struct RenderFlags {
     /// Rotation of the environment about +Y, degrees (right-handed).
     #[arg(long, default_value_t = 0.0)]
     pub env_rotate: f32,
-    /// Light selection for NEE: uniform, power, or tree (light BVH: power, distance, orientation).
-    #[arg(long, default_value = "power")]
+    /// Light selection for NEE: auto (tree from 16 lights, else power), uniform, power, or tree
+    /// (light BVH: power, distance, orientation).
+    #[arg(long, default_value = "auto")]
     pub light_sampler: renderer::light::LightSamplerKind,
     /// Importance-sample the environment for NEE: on or off (off: only BSDF sampling finds it).
     #[arg(long, default_value = "on", value_parser = ["on", "off"])]
@@ -173,7 +174,9 @@ pub fn run(args: RenderArgs) -> Result<()> {
     let pixels = settings.width as u64 * settings.height as u64;
     let start = Instant::now();
     let done = std::sync::atomic::AtomicBool::new(false);
-    let (image, _) = std::thread::scope(|s| {
+    // The render time is taken when the render returns, not when the progress thread (which sleeps
+    // 100 ms between updates) has noticed.
+    let (image, elapsed) = std::thread::scope(|s| {
         s.spawn(|| {
             while !done.load(Ordering::Relaxed) {
                 let samples = counters.samples.load(Ordering::Relaxed);
@@ -183,11 +186,11 @@ pub fn run(args: RenderArgs) -> Result<()> {
                 std::thread::sleep(Duration::from_millis(100));
             }
         });
-        let r = renderer::render(&scene, &settings, &counters, |_| {});
+        let (image, _) = renderer::render(&scene, &settings, &counters, |_| {});
+        let elapsed = start.elapsed().as_secs_f64();
         done.store(true, Ordering::Relaxed);
-        r
+        (image, elapsed)
     });
-    let elapsed = start.elapsed().as_secs_f64();
     bar.finish_and_clear();
     let final_image = FinalImage::from_sums(&image);
     final_image.write_exr(&args.output, &renderer::image_io::standard_attributes(&settings))?;

@@ -64,23 +64,31 @@ pub struct LightSet {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum LightSamplerKind {
+    /// `tree` for scenes with at least `AUTO_TREE_LIGHTS` finite lights, else `power` (measured: on the
+    /// 4-light Veach scene power reaches a lower error in equal time; on the 1024-light scene the tree
+    /// is more than 20× better).
+    #[default]
+    Auto,
     /// Every light equally likely.
     Uniform,
     /// In proportion to emitted power (alias table).
-    #[default]
     Power,
     /// By a light BVH's importance for the shading point (power, distance, orientation).
     Tree,
 }
 
+/// With `auto`, scenes with at least this many finite lights get the light tree.
+pub const AUTO_TREE_LIGHTS: usize = 16;
+
 impl std::str::FromStr for LightSamplerKind {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
         match s {
+            "auto" => Ok(Self::Auto),
             "uniform" => Ok(Self::Uniform),
             "power" => Ok(Self::Power),
             "tree" => Ok(Self::Tree),
-            o => Err(format!("unknown light sampler '{o}' (expected uniform, power or tree)")),
+            o => Err(format!("unknown light sampler '{o}' (expected auto, uniform, power or tree)")),
         }
     }
 }
@@ -172,6 +180,12 @@ impl LightSet {
     /// Switches the selection strategy; `Tree` builds the light BVH (only when there are at least
     /// two finite lights: with one, every strategy picks it).
     pub fn set_kind(&mut self, kind: LightSamplerKind, mesh: &Mesh) {
+        let finite = self.lights.len() + self.punctual.iter().filter(|p| p.kind != PunctualKind::Directional).count();
+        let kind = match kind {
+            LightSamplerKind::Auto if finite >= AUTO_TREE_LIGHTS => LightSamplerKind::Tree,
+            LightSamplerKind::Auto => LightSamplerKind::Power,
+            k => k,
+        };
         self.kind = kind;
         self.tree = None;
         if kind != LightSamplerKind::Tree {

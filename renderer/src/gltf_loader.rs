@@ -521,10 +521,11 @@ impl Loader {
         ids: &mut HashMap<(usize, bool), u32>,
     ) -> Result<Material, SceneError> {
         let name = m.name().map(str::to_owned).unwrap_or_else(|| format!("material {}", m.index().unwrap_or(0)));
-        match m.alpha_mode() {
-            gltf::material::AlphaMode::Opaque => {}
-            other => return Err(self.unsupported(format!("alphaMode {other:?} (material '{name}')"))),
-        }
+        let alpha_mode = match m.alpha_mode() {
+            gltf::material::AlphaMode::Opaque => crate::material::AlphaMode::Opaque,
+            gltf::material::AlphaMode::Mask => crate::material::AlphaMode::Mask(m.alpha_cutoff().unwrap_or(0.5)),
+            gltf::material::AlphaMode::Blend => crate::material::AlphaMode::Blend,
+        };
         let pbr = m.pbr_metallic_roughness();
         let mut tex = |info: Option<gltf::texture::Info>, srgb: bool| -> Result<Option<TextureRef>, SceneError> {
             match info {
@@ -584,6 +585,7 @@ impl Loader {
                 None => None,
             },
             double_sided: m.double_sided(),
+            alpha_mode,
             name,
         })
     }

@@ -38,7 +38,13 @@ pub fn radiance(
     let mut depth = 0u32;
     loop {
         *rays += 1;
-        let Some(hit) = scene.intersect(o, d, f32::INFINITY) else {
+        // Per-bounce random bits for stochastic (BLEND) transparency, only drawn when it can matter.
+        let transparency_seed = if scene.has_transparency() {
+            sampler.get_1d(dims::BOUNCE_BASE + dims::BOUNCE_STRIDE * depth + dims::SPARE).to_bits()
+        } else {
+            0
+        };
+        let Some((hit, _)) = scene.intersect_surface(o, d, transparency_seed) else {
             if let Some(env) = &scene.lights.environment {
                 let le = env.eval(d);
                 match (settings.integrator, prev) {
@@ -149,23 +155,31 @@ pub fn radiance(
                             // A point light: no surface to offset from; stop just short of it.
                             let to = ls.p - origin;
                             let dist = to.length();
-                            dist > 0.0 && !scene.occluded(origin, to / dist, dist * (1.0 - 1e-5))
+                            if dist > 0.0 {
+                                scene.visibility(origin, to / dist, dist * (1.0 - 1e-5))
+                            } else {
+                                0.0
+                            }
                         } else if ls.dist.is_infinite() {
-                            !scene.occluded(origin, ls.wi, f32::INFINITY)
+                            scene.visibility(origin, ls.wi, f32::INFINITY)
                         } else {
                             let target = offset_ray_origin(ls.p, ls.n);
                             let to = target - origin;
                             let dist = to.length();
-                            dist > 0.0 && !scene.occluded(origin, to / dist, dist)
+                            if dist > 0.0 {
+                                scene.visibility(origin, to / dist, dist)
+                            } else {
+                                0.0
+                            }
                         };
-                        if visible {
+                        if visible > 0.0 {
                             let w = match settings.integrator {
                                 IntegratorKind::Mis if !ls.delta => {
                                     mis_weight(settings.mis_heuristic, ls.pdf, bsdf.pdf(wo, wi))
                                 }
                                 _ => 1.0,
                             };
-                            l += beta * f * ls.le * (wi.z.abs() * w / ls.pdf);
+                            l += beta * f * ls.le * (visible * wi.z.abs() * w / ls.pdf);
                         }
                     }
                 }

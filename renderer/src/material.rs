@@ -31,6 +31,16 @@ pub struct Material {
     pub transmission_texture: Option<TextureRef>,
     /// glTF `doubleSided`: here it decides whether an emissive surface emits from its back face too.
     pub double_sided: bool,
+    pub alpha_mode: AlphaMode,
+}
+
+/// glTF `alphaMode`: MASK cuts out where alpha < cutoff; BLEND is treated as stochastic transparency
+/// (a ray passes with probability 1 − alpha; shadow rays are attenuated by 1 − alpha).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum AlphaMode {
+    Opaque,
+    Mask(f32),
+    Blend,
 }
 
 impl Default for Material {
@@ -55,6 +65,7 @@ impl Default for Material {
             transmission: 0.0,
             transmission_texture: None,
             double_sided: false,
+            alpha_mode: AlphaMode::Opaque,
         }
     }
 }
@@ -67,6 +78,19 @@ fn lookup(textures: &[Texture], r: &Option<TextureRef>, uv: Vec2) -> Option<Vec4
 impl Material {
     pub fn is_emissive(&self) -> bool {
         self.emissive.max_element() > 0.0
+    }
+
+    /// Coverage at `uv` for MASK and BLEND materials (base color alpha × texture alpha), in [0, 1].
+    pub fn alpha(&self, textures: &[Texture], uv: Vec2) -> f32 {
+        let mut a = self.base_color.w;
+        if let Some(t) = lookup(textures, &self.base_color_texture, uv) {
+            a *= t.w;
+        }
+        if a.is_finite() {
+            a.clamp(0.0, 1.0)
+        } else {
+            1.0
+        }
     }
 
     /// Emitted radiance at `uv` (front face; the caller decides sidedness).

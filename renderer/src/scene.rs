@@ -4,7 +4,10 @@
 use crate::accel::{Accel, Hit};
 use crate::camera::Camera;
 use crate::light::LightSet;
-use crate::material::Material;
+use crate::material::{AlphaMode, Material};
+
+/// Most transparent surfaces a ray passes before it is considered absorbed.
+const MAX_TRANSPARENT_LAYERS: u32 = 256;
 use crate::math::Vec3;
 use crate::mesh::Mesh;
 use crate::texture::Texture;
@@ -17,6 +20,8 @@ pub struct Scene {
     pub accel: Accel,
     pub lights: LightSet,
     pub bounds: (Vec3, Vec3),
+    /// Some material is MASK or BLEND (computed once: it is asked on every ray).
+    transparent: bool,
 }
 
 impl Scene {
@@ -36,7 +41,8 @@ impl Scene {
         let accel = Accel::build(&mesh);
         let lights = LightSet::build(&mesh, &materials, &textures, Vec::new(), None, (max - min).length() * 0.5);
         tracing::debug!(triangles = mesh.triangles.len(), lights = lights.lights.len(), "scene built");
-        Scene { mesh, materials, textures, cameras, accel, lights, bounds: (min, max) }
+        let transparent = materials.iter().any(|m| m.alpha_mode != AlphaMode::Opaque);
+        Scene { mesh, materials, textures, cameras, accel, lights, bounds: (min, max), transparent }
     }
 
     /// Lights the scene with an environment (rebuilds the light set so NEE can select it).
@@ -113,6 +119,85 @@ impl Scene {
     #[inline]
     pub fn occluded(&self, o: Vec3, d: Vec3, tmax: f32) -> bool {
         self.accel.occluded(o, d, tmax)
+    }
+
+    /// True when some material is MASK or BLEND (rays may pass through surfaces).
+    #[inline]
+    pub fn has_transparency(&self) -> bool {
+        self.transparent
+    }
+
+    /// How a hit surface treats a ray: (passes, attenuation for shadow rays).
+    #[inline]
+    fn coverage(&self, hit: &Hit) -> (AlphaMode, f32) {
+        let t = &self.mesh.triangles[hit.triangle as usize];
+        let m = &self.materials[t.material as usize];
+        if m.alpha_mode == AlphaMode::Opaque {
+            return (AlphaMode::Opaque, 1.0);
+        }
+        let uv = self.mesh.surface_point(hit.triangle, hit.b1, hit.b2).uv;
+        (m.alpha_mode, m.alpha(&self.textures, uv))
+    }
+
+    /// The first surface along the ray that stops it: MASK cut-outs are skipped, BLEND surfaces stop
+    /// the ray with probability alpha, decided by `seed` (a pure function of the sample, so the
+    /// determinism rule holds). Returns the hit and the point the last segment started from.
+    pub fn intersect_surface(&self, mut o: Vec3, d: Vec3, seed: u32) -> Option<(Hit, Vec3)> {
+        if !self.has_transparency() {
+            return self.accel.intersect(o, d, f32::INFINITY).map(|h| (h, o));
+        }
+        for layer in 0..MAX_TRANSPARENT_LAYERS {
+            let hit = self.accel.intersect(o, d, f32::INFINITY)?;
+            let stops = match self.coverage(&hit) {
+                (AlphaMode::Opaque, _) => true,
+                (AlphaMode::Mask(cutoff), a) => a >= cutoff,
+                (AlphaMode::Blend, a) => {
+                    let u = (crate::sampler::hash_u64(((seed as u64) << 32) | layer as u64) >> 40) as f32
+                        / (1u64 << 24) as f32;
+                    u < a
+                }
+            };
+            if stops {
+                return Some((hit, o));
+            }
+            o = self.pass_through(&hit, o, d);
+        }
+        None
+    }
+
+    /// Fraction of light that gets from `o` along `d` to distance `tmax`: 0 behind an opaque (or
+    /// uncut) surface, Π(1 − alpha) through BLEND surfaces.
+    pub fn visibility(&self, mut o: Vec3, d: Vec3, mut tmax: f32) -> f32 {
+        if !self.has_transparency() {
+            return if self.accel.occluded(o, d, tmax) { 0.0 } else { 1.0 };
+        }
+        let mut t_total = 1.0f32;
+        for _ in 0..MAX_TRANSPARENT_LAYERS {
+            let Some(hit) = self.accel.intersect(o, d, tmax) else { return t_total };
+            match self.coverage(&hit) {
+                (AlphaMode::Opaque, _) => return 0.0,
+                (AlphaMode::Mask(cutoff), a) if a >= cutoff => return 0.0,
+                (AlphaMode::Blend, a) => t_total *= 1.0 - a,
+                _ => {}
+            }
+            if t_total <= 0.0 {
+                return 0.0;
+            }
+            let next = self.pass_through(&hit, o, d);
+            tmax -= (next - o).length();
+            o = next;
+            if tmax <= 0.0 {
+                return t_total;
+            }
+        }
+        0.0
+    }
+
+    /// The origin for continuing a ray past a transparent hit.
+    fn pass_through(&self, hit: &Hit, _o: Vec3, d: Vec3) -> Vec3 {
+        let sp = self.mesh.surface_point(hit.triangle, hit.b1, hit.b2);
+        let n = if sp.ng.dot(d) > 0.0 { sp.ng } else { -sp.ng };
+        crate::math::offset_ray_origin(sp.p, n)
     }
 
     /// The camera to render through: the file's camera `index`, or a framing default when the file

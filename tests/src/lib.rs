@@ -127,6 +127,19 @@ impl Farm {
         self.workers.len() - 1
     }
 
+    /// Waits until `n` workers have registered (so a test's work is spread as it expects).
+    pub fn wait_workers(&self, n: usize) {
+        let t = Instant::now();
+        while t.elapsed() < Duration::from_secs(30) {
+            let (code, out, _) = self.cli(&["workers"]);
+            if code == 0 && out.lines().skip(1).count() >= n {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        panic!("{n} workers did not register within 30 s");
+    }
+
     /// Runs the CLI against this farm; returns (exit code, stdout, stderr).
     pub fn cli(&self, args: &[&str]) -> (i32, String, String) {
         let out = Command::new(tessera_bin())

@@ -42,6 +42,7 @@ fn two_workers_give_the_local_image_bit_for_bit() {
     let mut farm = Farm::start("two-workers", &[]);
     farm.start_worker(1);
     farm.start_worker(1);
+    farm.wait_workers(2);
     let scene = cornell();
     let out = farm.tmp.join("farm.exr");
     let mut args = vec!["submit", scene.to_str().unwrap(), "--wait", "-o", out.to_str().unwrap()];
@@ -71,8 +72,20 @@ fn a_killed_worker_units_are_re_leased() {
     let mut farm = Farm::start("kill-worker", &[]);
     let doomed = farm.start_worker(1);
     farm.start_worker(1);
-    let id = submit(&farm, "256");
-    farm.wait_job(&id, Duration::from_secs(60), |j| j["progress"]["units_done"].as_u64().unwrap_or(0) >= 4);
+    farm.wait_workers(2);
+    // Longer units (64-sample passes) leave a worker idle between units only ~2 % of the time, and
+    // the kill waits until both workers hold a lease, so the dead worker almost surely dies holding one.
+    let scene = cornell();
+    let mut args = vec!["submit", scene.to_str().unwrap()];
+    args.extend_from_slice(SETTINGS);
+    args.extend_from_slice(&["256", "--pass-spp", "64"]);
+    let (code, out, err) = farm.cli(&args);
+    assert_eq!(code, 0, "submit failed: {err}");
+    let id = out.trim().to_string();
+    farm.wait_job(&id, Duration::from_secs(60), |j| {
+        j["progress"]["units_done"].as_u64().unwrap_or(0) >= 2
+            && j["progress"]["units_leased"].as_u64().unwrap_or(0) == 2
+    });
     farm.workers[doomed].kill9();
     let j = farm.wait_job(&id, Duration::from_secs(180), |j| j["state"] == "done");
     assert_eq!(j["progress"]["units_done"], j["progress"]["units_total"]);
@@ -83,7 +96,12 @@ fn a_killed_worker_units_are_re_leased() {
         .and_then(|l| l.split_whitespace().nth(1)?.parse().ok())
         .unwrap_or(0);
     assert!(expired >= 1, "the dead worker's lease must have expired and been re-leased:\n{metrics}");
-    download_and_compare(&farm, &id, "kill-worker", "256");
+    let out = farm.tmp.join("kill-worker.exr");
+    assert_eq!(farm.cli(&["download", &id, "-o", out.to_str().unwrap()]).0, 0);
+    let mut local_args = SETTINGS.to_vec();
+    local_args.extend_from_slice(&["256", "--pass-spp", "64"]);
+    let local = local_render(&cornell(), &local_args, &farm.tmp.join("kill-worker-local.exr"));
+    assert!(std::fs::read(&out).unwrap() == local, "farm EXR differs after a worker was killed");
 }
 
 #[test]

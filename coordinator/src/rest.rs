@@ -4,7 +4,7 @@ use crate::state::{Job, JobSpec, JobState};
 use crate::{lock, now_ms, Shared};
 use axum::body::Bytes;
 use axum::extract::{DefaultBodyLimit, Multipart, Path, State};
-use axum::http::{header, HeaderMap, StatusCode};
+use axum::http::{header, StatusCode};
 use axum::response::{Html, IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
@@ -341,8 +341,7 @@ async fn download(State(s): S, Path(id): Path<String>) -> Result<Response, ApiEr
     Ok(([(header::CONTENT_TYPE, "image/x-exr")], Bytes::from(exr)).into_response())
 }
 
-async fn preview(State(s): S, Path(id): Path<String>, headers: HeaderMap) -> Result<Response, ApiError> {
-    let _ = headers;
+async fn preview(State(s): S, Path(id): Path<String>) -> Result<Response, ApiError> {
     let img = {
         let farm = lock(&s.farm);
         let job = farm.jobs.get(&id).ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no job '{id}'")))?;

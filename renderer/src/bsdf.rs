@@ -139,12 +139,13 @@ impl Bsdf {
             }
             return self.finish(wo, wi);
         }
+        // `sample_opaque` finishes its non-delta samples with the full mixture's `eval` and `pdf`
+        // already; only a delta (mirror) pick needs the glass share taken out of its probability.
         let mut s = self.sample_opaque(wo, ((u_lobe - g) / (1.0 - g)).min(1.0 - f32::EPSILON), u)?;
         if s.delta {
             s.pdf *= 1.0 - g;
-            return Some(s);
         }
-        self.finish(wo, s.wi)
+        Some(s)
     }
 
     fn eval_opaque(&self, wo: Vec3, wi: Vec3) -> Vec3 {

@@ -44,7 +44,7 @@ pub fn radiance(
         } else {
             0
         };
-        let Some((hit, _)) = scene.intersect_surface(o, d, transparency_seed) else {
+        let Some(hit) = scene.intersect_surface(o, d, transparency_seed) else {
             if let Some(env) = &scene.lights.environment {
                 let le = env.eval(d);
                 match (settings.integrator, prev) {
@@ -134,7 +134,7 @@ pub fn radiance(
         // The two 4D sets of this bounce, each evaluated once.
         let u_bsdf = sampler.get_4d((base + dims::BSDF_DIR) / 4);
         let origin = offset_ray_origin(sp.p, ng);
-        let origin_below = offset_ray_origin(sp.p, -ng);
+        // The other side is only needed by rays that go through the surface (glass).
 
         // Next-event estimation.
         if settings.integrator != IntegratorKind::Bsdf && !scene.lights.is_empty() && !bsdf.is_delta_only() {
@@ -148,7 +148,7 @@ pub fn radiance(
                 let below = bsdf.transmits() && wi.z < 0.0 && ls.wi.dot(ng) < 0.0;
                 if ls.le != Vec3::ZERO && (above || below) {
                     let f = bsdf.eval(wo, wi);
-                    let origin = if above { origin } else { origin_below };
+                    let origin = if above { origin } else { offset_ray_origin(sp.p, -ng) };
                     if f != Vec3::ZERO {
                         *rays += 1;
                         let visible = if ls.delta && ls.dist.is_finite() {
@@ -201,7 +201,7 @@ pub fn radiance(
             break;
         }
         prev = if bs.delta { None } else { Some((sp.p, ns, bs.pdf)) };
-        o = if transmitted { origin_below } else { origin };
+        o = if transmitted { offset_ray_origin(sp.p, -ng) } else { origin };
         d = wi_world;
         depth += 1;
 

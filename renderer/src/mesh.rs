@@ -75,10 +75,9 @@ impl Mesh {
         let b0 = 1.0 - b1 - b2;
         let [i0, i1, i2] = [t.v[0] as usize, t.v[1] as usize, t.v[2] as usize];
         let (p0, p1, p2) = (self.positions[i0], self.positions[i1], self.positions[i2]);
-        // From the vertices (not o + t·d), relative to p0: the point stays on the triangle's plane to
+        // Position from the vertices (not o + t·d), relative to p0: the point stays on the triangle's plane to
         // within about one ulp of its coordinates, however far from the origin the scene is.
         let p = p0 + (p1 - p0) * b1 + (p2 - p0) * b2;
-        let _ = b0;
         let ng = (p1 - p0).cross(p2 - p0).normalize_or_zero();
         let ng = if ng == Vec3::ZERO { Vec3::Z } else { ng };
         let ns = if t.flags & flags::NORMALS != 0 {

@@ -141,10 +141,10 @@ impl Scene {
 
     /// The first surface along the ray that stops it: MASK cut-outs are skipped, BLEND surfaces stop
     /// the ray with probability alpha, decided by `seed` (a pure function of the sample, so the
-    /// determinism rule holds). Returns the hit and the point the last segment started from.
-    pub fn intersect_surface(&self, mut o: Vec3, d: Vec3, seed: u32) -> Option<(Hit, Vec3)> {
+    /// determinism rule holds).
+    pub fn intersect_surface(&self, mut o: Vec3, d: Vec3, seed: u32) -> Option<Hit> {
         if !self.has_transparency() {
-            return self.accel.intersect(o, d, f32::INFINITY).map(|h| (h, o));
+            return self.accel.intersect(o, d, f32::INFINITY);
         }
         for layer in 0..MAX_TRANSPARENT_LAYERS {
             let hit = self.accel.intersect(o, d, f32::INFINITY)?;
@@ -158,9 +158,9 @@ impl Scene {
                 }
             };
             if stops {
-                return Some((hit, o));
+                return Some(hit);
             }
-            o = self.pass_through(&hit, o, d);
+            o = self.pass_through(&hit, d);
         }
         None
     }
@@ -183,7 +183,7 @@ impl Scene {
             if t_total <= 0.0 {
                 return 0.0;
             }
-            let next = self.pass_through(&hit, o, d);
+            let next = self.pass_through(&hit, d);
             tmax -= (next - o).length();
             o = next;
             if tmax <= 0.0 {
@@ -194,7 +194,7 @@ impl Scene {
     }
 
     /// The origin for continuing a ray past a transparent hit.
-    fn pass_through(&self, hit: &Hit, _o: Vec3, d: Vec3) -> Vec3 {
+    fn pass_through(&self, hit: &Hit, d: Vec3) -> Vec3 {
         let sp = self.mesh.surface_point(hit.triangle, hit.b1, hit.b2);
         let n = if sp.ng.dot(d) > 0.0 { sp.ng } else { -sp.ng };
         crate::math::offset_ray_origin(sp.p, n)

@@ -1,7 +1,7 @@
 //! Statistics used to judge renders and samplers: per-pixel z-tests against a reference image and
 //! chi-square goodness-of-fit tests of sampling routines (as Mitsuba's test suite does them).
 
-use crate::math::{Vec3, PI};
+use crate::math::Vec3;
 
 /// Complementary error function, |relative error| < 1.2e-7 (Numerical Recipes 3rd ed. §6.2, `erfcc`).
 pub fn erfc(x: f64) -> f64 {
@@ -141,8 +141,7 @@ pub struct ChiSquare {
     pub statistic: f64,
     pub dof: usize,
     pub p_value: f64,
-    /// Fraction of samples that the sampler failed to produce (returned None) vs. the pdf's mass
-    /// outside the histogram, reported for diagnosis.
+    /// Cells whose expected count was below 5 and were pooled into one.
     pub pooled_cells: usize,
 }
 
@@ -278,9 +277,6 @@ pub fn z_test(mean: &[f32], var: &[f32], reference: &[f32], ref_var: &[f32]) -> 
 pub fn lum(rgb: [f32; 3]) -> f32 {
     crate::math::luminance(Vec3::from(rgb))
 }
-
-/// Uniform sphere pdf, for tests.
-pub const UNIFORM_SPHERE_PDF: f64 = 1.0 / (4.0 * PI as f64);
 
 #[cfg(test)]
 mod tests {

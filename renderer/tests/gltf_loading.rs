@@ -130,7 +130,7 @@ fn broken_files_get_clear_errors() {
             r#"{"bufferView":0,"componentType":5126,"count":3"#,
             r#"{"bufferView":0,"componentType":5126,"count":2"#,
         ),
-        "",
+        "out of range for 2 vertices",
     );
     // Missing file.
     let e = load(Path::new("/nonexistent/scene.glb")).err().unwrap();

@@ -63,16 +63,7 @@ pub enum AccelKind {
     Own,
 }
 
-impl std::str::FromStr for AccelKind {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "obvhs" => Ok(Self::Obvhs),
-            "own" => Ok(Self::Own),
-            o => Err(format!("unknown accelerator '{o}' (expected obvhs or own)")),
-        }
-    }
-}
+crate::named_choices!(AccelKind, "accelerator", { "obvhs" => Self::Obvhs, "own" => Self::Own });
 
 pub struct Accel {
     bvh: CwBvh,

@@ -7,6 +7,23 @@
 // `!(x > 0.0)` is this crate's idiom for "not a positive number, NaN included": keep it.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+/// Implements `FromStr` for a settings enum from its lowercase names, with an error that lists
+/// them (clap parses command-line flags through it).
+#[macro_export]
+macro_rules! named_choices {
+    ($ty:ty, $what:literal, { $($name:literal => $variant:expr),+ $(,)? }) => {
+        impl std::str::FromStr for $ty {
+            type Err = String;
+            fn from_str(s: &str) -> Result<Self, String> {
+                match s {
+                    $($name => Ok($variant),)+
+                    other => Err(format!(concat!("unknown ", $what, " '{}' (expected {})"), other, [$($name),+].join(", "))),
+                }
+            }
+        }
+    };
+}
+
 pub mod accel;
 pub mod alias;
 pub mod bsdf;

@@ -80,18 +80,7 @@ pub enum LightSamplerKind {
 /// With `auto`, scenes with at least this many finite lights get the light tree.
 pub const AUTO_TREE_LIGHTS: usize = 16;
 
-impl std::str::FromStr for LightSamplerKind {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "auto" => Ok(Self::Auto),
-            "uniform" => Ok(Self::Uniform),
-            "power" => Ok(Self::Power),
-            "tree" => Ok(Self::Tree),
-            o => Err(format!("unknown light sampler '{o}' (expected auto, uniform, power or tree)")),
-        }
-    }
-}
+crate::named_choices!(LightSamplerKind, "light sampler", { "auto" => Self::Auto, "uniform" => Self::Uniform, "power" => Self::Power, "tree" => Self::Tree });
 
 /// Radiance leaving an emissive surface point towards direction `w` (pointing away from the
 /// surface). Emission is one-sided along the winding normal `ng` unless the material is double-sided.

@@ -14,16 +14,7 @@ pub enum SamplerKind {
     Independent,
 }
 
-impl std::str::FromStr for SamplerKind {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "sobol" => Ok(SamplerKind::Sobol),
-            "independent" => Ok(SamplerKind::Independent),
-            other => Err(format!("unknown sampler '{other}' (expected sobol or independent)")),
-        }
-    }
-}
+crate::named_choices!(SamplerKind, "sampler", { "sobol" => SamplerKind::Sobol, "independent" => SamplerKind::Independent });
 
 /// The dimension layout of one path. Fixing it (rather than drawing dimensions in call order) keeps
 /// each decision on the same Sobol dimension at every sample, which is what stratification needs,

@@ -15,17 +15,7 @@ pub enum IntegratorKind {
     Mis,
 }
 
-impl std::str::FromStr for IntegratorKind {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "bsdf" => Ok(Self::Bsdf),
-            "nee" => Ok(Self::Nee),
-            "mis" => Ok(Self::Mis),
-            o => Err(format!("unknown integrator '{o}' (expected mis, nee or bsdf)")),
-        }
-    }
-}
+crate::named_choices!(IntegratorKind, "integrator", { "mis" => Self::Mis, "nee" => Self::Nee, "bsdf" => Self::Bsdf });
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -34,16 +24,7 @@ pub enum MisHeuristic {
     Balance,
 }
 
-impl std::str::FromStr for MisHeuristic {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "power" => Ok(Self::Power),
-            "balance" => Ok(Self::Balance),
-            o => Err(format!("unknown MIS heuristic '{o}' (expected power or balance)")),
-        }
-    }
-}
+crate::named_choices!(MisHeuristic, "MIS heuristic", { "power" => Self::Power, "balance" => Self::Balance });
 
 /// Pixel reconstruction filter, applied by importance sampling the filter (each sample lands in
 /// exactly one pixel with weight 1, so tiles stay independent).
@@ -56,16 +37,7 @@ pub enum PixelFilter {
     Tent,
 }
 
-impl std::str::FromStr for PixelFilter {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "box" => Ok(Self::Box),
-            "tent" => Ok(Self::Tent),
-            o => Err(format!("unknown pixel filter '{o}' (expected box or tent)")),
-        }
-    }
-}
+crate::named_choices!(PixelFilter, "pixel filter", { "box" => Self::Box, "tent" => Self::Tent });
 
 /// Largest image side accepted (bounds the film allocation).
 pub const MAX_IMAGE_SIDE: u32 = 16384;

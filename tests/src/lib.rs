@@ -129,15 +129,12 @@ impl Farm {
 
     /// Waits until `n` workers have registered (so a test's work is spread as it expects).
     pub fn wait_workers(&self, n: usize) {
-        let t = Instant::now();
-        while t.elapsed() < Duration::from_secs(30) {
+        poll(Duration::from_secs(30), || {
             let (code, out, _) = self.cli(&["workers"]);
-            if code == 0 && out.lines().skip(1).count() >= n {
-                return;
-            }
-            std::thread::sleep(Duration::from_millis(50));
-        }
-        panic!("{n} workers did not register within 30 s");
+            (code == 0 && out.lines().skip(1).count() >= n)
+                .then_some(())
+                .ok_or_else(|| format!("{n} workers did not register"))
+        });
     }
 
     /// Runs the CLI against this farm; returns (exit code, stdout, stderr).
@@ -163,14 +160,25 @@ impl Farm {
 
     /// Waits until `pred(job)` holds, or panics after `timeout`.
     pub fn wait_job(&self, id: &str, timeout: Duration, pred: impl Fn(&Value) -> bool) -> Value {
-        let t = Instant::now();
-        loop {
+        poll(timeout, || {
             let j = self.job(id);
             if pred(&j) {
-                return j;
+                Ok(j)
+            } else {
+                Err(format!("job {id} did not reach the expected state: {j}"))
             }
-            assert!(t.elapsed() < timeout, "job {id} did not reach the expected state in {timeout:?}: {j}");
-            std::thread::sleep(Duration::from_millis(100));
+        })
+    }
+}
+
+/// Calls `f` every 50 ms until it succeeds; panics with its last error after `timeout`.
+pub fn poll<T>(timeout: Duration, mut f: impl FnMut() -> Result<T, String>) -> T {
+    let t = Instant::now();
+    loop {
+        match f() {
+            Ok(v) => return v,
+            Err(e) if t.elapsed() >= timeout => panic!("after {timeout:?}: {e}"),
+            Err(_) => std::thread::sleep(Duration::from_millis(50)),
         }
     }
 }

@@ -62,7 +62,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
     for run in 0..=args.runs {
         let counters = Counters::default();
         let t = Instant::now();
-        renderer::render(&scene, &settings, &counters, |_| {});
+        renderer::render(&scene, &settings, &counters);
         let secs = t.elapsed().as_secs_f64();
         let rays = counters.rays.load(Ordering::Relaxed) as f64;
         if run == 0 {

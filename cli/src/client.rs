@@ -186,7 +186,7 @@ pub fn submit(a: SubmitArgs) -> anyhow::Result<()> {
     let files = scene_files(&a.scene)?;
     let f = &a.flags;
     let mut settings = json!({
-        "spp": f.spp, "camera": f.camera, "integrator": f.integrator, "mis_heuristic": f.mis_heuristic, "sampler": f.sampler,
+        "spp": f.spp, "time_budget": f.time_budget, "noise_target": f.noise_target, "min_spp": f.min_spp, "camera": f.camera, "integrator": f.integrator, "mis_heuristic": f.mis_heuristic, "sampler": f.sampler,
         "seed": f.seed, "max_depth": f.max_depth, "rr_depth": f.rr_depth, "filter": f.filter, "pass_spp": f.pass_spp, "priority": a.priority,
     });
     if let Some(w) = f.width {
@@ -268,6 +268,19 @@ pub struct JobArgs {
 pub fn status(a: JobArgs) -> anyhow::Result<()> {
     let j = Api::new(&a.conn)?.get_json(&format!("/jobs/{}", a.job))?;
     println!("{}", serde_json::to_string_pretty(&j).unwrap_or_default());
+    // The headline on stderr, so that scripts reading the JSON on stdout are unaffected.
+    let num = |v: &Value| v.as_f64().map_or("-".to_string(), |e| format!("{e:.3e}"));
+    eprintln!(
+        "{} {}: {:.0}% | spp {}..{} | estimated relative error {} (worst tile {}) | stop: {}",
+        a.job,
+        j["state"].as_str().unwrap_or("?"),
+        100.0 * j["progress"]["fraction"].as_f64().unwrap_or(0.0),
+        j["progress"]["spp_min"],
+        j["progress"]["spp_max"],
+        num(&j["noise"]["estimated_rel_error"]),
+        num(&j["noise"]["worst_tile"]["rel_error"]),
+        j["budget"]["stop"].as_str().unwrap_or("?")
+    );
     Ok(())
 }
 

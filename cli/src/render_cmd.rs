@@ -15,9 +15,20 @@ pub const EMBEDDED_CORNELL: &[u8] = include_bytes!("../../scenes/cornell/cornell
 /// Flags shared by every command that describes a render (render, bench; later submit).
 #[derive(Args, Clone, Debug)]
 pub struct RenderFlags {
-    /// Samples per pixel.
-    #[arg(long, default_value_t = 64)]
-    pub spp: u32,
+    /// Samples per pixel (default 64). With --time-budget or --noise-target: the cap (default 65536).
+    #[arg(long)]
+    pub spp: Option<u32>,
+    /// Stop at the last whole pass that fits in this many seconds of rendering (the image stays
+    /// unbiased: every pixel gets the same passes).
+    #[arg(long, value_name = "SECONDS")]
+    pub time_budget: Option<f64>,
+    /// Keep adding passes to each 32×32 tile until its estimated relative standard error is at most
+    /// REL (e.g. 0.02): noisy tiles get more samples than quiet ones.
+    #[arg(long, value_name = "REL")]
+    pub noise_target: Option<f64>,
+    /// With --noise-target: samples every pixel gets before its tile may stop.
+    #[arg(long, default_value_t = 32)]
+    pub min_spp: u32,
     /// Image width (default: 640, or from --height and the camera's aspect ratio).
     #[arg(long)]
     pub width: Option<u32>,
@@ -83,6 +94,15 @@ fn parse_rgb(s: &str) -> Result<[f32; 3], String> {
 }
 
 impl RenderFlags {
+    /// `--spp`, or its default: 64, or the budget cap when a budget decides instead.
+    pub fn spp_or_default(&self) -> u32 {
+        match self.spp {
+            Some(n) => n,
+            None if self.time_budget.is_some() || self.noise_target.is_some() => renderer::budget::BUDGET_SPP_CAP,
+            None => 64,
+        }
+    }
+
     /// Settings for `scene`, with the image size derived from the camera's aspect ratio when not given.
     pub fn settings(&self, scene: &Scene) -> Result<RenderSettings> {
         let aspect = match scene.camera(self.camera) {
@@ -93,7 +113,7 @@ impl RenderFlags {
         let s = RenderSettings {
             width,
             height,
-            spp: self.spp,
+            spp: self.spp_or_default(),
             pass_spp: self.pass_spp,
             integrator: self.integrator,
             mis_heuristic: self.mis_heuristic,
@@ -111,6 +131,9 @@ impl RenderFlags {
                 sampling: self.env_sampling == "on",
             },
             light_sampler: self.light_sampler,
+            noise_target: self.noise_target,
+            min_spp: self.min_spp,
+            time_budget: self.time_budget,
         };
         s.validate().map_err(anyhow::Error::msg)?;
         Ok(s)
@@ -135,6 +158,15 @@ pub struct RenderArgs {
     /// Preview exposure in stops.
     #[arg(long, default_value_t = 0.0)]
     pub exposure: f32,
+}
+
+/// "64" for a uniform sample count, "32..512 (mean 97.3)" for an adaptive one.
+pub fn spp_text(min: u32, max: u32, mean: f64) -> String {
+    if min == max {
+        format!("{max}")
+    } else {
+        format!("{min}..{max} (mean {mean:.1})")
+    }
 }
 
 pub fn load_scene(path: Option<&Path>) -> Result<Scene> {
@@ -163,52 +195,75 @@ pub fn run(args: RenderArgs) -> Result<()> {
     scene.prepare(&settings, Path::new("."))?;
     let load_time = t0.elapsed();
     let counters = Counters::default();
-    let total = settings.width as u64 * settings.height as u64 * settings.spp as u64;
-    let bar = indicatif::ProgressBar::new(total);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template(
-            "{spinner} [{elapsed_precise}] {bar:30} {percent:>3}% spp {msg} ETA {eta}",
-        )
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
     let pixels = settings.width as u64 * settings.height as u64;
+    // A time budget shows progress in time; a noise target cannot know its total in advance.
+    let bar = match (settings.time_budget, settings.noise_target) {
+        (Some(b), _) => indicatif::ProgressBar::new((b * 1000.0) as u64),
+        (None, Some(_)) => indicatif::ProgressBar::new_spinner(),
+        (None, None) => indicatif::ProgressBar::new(pixels * settings.spp as u64),
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {percent:>3}% {msg} ETA {eta}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
     let start = Instant::now();
     let done = std::sync::atomic::AtomicBool::new(false);
     // The render time is taken when the render returns, not when the progress thread (which sleeps
     // 100 ms between updates) has noticed.
-    let (image, elapsed) = std::thread::scope(|s| {
+    let (result, elapsed) = std::thread::scope(|s| {
         s.spawn(|| {
             while !done.load(Ordering::Relaxed) {
                 let samples = counters.samples.load(Ordering::Relaxed);
-                let rays = counters.rays.load(Ordering::Relaxed) as f64 / start.elapsed().as_secs_f64().max(1e-3);
-                bar.set_position(samples);
-                bar.set_message(format!("{}/{} | {:.2} Mrays/s", samples / pixels.max(1), settings.spp, rays / 1e6));
+                let secs = start.elapsed().as_secs_f64().max(1e-3);
+                let rays = counters.rays.load(Ordering::Relaxed) as f64 / secs;
+                bar.set_position(if settings.time_budget.is_some() { (secs * 1000.0) as u64 } else { samples });
+                bar.set_message(format!(
+                    "{:.1}/{} spp (mean/cap) | {:.2} Mrays/s",
+                    samples as f64 / pixels.max(1) as f64,
+                    settings.spp,
+                    rays / 1e6
+                ));
                 std::thread::sleep(Duration::from_millis(100));
             }
         });
-        let (image, _) = renderer::render(&scene, &settings, &counters, |_| {});
+        let result = renderer::render(&scene, &settings, &counters);
         let elapsed = start.elapsed().as_secs_f64();
         done.store(true, Ordering::Relaxed);
-        (image, elapsed)
+        (result, elapsed)
     });
     bar.finish_and_clear();
-    let final_image = FinalImage::from_sums(&image);
-    final_image.write_exr(&args.output, &renderer::image_io::standard_attributes(&settings))?;
+    let image = &result.image;
+    let final_image = FinalImage::from_sums(image);
+    final_image.write_exr(&args.output, &renderer::image_io::standard_attributes(&settings, image, result.stop))?;
     if let Some(p) = &args.preview {
         final_image.write_png(p, args.exposure)?;
     }
+    let samples = counters.samples.load(Ordering::Relaxed);
     let rays = counters.rays.load(Ordering::Relaxed) as f64;
     let nonfinite = counters.nonfinite.load(Ordering::Relaxed);
+    let noise = renderer::noise::estimate(image);
     eprintln!(
         "rendered {}x{} at {} spp in {:.3}s (scene load {:.3}s): {:.3} Mpaths/s, {:.3} Mrays/s -> {}",
         settings.width,
         settings.height,
-        settings.spp,
+        spp_text(noise.spp_min, noise.spp_max, samples as f64 / pixels.max(1) as f64),
         elapsed,
         load_time.as_secs_f64(),
-        total as f64 / elapsed / 1e6,
+        samples as f64 / elapsed / 1e6,
         rays / elapsed / 1e6,
         args.output.display()
+    );
+    let worst = result
+        .tiles
+        .iter()
+        .map(|(t, _)| (t.rect, renderer::noise::estimate(t)))
+        .max_by(|a, b| a.1.rel_mse.total_cmp(&b.1.rel_mse));
+    eprintln!(
+        "estimated noise: relative error {:.3e} (relMSE {:.3e}); worst tile {}; stopped by {}",
+        noise.rel_error,
+        noise.rel_mse,
+        worst.map_or("-".into(), |(r, e)| format!("{:.3e} at ({}, {})", e.rel_error, r.x0, r.y0)),
+        result.stop.as_str()
     );
     if nonfinite > 0 {
         tracing::warn!(nonfinite, "samples with non-finite radiance were replaced by zero");

@@ -117,8 +117,9 @@ impl Shared {
 
     /// Writes the final EXR of a completed job and marks it done.
     pub fn finish_job(&self, job: &mut Job) {
-        let image = renderer::image_io::FinalImage::from_sums(&job.image());
-        match image.exr_bytes(&renderer::image_io::standard_attributes(&job.spec.settings)) {
+        let sums = job.image();
+        let image = renderer::image_io::FinalImage::from_sums(&sums);
+        match image.exr_bytes(&renderer::image_io::standard_attributes(&job.spec.settings, &sums, job.stop_reason())) {
             Ok(bytes) => {
                 job.state = JobState::Done;
                 job.finished_ms = Some(now_ms());
@@ -165,7 +166,16 @@ pub async fn serve_on(
         let mut tick = tokio::time::interval(Duration::from_millis(250));
         loop {
             tick.tick().await;
-            let expired = lock(&s.farm).expire(now_ms());
+            let expired = {
+                let mut farm = lock(&s.farm);
+                // Jobs a time budget closed between results have nothing left to wait for.
+                for id in farm.finished_jobs() {
+                    if let Some(job) = farm.jobs.get_mut(&id) {
+                        s.finish_job(job);
+                    }
+                }
+                farm.expire(now_ms())
+            };
             if !expired.is_empty() {
                 lock(&s.metrics).units_expired += expired.len() as u64;
                 for (job, worker) in &expired {

@@ -90,6 +90,11 @@ struct SubmitSettings {
     env_sampling: Option<bool>,
     light_sampler: Option<renderer::light::LightSamplerKind>,
     pass_spp: Option<u32>,
+    /// Seconds; with it (or a noise target) `spp` is a cap, by default the farm's spp limit.
+    time_budget: Option<f64>,
+    /// Relative standard error each tile must reach (adaptive sampling).
+    noise_target: Option<f64>,
+    min_spp: Option<u32>,
 }
 
 async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Value>), ApiError> {
@@ -193,7 +198,11 @@ async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Va
     let rs = RenderSettings {
         width,
         height,
-        spp: settings.spp.unwrap_or(d.spp),
+        spp: settings.spp.unwrap_or(if settings.time_budget.is_some() || settings.noise_target.is_some() {
+            limits.max_spp.min(renderer::budget::BUDGET_SPP_CAP)
+        } else {
+            d.spp
+        }),
         pass_spp: settings.pass_spp.unwrap_or(d.pass_spp),
         integrator: settings.integrator.unwrap_or(d.integrator),
         mis_heuristic: settings.mis_heuristic.unwrap_or(d.mis_heuristic),
@@ -205,6 +214,9 @@ async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Va
         filter: settings.filter.unwrap_or(d.filter),
         environment,
         light_sampler: settings.light_sampler.unwrap_or(d.light_sampler),
+        noise_target: settings.noise_target,
+        min_spp: settings.min_spp.unwrap_or(d.min_spp),
+        time_budget: settings.time_budget,
     };
     rs.validate().map_err(|e| err(StatusCode::UNPROCESSABLE_ENTITY, e))?;
     if rs.width > limits.max_side || rs.height > limits.max_side {
@@ -270,14 +282,26 @@ async fn file_part(
 fn job_json(j: &Job) -> Value {
     let (done, total) = j.samples_progress();
     let now = now_ms();
-    let elapsed_ms = j.started_ms.map(|s| j.finished_ms.unwrap_or(now) - s);
-    let fraction = if total > 0 { done as f64 / total as f64 } else { 0.0 };
-    let eta_s = match (elapsed_ms, j.state.is_final()) {
+    let s = &j.spec.settings;
+    let elapsed_ms = j.started_ms.map(|st| j.finished_ms.unwrap_or(now) - st);
+    let mut fraction = if total > 0 { done as f64 / total as f64 } else { 0.0 };
+    let mut eta_s = match (elapsed_ms, j.state.is_final()) {
         (Some(e), false) if fraction > 0.0 => Some(e as f64 / 1000.0 * (1.0 - fraction) / fraction),
         _ => None,
     };
-    let rel_mse = j.estimated_rel_mse();
-    let s = &j.spec.settings;
+    // A time budget bounds the job: progress is at least the budget's share spent.
+    if let (Some(b), Some(e), false) = (s.time_budget, elapsed_ms, j.state.is_final()) {
+        let spent = e as f64 / 1000.0;
+        fraction = fraction.max((spent / b).min(1.0));
+        eta_s = Some(eta_s.unwrap_or(f64::INFINITY).min((b - spent).max(0.0)));
+    }
+    let noise = j.noise();
+    let worst = j
+        .tile_sums
+        .iter()
+        .map(|t| (t.rect, renderer::noise::estimate(t)))
+        .filter(|(_, e)| e.rel_mse.is_finite())
+        .max_by(|a, b| a.1.rel_mse.total_cmp(&b.1.rel_mse));
     json!({
         "id": j.id,
         "name": j.spec.name,
@@ -293,12 +317,40 @@ fn job_json(j: &Job) -> Value {
         "progress": {
             "samples_done": done, "samples_total": total, "fraction": fraction,
             "units_done": j.units_done(), "units_leased": j.units_leased(), "units_total": j.unit_count(),
+            "spp_min": noise.map(|n| n.spp_min), "spp_max": noise.map(|n| n.spp_max),
+            "spp_mean": done as f64 / (s.width as f64 * s.height as f64),
         },
-        "noise": { "estimated_rel_mse": rel_mse, "estimated_rel_error": rel_mse.map(f64::sqrt) },
+        "noise": {
+            "estimated_rel_mse": noise.map(|n| n.rel_mse),
+            "estimated_rel_error": noise.map(|n| n.rel_error),
+            "worst_tile": worst.map(|(r, e)| json!({ "x0": r.x0, "y0": r.y0, "width": r.width, "height": r.height, "rel_error": e.rel_error, "spp": e.spp_max })),
+        },
+        "budget": {
+            "time_budget_s": s.time_budget, "noise_target": s.noise_target, "min_spp": s.min_spp, "spp_cap": s.spp,
+            "tiles_converged": j.tiles_converged(), "tiles": j.tiles.len(), "stop": j.stop_reason().as_str(),
+        },
         "techniques": { "integrator": s.integrator, "mis_heuristic": s.mis_heuristic, "sampler": s.sampler, "light_sampler": s.light_sampler, "filter": s.filter },
         "settings": s,
         "bad_workers": j.bad_workers.iter().collect::<Vec<_>>(),
     })
+}
+
+/// Per-tile noise of a job (only on the single-job resource: a large image has thousands of tiles).
+fn tiles_json(j: &Job) -> Value {
+    let tiles: Vec<Value> = j
+        .tile_sums
+        .iter()
+        .zip(j.folded.iter().zip(&j.planned))
+        .map(|(t, (f, p))| {
+            let e = renderer::noise::estimate(t);
+            json!({
+                "x0": t.rect.x0, "y0": t.rect.y0, "width": t.rect.width, "height": t.rect.height,
+                "spp": e.spp_max, "passes_done": f, "passes_planned": p,
+                "rel_error": e.rel_error.is_finite().then_some(e.rel_error),
+            })
+        })
+        .collect();
+    Value::Array(tiles)
 }
 
 async fn list_jobs(State(s): S) -> Json<Value> {
@@ -309,7 +361,9 @@ async fn list_jobs(State(s): S) -> Json<Value> {
 async fn get_job(State(s): S, Path(id): Path<String>) -> Result<Json<Value>, ApiError> {
     let farm = lock(&s.farm);
     let job = farm.jobs.get(&id).ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no job '{id}'")))?;
-    Ok(Json(job_json(job)))
+    let mut body = job_json(job);
+    body["noise"]["tiles"] = tiles_json(job);
+    Ok(Json(body))
 }
 
 async fn cancel_job(State(s): S, Path(id): Path<String>) -> Result<Json<Value>, ApiError> {

@@ -3,13 +3,16 @@
 //! tile in pass order — the determinism rule of ARCHITECTURE.md — so the final image is bit-identical
 //! to `tessera render` whatever the number of workers, arrival order or retries.
 
+use renderer::budget::{self, StopReason};
 use renderer::film::{PartialSums, Rect};
+use renderer::noise;
 use renderer::RenderSettings;
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::ops::Range;
 
-/// Side of the square tiles jobs are cut into (any value gives the same image).
-pub const TILE: u32 = 32;
+/// Side of the square tiles jobs are cut into: the renderer's, so that adaptive sampling makes the
+/// same per-tile decisions locally and on the farm.
+pub use renderer::budget::TILE;
 /// A worker whose leases expire this many times on one job is not given that job again.
 pub const MAX_WORKER_FAILURES: u32 = 3;
 
@@ -57,15 +60,11 @@ pub struct JobSpec {
     pub priority: i32,
 }
 
+/// A unit handed to a worker and not yet returned.
 #[derive(Clone, Debug, PartialEq)]
-enum UnitState {
-    Pending,
-    Leased {
-        worker: String,
-        deadline_ms: i64,
-    },
-    /// The result arrived (it may still wait for earlier passes before it is folded).
-    Received,
+struct Lease {
+    worker: String,
+    deadline_ms: i64,
 }
 
 /// One tile × pass of a job, as handed to a worker.
@@ -80,6 +79,9 @@ pub struct WorkUnit {
     pub deadline_ms: i64,
 }
 
+/// A job's plan and progress. Units are not materialised: unit `pass × tiles + tile` is pending
+/// when its tile still plans that pass and nobody holds or has returned it. This keeps a budgeted
+/// job (whose sample cap may be 65536) as small as a fixed one.
 pub struct Job {
     pub id: String,
     pub spec: JobSpec,
@@ -89,34 +91,42 @@ pub struct Job {
     pub started_ms: Option<i64>,
     pub finished_ms: Option<i64>,
     pub tiles: Vec<Rect>,
-    pub passes: Vec<Range<u32>>,
     /// Per tile: the folded accumulation and how many passes it holds.
     pub tile_sums: Vec<PartialSums>,
     pub folded: Vec<u32>,
+    /// Per tile: the passes it will hold when done. Starts at the sample cap's pass count; shrinks
+    /// to `folded` when the tile meets its noise target, and to the passes already started when the
+    /// time budget closes the job.
+    pub planned: Vec<u32>,
     /// Per tile: results that arrived before an earlier pass.
     waiting: Vec<BTreeMap<u32, PartialSums>>,
-    units: Vec<UnitState>,
+    /// Per tile: passes leased and not yet returned.
+    leases: Vec<BTreeMap<u32, Lease>>,
+    /// Passes of which at least one unit was leased: the boundary a time budget stops at.
+    started_passes: u32,
+    /// Set when the time budget closed the job.
+    budget_spent: bool,
     pub bad_workers: HashSet<String>,
     failures: HashMap<String, u32>,
     /// Scheduling round-robin: when this job last got a unit.
     last_served: u64,
 }
 
-/// Unit index = pass × tiles + tile: pass-major, so the whole image refines pass by pass.
 impl Job {
     pub fn new(id: String, spec: JobSpec, submitted_ms: i64) -> Self {
         let s = &spec.settings;
         let tiles = Rect::tiles(s.width, s.height, TILE);
-        let passes: Vec<Range<u32>> = s.passes().collect();
-        let n = tiles.len() * passes.len();
+        let n = tiles.len();
         Job {
             id,
             tile_sums: tiles.iter().map(|t| PartialSums::new(*t)).collect(),
-            folded: vec![0; tiles.len()],
-            waiting: vec![BTreeMap::new(); tiles.len()],
-            units: vec![UnitState::Pending; n],
+            folded: vec![0; n],
+            planned: vec![s.pass_count(); n],
+            waiting: vec![BTreeMap::new(); n],
+            leases: vec![BTreeMap::new(); n],
+            started_passes: 0,
+            budget_spent: false,
             tiles,
-            passes,
             spec,
             state: JobState::Queued,
             error: None,
@@ -129,21 +139,23 @@ impl Job {
         }
     }
 
-    /// Restores folded progress (after a coordinator restart): units of folded passes are done.
+    /// Restores folded progress (after a coordinator restart). A tile that had met its noise
+    /// target is recognised as such again: the decision is a function of its sums.
     pub fn restore_tile(&mut self, tile: usize, folded: u32, sums: PartialSums) {
-        if tile >= self.tiles.len() || sums.rect != self.tiles[tile] || folded as usize > self.passes.len() {
+        if tile >= self.tiles.len() || sums.rect != self.tiles[tile] || folded > self.planned[tile] {
             return;
         }
         self.folded[tile] = folded;
         self.tile_sums[tile] = sums;
-        for p in 0..folded as usize {
-            let idx = p * self.tiles.len() + tile;
-            self.units[idx] = UnitState::Received;
+        if !budget::tile_needs_more(&self.spec.settings, &self.tile_sums[tile], folded) {
+            self.planned[tile] = folded;
         }
+        self.started_passes = self.started_passes.max(folded);
     }
 
+    /// Units planned so far (shrinks as tiles converge).
     pub fn unit_count(&self) -> usize {
-        self.units.len()
+        self.planned.iter().map(|&p| p as usize).sum()
     }
 
     pub fn units_done(&self) -> usize {
@@ -151,26 +163,45 @@ impl Job {
     }
 
     pub fn units_leased(&self) -> usize {
-        self.units.iter().filter(|u| matches!(u, UnitState::Leased { .. })).count()
+        self.leases.iter().map(BTreeMap::len).sum()
     }
 
-    /// Pixel-samples folded into the image so far, and in total.
+    /// Tiles that stopped before the sample cap because they met the noise target.
+    pub fn tiles_converged(&self) -> usize {
+        let cap = self.spec.settings.pass_count();
+        (0..self.tiles.len()).filter(|&t| self.planned[t] < cap && !self.budget_spent).count()
+    }
+
+    /// Pixel-samples folded into the image so far, and planned in total.
     pub fn samples_progress(&self) -> (u64, u64) {
-        let mut done = 0u64;
-        for (t, &f) in self.folded.iter().enumerate() {
-            let spp: u64 = self.passes[..f as usize].iter().map(|r| r.len() as u64).sum();
-            done += spp * self.tiles[t].pixels() as u64;
+        let s = &self.spec.settings;
+        let (mut done, mut total) = (0u64, 0u64);
+        for (t, rect) in self.tiles.iter().enumerate() {
+            done += s.samples_after(self.folded[t]) as u64 * rect.pixels() as u64;
+            total += s.samples_after(self.planned[t]) as u64 * rect.pixels() as u64;
         }
-        let total = self.spec.settings.spp as u64 * self.spec.settings.width as u64 * self.spec.settings.height as u64;
         (done, total)
     }
 
     pub fn is_complete(&self) -> bool {
-        self.folded.iter().all(|&f| f as usize == self.passes.len())
+        self.folded == self.planned
     }
 
-    fn unit_id(&self, idx: usize) -> String {
-        format!("{}/{}", self.id, idx)
+    /// Why the job stopped (or will stop, with what is planned now).
+    pub fn stop_reason(&self) -> StopReason {
+        if self.state == JobState::Cancelled {
+            StopReason::Cancelled
+        } else if self.budget_spent {
+            StopReason::TimeBudget
+        } else if self.planned.iter().any(|&p| p < self.spec.settings.pass_count()) {
+            StopReason::NoiseTarget
+        } else {
+            StopReason::SampleCount
+        }
+    }
+
+    fn unit_id(&self, pass: u32, tile: usize) -> String {
+        format!("{}/{}", self.id, pass as u64 * self.tiles.len() as u64 + tile as u64)
     }
 
     /// The image so far: every tile's folded accumulation placed in the full frame.
@@ -184,23 +215,70 @@ impl Job {
         img
     }
 
-    /// Estimated relative MSE of the image from its variance buffer: mean over pixels of
-    /// var(mean) / (mean² + 0.01), the expectation of the relMSE `equal_time.py` measures.
-    pub fn estimated_rel_mse(&self) -> Option<f64> {
+    /// The image's estimated noise (see `renderer::noise`); `None` before every pixel has two samples.
+    pub fn noise(&self) -> Option<noise::NoiseEstimate> {
         let mut sum = 0.0;
-        let mut n = 0usize;
+        let mut pixels = 0usize;
+        let (mut spp_min, mut spp_max) = (u32::MAX, 0);
         for t in &self.tile_sums {
-            for i in 0..t.rect.pixels() {
-                if t.count[i] < 2 {
-                    continue;
-                }
-                let m = t.mean(i);
-                let y = renderer::math::luminance(renderer::math::Vec3::from(m)) as f64;
-                sum += t.variance_of_mean(i) as f64 / (y * y + 0.01);
-                n += 1;
+            let e = noise::estimate(t);
+            sum += e.rel_mse * t.rect.pixels() as f64;
+            pixels += t.rect.pixels();
+            spp_min = spp_min.min(e.spp_min);
+            spp_max = spp_max.max(e.spp_max);
+        }
+        let rel_mse = sum / pixels.max(1) as f64;
+        rel_mse.is_finite().then(|| noise::NoiseEstimate { rel_mse, rel_error: rel_mse.sqrt(), spp_min, spp_max })
+    }
+
+    /// Closes the job at the passes already started when another pass would not fit in its time
+    /// budget (`budget::may_start_pass`, timed from the first lease). Returns whether it did.
+    fn close_if_budget_spent(&mut self, now_ms: i64) -> bool {
+        let (Some(started), Some(_)) = (self.started_ms, self.spec.settings.time_budget) else { return false };
+        if self.budget_spent {
+            return false;
+        }
+        let elapsed = (now_ms - started).max(0) as f64 / 1000.0;
+        if budget::may_start_pass(&self.spec.settings, elapsed, self.started_passes) {
+            return false;
+        }
+        self.budget_spent = true;
+        for t in 0..self.tiles.len() {
+            self.planned[t] = self.planned[t].min(self.started_passes.max(self.folded[t]));
+            self.drop_beyond_plan(t);
+        }
+        true
+    }
+
+    fn drop_beyond_plan(&mut self, t: usize) {
+        let plan = self.planned[t];
+        self.leases[t].retain(|&p, _| p < plan);
+        self.waiting[t].retain(|&p, _| p < plan);
+    }
+
+    /// The next unit in pass-major order: the lowest pending pass of any tile, tiles in order.
+    /// With a noise target a tile runs at most one pass ahead of what it has folded, so little work
+    /// is wasted on tiles that turn out to have converged.
+    fn next_pending(&self) -> Option<(u32, usize)> {
+        let lookahead = if self.spec.settings.noise_target.is_some() { 1 } else { u32::MAX };
+        let mut best: Option<(u32, usize)> = None;
+        for t in 0..self.tiles.len() {
+            let mut p = self.folded[t];
+            while p < self.planned[t] && (self.leases[t].contains_key(&p) || self.waiting[t].contains_key(&p)) {
+                p += 1;
+            }
+            if p < self.planned[t] && p - self.folded[t] <= lookahead && best.is_none_or(|(bp, _)| p < bp) {
+                best = Some((p, t));
             }
         }
-        (n > 0).then(|| sum / n as f64)
+        best
+    }
+
+    /// Splits a unit index into (pass, tile).
+    fn locate(&self, idx: u64) -> Option<(u32, usize)> {
+        let n = self.tiles.len() as u64;
+        let pass = u32::try_from(idx / n).ok()?;
+        (pass < self.spec.settings.pass_count()).then_some((pass, (idx % n) as usize))
     }
 }
 
@@ -211,7 +289,8 @@ pub enum SubmitOutcome {
     Merged { tiles_changed: Vec<usize>, job_complete: bool },
     /// The unit was already merged (a duplicate from a retried lease): dropped.
     Duplicate,
-    /// The job is gone, cancelled or finished.
+    /// The job is gone, cancelled or finished, or the unit's tile no longer needs the pass (it met
+    /// its noise target, or the time budget closed the job).
     Stale,
     /// The result is malformed; the worker is now on the job's bad list and the unit is re-queued.
     Rejected(String),
@@ -230,12 +309,13 @@ impl Farm {
 
     /// Picks the next unit for `worker`: highest priority first; among jobs of that priority, the
     /// one served longest ago (round-robin), older submissions first on ties; within a job, the
-    /// first pending unit in pass-major order.
+    /// first pending unit in pass-major order. A job whose time budget allows no further pass is
+    /// closed at its started passes instead (see `finished_jobs`).
     pub fn lease(&mut self, worker: &str, now_ms: i64, lease_ms: i64) -> Option<WorkUnit> {
         let mut candidates: Vec<&mut Job> = self
             .jobs
             .values_mut()
-            .filter(|j| !j.state.is_final() && !j.bad_workers.contains(worker) && j.units.contains(&UnitState::Pending))
+            .filter(|j| !j.state.is_final() && !j.bad_workers.contains(worker) && j.next_pending().is_some())
             .collect();
         candidates.sort_by(|a, b| {
             b.spec
@@ -245,52 +325,68 @@ impl Farm {
                 .then(a.submitted_ms.cmp(&b.submitted_ms))
                 .then(a.id.cmp(&b.id))
         });
-        let job = candidates.into_iter().next()?;
-        let idx = job.units.iter().position(|u| *u == UnitState::Pending)?;
-        self.serve_counter += 1;
-        job.last_served = self.serve_counter;
-        let deadline_ms = now_ms + lease_ms;
-        job.units[idx] = UnitState::Leased { worker: worker.to_string(), deadline_ms };
-        if job.state == JobState::Queued {
-            job.state = JobState::Running;
-            job.started_ms = Some(now_ms);
+        for job in candidates {
+            let Some((pass, tile)) = job.next_pending() else { continue };
+            if pass >= job.started_passes && job.close_if_budget_spent(now_ms) {
+                continue;
+            }
+            self.serve_counter += 1;
+            job.last_served = self.serve_counter;
+            let deadline_ms = now_ms + lease_ms;
+            job.leases[tile].insert(pass, Lease { worker: worker.to_string(), deadline_ms });
+            job.started_passes = job.started_passes.max(pass + 1);
+            if job.state == JobState::Queued {
+                job.state = JobState::Running;
+                job.started_ms = Some(now_ms);
+            }
+            return Some(WorkUnit {
+                unit_id: job.unit_id(pass, tile),
+                job_id: job.id.clone(),
+                scene_hash: job.spec.scene_hash.clone(),
+                settings: job.spec.settings.clone(),
+                rect: job.tiles[tile],
+                samples: job.spec.settings.pass_range(pass),
+                deadline_ms,
+            });
         }
-        let (pass, tile) = (idx / job.tiles.len(), idx % job.tiles.len());
-        Some(WorkUnit {
-            unit_id: job.unit_id(idx),
-            job_id: job.id.clone(),
-            scene_hash: job.spec.scene_hash.clone(),
-            settings: job.spec.settings.clone(),
-            rect: job.tiles[tile],
-            samples: job.passes[pass].clone(),
-            deadline_ms,
-        })
+        None
     }
 
-    fn parse_unit(unit_id: &str) -> Option<(&str, usize)> {
+    /// Unfinished jobs whose every tile holds its planned passes (closed by a time budget between
+    /// results, or restored complete): the caller writes their images.
+    pub fn finished_jobs(&self) -> Vec<String> {
+        self.jobs.values().filter(|j| !j.state.is_final() && j.is_complete()).map(|j| j.id.clone()).collect()
+    }
+
+    fn parse_unit(unit_id: &str) -> Option<(&str, u64)> {
         let (job, idx) = unit_id.rsplit_once('/')?;
         Some((job, idx.parse().ok()?))
     }
 
     /// Extends a lease. Returns the new deadline, or None when the worker should stop (job
-    /// cancelled or finished, unit already merged, or leased to someone else).
+    /// cancelled or finished, unit already merged or no longer needed, or leased to someone else).
     pub fn heartbeat(&mut self, worker: &str, unit_id: &str, now_ms: i64, lease_ms: i64) -> Option<i64> {
         let (job_id, idx) = Self::parse_unit(unit_id)?;
         let job = self.jobs.get_mut(job_id)?;
         if job.state.is_final() {
             return None;
         }
-        match job.units.get_mut(idx)? {
-            UnitState::Leased { worker: w, deadline_ms } if w == worker => {
-                *deadline_ms = now_ms + lease_ms;
-                Some(*deadline_ms)
+        let (pass, t) = job.locate(idx)?;
+        if pass < job.folded[t] || pass >= job.planned[t] || job.waiting[t].contains_key(&pass) {
+            return None;
+        }
+        let deadline_ms = now_ms + lease_ms;
+        match job.leases[t].get_mut(&pass) {
+            Some(l) if l.worker == worker => {
+                l.deadline_ms = deadline_ms;
+                Some(deadline_ms)
             }
+            Some(_) => None,
             // Our lease expired but nobody else took the unit yet: take it back.
-            u @ UnitState::Pending => {
-                *u = UnitState::Leased { worker: worker.to_string(), deadline_ms: now_ms + lease_ms };
-                Some(now_ms + lease_ms)
+            None => {
+                job.leases[t].insert(pass, Lease { worker: worker.to_string(), deadline_ms });
+                Some(deadline_ms)
             }
-            _ => None,
         }
     }
 
@@ -299,17 +395,17 @@ impl Farm {
     pub fn expire(&mut self, now_ms: i64) -> Vec<(String, String)> {
         let mut expired = Vec::new();
         for job in self.jobs.values_mut() {
-            for u in job.units.iter_mut() {
-                if let UnitState::Leased { worker, deadline_ms } = u {
-                    if *deadline_ms < now_ms {
-                        expired.push((job.id.clone(), worker.clone()));
-                        let n = job.failures.entry(worker.clone()).or_insert(0);
-                        *n += 1;
-                        if *n >= MAX_WORKER_FAILURES {
-                            job.bad_workers.insert(worker.clone());
-                        }
-                        *u = UnitState::Pending;
+            for t in 0..job.leases.len() {
+                let gone: Vec<u32> =
+                    job.leases[t].iter().filter(|(_, l)| l.deadline_ms < now_ms).map(|(&p, _)| p).collect();
+                for p in gone {
+                    let Some(lease) = job.leases[t].remove(&p) else { continue };
+                    let n = job.failures.entry(lease.worker.clone()).or_insert(0);
+                    *n += 1;
+                    if *n >= MAX_WORKER_FAILURES {
+                        job.bad_workers.insert(lease.worker.clone());
                     }
+                    expired.push((job.id.clone(), lease.worker));
                 }
             }
         }
@@ -321,24 +417,37 @@ impl Farm {
     pub fn unit_shape(&self, unit_id: &str) -> Option<(Rect, Range<u32>)> {
         let (job_id, idx) = Self::parse_unit(unit_id)?;
         let job = self.jobs.get(job_id)?;
-        if idx >= job.units.len() {
-            return None;
-        }
-        Some((job.tiles[idx % job.tiles.len()], job.passes[idx / job.tiles.len()].clone()))
+        let (pass, tile) = job.locate(idx)?;
+        Some((job.tiles[tile], job.spec.settings.pass_range(pass)))
     }
 
     /// Validates and merges a unit's result.
     pub fn submit(&mut self, worker: &str, unit_id: &str, sums: Result<PartialSums, String>) -> SubmitOutcome {
+        self.submit_at(worker, unit_id, sums, i64::MIN)
+    }
+
+    /// [`Farm::submit`] at time `now_ms`, so that a time budget can close the job at the pass
+    /// boundary this result completes.
+    pub fn submit_at(
+        &mut self,
+        worker: &str,
+        unit_id: &str,
+        sums: Result<PartialSums, String>,
+        now_ms: i64,
+    ) -> SubmitOutcome {
         let Some((job_id, idx)) = Self::parse_unit(unit_id) else { return SubmitOutcome::Stale };
         let Some(job) = self.jobs.get_mut(job_id) else { return SubmitOutcome::Stale };
-        if job.state.is_final() || idx >= job.units.len() {
+        let Some((pass, tile)) = job.locate(idx) else { return SubmitOutcome::Stale };
+        if job.state.is_final() {
             return SubmitOutcome::Stale;
         }
-        if job.units[idx] == UnitState::Received {
+        if pass < job.folded[tile] || job.waiting[tile].contains_key(&pass) {
             return SubmitOutcome::Duplicate;
         }
-        let (pass, tile) = (idx / job.tiles.len(), idx % job.tiles.len());
-        let expected = job.passes[pass].len() as u32;
+        if pass >= job.planned[tile] {
+            return SubmitOutcome::Stale;
+        }
+        let expected = job.spec.settings.pass_range(pass).len() as u32;
         let checked = sums.and_then(|s| {
             if s.rect != job.tiles[tile] {
                 return Err(format!("result covers {:?}, the unit is {:?}", s.rect, job.tiles[tile]));
@@ -350,20 +459,30 @@ impl Farm {
             Ok(s) => s,
             Err(e) => {
                 job.bad_workers.insert(worker.to_string());
-                if matches!(&job.units[idx], UnitState::Leased { worker: w, .. } if w == worker) {
-                    job.units[idx] = UnitState::Pending;
+                if job.leases[tile].get(&pass).is_some_and(|l| l.worker == worker) {
+                    job.leases[tile].remove(&pass);
                 }
                 return SubmitOutcome::Rejected(e);
             }
         };
-        job.units[idx] = UnitState::Received;
-        job.waiting[tile].insert(pass as u32, sums);
+        job.leases[tile].remove(&pass);
+        job.waiting[tile].insert(pass, sums);
         let mut changed = false;
-        while let Some(next) = job.waiting[tile].remove(&job.folded[tile]) {
+        while job.folded[tile] < job.planned[tile] {
+            let Some(next) = job.waiting[tile].remove(&job.folded[tile]) else { break };
             // Folding in pass order: determinism rule 3.
             let _ = job.tile_sums[tile].merge(&next);
             job.folded[tile] += 1;
             changed = true;
+            // Adaptive sampling: the decision depends on this tile's folded sums alone.
+            if !budget::tile_needs_more(&job.spec.settings, &job.tile_sums[tile], job.folded[tile]) {
+                job.planned[tile] = job.folded[tile];
+            }
+        }
+        job.drop_beyond_plan(tile);
+        // A completed pass boundary is where a time budget may close the job.
+        if now_ms != i64::MIN && job.folded.iter().zip(&job.planned).all(|(&f, &p)| f >= job.started_passes.min(p)) {
+            job.close_if_budget_spent(now_ms);
         }
         let complete = job.is_complete();
         SubmitOutcome::Merged { tiles_changed: if changed { vec![tile] } else { Vec::new() }, job_complete: complete }
@@ -465,5 +584,120 @@ mod tests {
         assert!(f.expire(500).is_empty());
         assert_eq!(f.expire(1001), vec![("a".to_string(), "dead".to_string())]);
         assert_eq!(f.lease("alive", 1001, 1000).unwrap().unit_id, u.unit_id);
+    }
+
+    /// Sums whose pixel `i` alternates between `lo` and `hi` over `n` samples.
+    fn noisy(rect: Rect, n: u32, lo: f32, hi: f32) -> PartialSums {
+        let mut p = PartialSums::new(rect);
+        for i in 0..rect.pixels() {
+            for k in 0..n {
+                p.add_sample(i, Vec3::splat(if k % 2 == 0 { lo } else { hi }));
+            }
+        }
+        p
+    }
+
+    fn budget_job(id: &str, noise_target: Option<f64>, time_budget: Option<f64>) -> Job {
+        let settings = RenderSettings {
+            width: 64,
+            height: 32,
+            spp: 64,
+            pass_spp: 8,
+            noise_target,
+            min_spp: 16,
+            time_budget,
+            ..RenderSettings::default()
+        };
+        Job::new(id.into(), JobSpec { name: id.into(), scene_hash: "h".into(), settings, priority: 0 }, 0)
+    }
+
+    /// Plays a noise-target job to the end, returning results in `order` within each round of
+    /// leases; the tile values make tile 0 quiet and tile 1 noisy.
+    fn play(order_reversed: bool, workers: usize) -> Job {
+        let mut f = Farm::default();
+        f.add_job(budget_job("a", Some(0.05), None));
+        let mut rounds = 0;
+        while f.jobs["a"].state != JobState::Done && rounds < 100 {
+            rounds += 1;
+            let mut units: Vec<WorkUnit> = (0..workers).filter_map(|w| f.lease(&format!("w{w}"), 0, 1000)).collect();
+            if order_reversed {
+                units.reverse();
+            }
+            if units.is_empty() {
+                break;
+            }
+            for (k, u) in units.iter().enumerate() {
+                let n = u.samples.len() as u32;
+                let sums = if u.rect.x0 == 0 { noisy(u.rect, n, 0.99, 1.01) } else { noisy(u.rect, n, 0.0, 2.0) };
+                if let SubmitOutcome::Merged { job_complete: true, .. } =
+                    f.submit(&format!("w{k}"), &u.unit_id, Ok(sums))
+                {
+                    f.jobs.get_mut("a").unwrap().state = JobState::Done;
+                }
+            }
+        }
+        f.jobs.remove("a").unwrap()
+    }
+
+    #[test]
+    fn noise_target_stops_quiet_tiles_early_whatever_the_worker_count() {
+        let one = play(false, 1);
+        assert_eq!(one.state, JobState::Done);
+        // Quiet tile: stops at min_spp (2 passes of 8); noisy tile: runs to the cap (8 passes).
+        assert_eq!(one.folded, vec![2, 8]);
+        assert_eq!(one.planned, one.folded);
+        assert_eq!(one.stop_reason(), StopReason::NoiseTarget);
+        assert_eq!(one.tiles_converged(), 1);
+        for (reversed, workers) in [(true, 3), (false, 5), (true, 2)] {
+            let other = play(reversed, workers);
+            assert_eq!(other.folded, one.folded, "{workers} workers");
+            assert_eq!(other.tile_sums, one.tile_sums, "{workers} workers");
+        }
+    }
+
+    #[test]
+    fn results_for_passes_a_converged_tile_no_longer_needs_are_stale() {
+        let mut f = Farm::default();
+        f.add_job(budget_job("a", Some(0.05), None));
+        // Lookahead of one pass: tile 0 gets passes 0 and 1, tile 1 too, then nothing more.
+        let units: Vec<WorkUnit> = std::iter::from_fn(|| f.lease("w", 0, 1000)).collect();
+        assert_eq!(units.len(), 4);
+        for u in &units {
+            f.submit("w", &u.unit_id, Ok(noisy(u.rect, 8, 1.0, 1.0)));
+        }
+        // Both tiles are flat: done at min_spp (16 = 2 passes).
+        assert!(f.jobs["a"].is_complete());
+        let job = f.jobs.get_mut("a").unwrap();
+        job.planned[0] = 1; // as if the tile had converged after one pass
+        let late = f.jobs["a"].unit_id(1, 0);
+        assert_eq!(f.submit("w", &late, Ok(noisy(units[0].rect, 8, 1.0, 1.0))), SubmitOutcome::Duplicate);
+        let beyond = f.jobs["a"].unit_id(3, 0);
+        assert_eq!(f.submit("w", &beyond, Ok(noisy(units[0].rect, 8, 1.0, 1.0))), SubmitOutcome::Stale);
+        assert_eq!(f.submit("w", "a/999999999", Ok(noisy(units[0].rect, 8, 1.0, 1.0))), SubmitOutcome::Stale);
+    }
+
+    #[test]
+    fn time_budget_closes_the_job_at_the_started_pass() {
+        let mut f = Farm::default();
+        f.add_job(budget_job("a", None, Some(1.0)));
+        let first: Vec<WorkUnit> = (0..2).map(|_| f.lease("w", 0, 10_000).unwrap()).collect();
+        // The first pass is done at 300 ms: 300 + 300 fits in 1 s, so pass 1 starts.
+        for u in &first {
+            f.submit_at("w", &u.unit_id, Ok(noisy(u.rect, 8, 1.0, 2.0)), 300);
+        }
+        let second = f.lease("w", 300, 10_000).unwrap();
+        assert_eq!(second.samples, 8..16);
+        // At 700 ms with 2 passes started, a third (≈ 350 ms) would end past 1 s: no new pass, and
+        // the other tile's pass 1 still runs.
+        let other = f.lease("w", 700, 10_000).unwrap();
+        assert_eq!(other.samples, 8..16);
+        assert!(f.lease("w", 700, 10_000).is_none(), "the budget is spent");
+        f.submit_at("w", &second.unit_id, Ok(noisy(second.rect, 8, 1.0, 2.0)), 800);
+        let out = f.submit_at("w", &other.unit_id, Ok(noisy(other.rect, 8, 1.0, 2.0)), 900);
+        assert_eq!(out, SubmitOutcome::Merged { tiles_changed: vec![1], job_complete: true });
+        let job = &f.jobs["a"];
+        assert_eq!(job.folded, vec![2, 2], "every tile holds the same whole passes");
+        assert_eq!(job.stop_reason(), StopReason::TimeBudget);
+        assert_eq!(job.samples_progress().0, 64 * 32 * 16);
     }
 }

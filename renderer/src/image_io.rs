@@ -2,8 +2,10 @@
 //! mean luminance and the sample count) and a tone-mapped sRGB PNG preview. Also reading EXRs back
 //! (tests, reference comparisons).
 
+use crate::budget::{StopReason, TILE};
 use crate::error::RenderError;
-use crate::film::PartialSums;
+use crate::film::{PartialSums, Rect};
+use crate::noise;
 use exr::prelude::*;
 use std::path::Path;
 
@@ -13,16 +15,31 @@ pub const VARIANCE_CHANNEL: &str = "variance";
 pub const SPP_CHANNEL: &str = "spp";
 
 /// The header attribute every Tessera EXR carries (the same for a local and a farm render, so the
-/// files are byte-identical): `tessera`, the version and the settings that made the image. One
-/// attribute, because the EXR writer keeps custom attributes in a hash map whose order would vary.
-pub fn standard_attributes(s: &crate::RenderSettings) -> Vec<(&'static str, String)> {
+/// files are byte-identical): `tessera`, the version, the settings that made the image, why it
+/// stopped, and its noise: the estimated relative standard error of the image (`rel_error`, see
+/// [`crate::noise`]) and of every tile (`tiles=x0,y0,spp,rel_error;...` over the [`TILE`] grid).
+/// One attribute, because the EXR writer keeps custom attributes in a hash map whose order would
+/// vary.
+pub fn standard_attributes(
+    s: &crate::RenderSettings,
+    image: &PartialSums,
+    stop: StopReason,
+) -> Vec<(&'static str, String)> {
     // The map by file name only: a local path and the farm's bundle path name the same file.
     let mut env = s.environment.clone();
     env.map = env.map.map(|m| m.rsplit(['/', '\\']).next().unwrap_or(&m).to_string());
+    let whole = noise::estimate(image);
+    let tiles: Vec<String> = Rect::tiles(s.width, s.height, TILE)
+        .iter()
+        .map(|t| {
+            let e = noise::estimate_rect(image, *t);
+            format!("{},{},{},{:.4e}", t.x0, t.y0, e.spp_max, e.rel_error)
+        })
+        .collect();
     vec![(
         "tessera",
         format!(
-            "version={} width={} height={} spp={} pass_spp={} integrator={:?} mis_heuristic={:?} sampler={:?} seed={} max_depth={} rr_depth={} camera={:?} filter={:?} environment={:?} light_sampler={:?}",
+            "version={} width={} height={} spp={} pass_spp={} integrator={:?} mis_heuristic={:?} sampler={:?} seed={} max_depth={} rr_depth={} camera={:?} filter={:?} environment={:?} light_sampler={:?} noise_target={:?} min_spp={} time_budget={:?} stop={} spp_min={} spp_max={} rel_mse={:.4e} rel_error={:.4e} tiles={}",
             env!("CARGO_PKG_VERSION"),
             s.width,
             s.height,
@@ -37,9 +54,24 @@ pub fn standard_attributes(s: &crate::RenderSettings) -> Vec<(&'static str, Stri
             s.camera,
             s.filter,
             env,
-            s.light_sampler
+            s.light_sampler,
+            s.noise_target,
+            s.min_spp,
+            s.time_budget,
+            stop.as_str(),
+            whole.spp_min,
+            whole.spp_max,
+            whole.rel_mse,
+            whole.rel_error,
+            tiles.join(";")
         ),
     )]
+}
+
+/// Reads one `key=value` field of the `tessera` attribute (values hold no spaces, except inside
+/// the environment's debug form, which no caller asks for).
+pub fn attribute_field<'a>(attribute: &'a str, key: &str) -> Option<&'a str> {
+    attribute.split(' ').find_map(|kv| kv.strip_prefix(key)?.strip_prefix('='))
 }
 
 /// A finished image, in the form written to disk.
@@ -130,6 +162,8 @@ pub struct ExrChannels {
     pub width: u32,
     pub height: u32,
     pub channels: Vec<(String, Vec<f32>)>,
+    /// The `tessera` header attribute, when the file has one.
+    pub tessera: Option<String>,
 }
 
 impl ExrChannels {
@@ -143,6 +177,10 @@ pub fn read_exr(path: &Path) -> std::result::Result<ExrChannels, RenderError> {
     let err = |message: String| RenderError::Read { path: path.into(), message };
     let image = read_first_flat_layer_from_file(path).map_err(|e| err(e.to_string()))?;
     let layer = image.layer_data;
+    let tessera = match layer.attributes.other.get(&Text::from("tessera")) {
+        Some(AttributeValue::Text(t)) => Some(t.to_string()),
+        _ => None,
+    };
     let (w, h) = (layer.size.width(), layer.size.height());
     let channels = layer
         .channel_data
@@ -150,5 +188,5 @@ pub fn read_exr(path: &Path) -> std::result::Result<ExrChannels, RenderError> {
         .iter()
         .map(|c| (c.name.to_string(), c.sample_data.values_as_f32().collect::<Vec<f32>>()))
         .collect();
-    Ok(ExrChannels { width: w as u32, height: h as u32, channels })
+    Ok(ExrChannels { width: w as u32, height: h as u32, channels, tessera })
 }

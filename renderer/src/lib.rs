@@ -27,6 +27,7 @@ macro_rules! named_choices {
 pub mod accel;
 pub mod alias;
 pub mod bsdf;
+pub mod budget;
 pub mod bundle;
 pub mod bvh;
 pub mod camera;
@@ -44,6 +45,7 @@ pub mod material;
 pub mod math;
 pub mod mesh;
 pub mod microfacet;
+pub mod noise;
 pub mod punctual;
 pub mod render;
 pub mod sampler;
@@ -55,6 +57,6 @@ pub mod texture;
 
 pub use error::{RenderError, SceneError};
 pub use film::{PartialSums, Rect};
-pub use render::{render, render_tile, Counters};
+pub use render::{render, render_tile, Counters, Rendered};
 pub use scene::Scene;
 pub use settings::{IntegratorKind, MisHeuristic, PixelFilter, RenderSettings};

@@ -9,6 +9,10 @@ use crate::settings::{PixelFilter, RenderSettings};
 use rayon::prelude::*;
 use std::ops::Range;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::Instant;
+
+use crate::budget;
+pub use crate::budget::{StopReason, TILE};
 
 /// Live counters a caller may watch while rendering (progress bars, rays/s, metrics).
 #[derive(Default, Debug)]
@@ -101,35 +105,66 @@ pub fn render_tile_counted(
     out
 }
 
-/// Tile side used by the local renderer (any value gives the same image).
-pub const LOCAL_TILE: u32 = 32;
+/// What [`render`] produced.
+#[derive(Debug)]
+pub struct Rendered {
+    /// The image: every tile's sums, folded in pass order.
+    pub image: PartialSums,
+    /// Per tile (row-major [`Rect::tiles`] of side [`TILE`]): its sums and how many passes it holds.
+    pub tiles: Vec<(PartialSums, u32)>,
+    /// Passes of the whole image that were started (the largest per-tile pass count).
+    pub passes: u32,
+    pub stop: StopReason,
+}
 
-/// Renders the whole image pass by pass: each pass is rendered into per-tile sums starting from
-/// zero and folded into the image in pass order (the determinism rule). `on_pass` sees the image
-/// after each pass. Stops after the current pass when `counters.cancel` is set; returns the image and
-/// the number of samples per pixel it holds.
-pub fn render(
-    scene: &Scene,
-    settings: &RenderSettings,
-    counters: &Counters,
-    mut on_pass: impl FnMut(&PartialSums),
-) -> (PartialSums, u32) {
+impl Rendered {
+    /// Largest samples per pixel of any tile.
+    pub fn spp_max(&self, settings: &RenderSettings) -> u32 {
+        settings.samples_after(self.passes)
+    }
+}
+
+/// Renders the whole image pass by pass: each pass renders every tile that still needs samples
+/// into sums starting from zero, folded into the tile in pass order (the determinism rule). Stops
+/// when every tile has its samples (sample count or noise target, [`budget::tile_needs_more`]),
+/// when the time budget allows no further pass ([`budget::may_start_pass`]), or after the current
+/// pass when `counters.cancel` is set.
+pub fn render(scene: &Scene, settings: &RenderSettings, counters: &Counters) -> Rendered {
+    let start = Instant::now();
     let full = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
-    let mut image = PartialSums::new(full);
-    let tiles = Rect::tiles(settings.width, settings.height, LOCAL_TILE);
-    let mut done = 0;
-    for pass in settings.passes() {
+    let rects = Rect::tiles(settings.width, settings.height, TILE);
+    let mut tiles: Vec<(PartialSums, u32)> = rects.iter().map(|r| (PartialSums::new(*r), 0)).collect();
+    let mut active: Vec<usize> = (0..rects.len()).collect();
+    let mut stop = StopReason::SampleCount;
+    let mut passes = 0;
+    while !active.is_empty() {
         if counters.cancel.load(Ordering::Relaxed) {
+            stop = StopReason::Cancelled;
             break;
         }
-        let sums: Vec<PartialSums> =
-            tiles.par_iter().map(|t| render_tile_counted(scene, settings, *t, pass.clone(), counters)).collect();
-        for s in &sums {
-            // Tiles are disjoint, so every pixel receives exactly one addition per pass.
-            image.merge_tile(s).expect("local tiles lie inside the image");
+        if !budget::may_start_pass(settings, start.elapsed().as_secs_f64(), passes) {
+            stop = StopReason::TimeBudget;
+            break;
         }
-        done = pass.end;
-        on_pass(&image);
+        let range = settings.pass_range(passes);
+        let sums: Vec<PartialSums> = active
+            .par_iter()
+            .map(|&t| render_tile_counted(scene, settings, rects[t], range.clone(), counters))
+            .collect();
+        passes += 1;
+        for (&t, s) in active.iter().zip(&sums) {
+            let (tile, folded) = &mut tiles[t];
+            tile.merge(s).expect("a tile's pass has the tile's rect");
+            *folded += 1;
+        }
+        active.retain(|&t| budget::tile_needs_more(settings, &tiles[t].0, tiles[t].1));
     }
-    (image, done)
+    if stop == StopReason::SampleCount && tiles.iter().any(|(_, f)| *f < settings.pass_count()) {
+        stop = StopReason::NoiseTarget;
+    }
+    let mut image = PartialSums::new(full);
+    for (t, _) in &tiles {
+        image.merge_tile(t).expect("tiles lie inside the image");
+    }
+    Rendered { image, tiles, passes, stop }
 }

@@ -43,6 +43,8 @@ crate::named_choices!(PixelFilter, "pixel filter", { "box" => Self::Box, "tent" 
 pub const MAX_IMAGE_SIDE: u32 = 16384;
 /// Largest sample count accepted per pixel.
 pub const MAX_SPP: u32 = 1 << 24;
+/// Longest time budget accepted (30 days).
+pub const MAX_TIME_BUDGET_S: f64 = 30.0 * 86400.0;
 /// Deepest path accepted.
 pub const MAX_DEPTH_LIMIT: u32 = 1024;
 
@@ -66,6 +68,13 @@ pub struct RenderSettings {
     pub filter: PixelFilter,
     pub environment: crate::environment::EnvironmentSettings,
     pub light_sampler: crate::light::LightSamplerKind,
+    /// Stop each tile once its estimated relative standard error is at most this (adaptive
+    /// sampling; `spp` stays the cap). See `budget::tile_needs_more`.
+    pub noise_target: Option<f64>,
+    /// With a noise target: samples every pixel gets before its tile may stop.
+    pub min_spp: u32,
+    /// Stop at the last pass boundary that fits in this many seconds (`spp` stays the cap).
+    pub time_budget: Option<f64>,
 }
 
 impl Default for RenderSettings {
@@ -85,6 +94,9 @@ impl Default for RenderSettings {
             filter: PixelFilter::Box,
             environment: Default::default(),
             light_sampler: Default::default(),
+            noise_target: None,
+            min_spp: 32,
+            time_budget: None,
         }
     }
 }
@@ -121,7 +133,38 @@ impl RenderSettings {
         if self.max_depth > MAX_DEPTH_LIMIT {
             return Err(format!("max depth {} exceeds the limit of {MAX_DEPTH_LIMIT}", self.max_depth));
         }
+        if let Some(t) = self.noise_target {
+            if !(1e-6..=10.0).contains(&t) {
+                return Err(format!("noise target {t} must be a relative error between 1e-6 and 10"));
+            }
+        }
+        if self.min_spp < 2 || self.min_spp > MAX_SPP {
+            return Err(format!(
+                "min_spp {} must be between 2 and {MAX_SPP} (a variance needs two samples)",
+                self.min_spp
+            ));
+        }
+        if let Some(b) = self.time_budget {
+            if !(b > 0.0 && b <= MAX_TIME_BUDGET_S) {
+                return Err(format!("time budget {b} s must be positive and at most {MAX_TIME_BUDGET_S} s"));
+            }
+        }
         Ok(())
+    }
+
+    /// Number of passes of a render that reaches `spp`.
+    pub fn pass_count(&self) -> u32 {
+        self.spp.div_ceil(self.pass_spp.max(1))
+    }
+
+    /// Samples per pixel after the first `passes` passes.
+    pub fn samples_after(&self, passes: u32) -> u32 {
+        passes.saturating_mul(self.pass_spp).min(self.spp)
+    }
+
+    /// The sample range of pass `k`.
+    pub fn pass_range(&self, k: u32) -> std::ops::Range<u32> {
+        self.samples_after(k)..self.samples_after(k.saturating_add(1))
     }
 
     /// The sample passes of this render: `[k·pass_spp, min((k+1)·pass_spp, spp))`.

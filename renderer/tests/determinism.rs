@@ -50,8 +50,9 @@ fn splitting_threads_tiles_and_calls_changes_no_bit() {
             seed: 5,
             ..RenderSettings::default()
         };
-        let (local, spp) = render(&scene, &s, &Counters::default(), |_| {});
-        assert_eq!(spp, 24);
+        let r = render(&scene, &s, &Counters::default());
+        assert_eq!((r.spp_max(&s), r.stop), (24, renderer::budget::StopReason::SampleCount));
+        let local = r.image;
         let one_thread =
             rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap().install(|| assemble(&s, 16, &scene));
         let three_threads =

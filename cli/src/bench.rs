@@ -9,7 +9,10 @@ use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 #[derive(Args, Debug)]
+#[command(args_conflicts_with_subcommands = true)]
 pub struct BenchArgs {
+    #[command(subcommand)]
+    pub what: Option<BenchKind>,
     /// Scene file (default: the built-in Cornell box).
     pub scene: Option<PathBuf>,
     /// Number of timed runs (after one warm-up).
@@ -22,6 +25,12 @@ pub struct BenchArgs {
     /// Ray-query structure: obvhs (CWBVH, default) or own (binned-SAH BVH2, for comparison).
     #[arg(long, default_value = "obvhs")]
     pub accel: renderer::accel::AccelKind,
+}
+
+#[derive(clap::Subcommand, Debug)]
+pub enum BenchKind {
+    /// Error against time for every technique switch over a scene suite: CSV, PNG plots, summary.
+    Convergence(crate::convergence::ConvergenceArgs),
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -38,6 +47,9 @@ fn median(mut v: Vec<f64>) -> f64 {
 }
 
 pub fn run(args: BenchArgs) -> Result<()> {
+    if let Some(BenchKind::Convergence(a)) = args.what {
+        return crate::convergence::run(a);
+    }
     init_threads(args.threads)?;
     let mut scene = load_scene(args.scene.as_deref())?;
     let t = Instant::now();

@@ -2,6 +2,7 @@
 
 mod bench;
 mod client;
+mod convergence;
 mod farm_cmd;
 mod render_cmd;
 
@@ -18,7 +19,8 @@ struct Cli {
 enum Command {
     /// Render a glTF scene locally to OpenEXR (no server needed).
     Render(render_cmd::RenderArgs),
-    /// Measure paths/s and rays/s on a scene (the built-in Cornell box by default).
+    /// Measure paths/s and rays/s on a scene (the built-in Cornell box by default); `bench
+    /// convergence` measures error against time per technique.
     Bench(bench::BenchArgs),
     /// Run the coordinator: REST API, web page and the workers' gRPC service on one port.
     Coordinator(farm_cmd::CoordinatorArgs),

@@ -171,3 +171,55 @@ fn an_environment_map_travels_with_the_job() {
     let local = local_render(&scene, &args, &farm.tmp.join("env-local.exr"));
     assert!(std::fs::read(&out).unwrap() == local, "the farm's env-lit EXR differs from tessera render's");
 }
+
+/// Budgets on the farm. A noise target gives the local image bit for bit (each tile's stopping
+/// decision depends on its own sums only), with fewer samples on quiet tiles. A time budget ends
+/// at a whole pass of the image: the pixels equal the fixed-spp render of the sample count reached.
+#[test]
+fn budgets_give_the_local_image_and_stop_where_they_say() {
+    let mut farm = Farm::start("budgets", &[]);
+    farm.start_worker(1);
+    farm.start_worker(1);
+    farm.wait_workers(2);
+    let scene = cornell();
+    let adaptive = ["--width", "96", "--height", "96", "--spp", "512", "--pass-spp", "8"];
+    let adaptive: Vec<&str> = adaptive.iter().copied().chain(["--noise-target", "0.05", "--min-spp", "16"]).collect();
+    let out = farm.tmp.join("adaptive.exr");
+    let mut args = vec!["submit", scene.to_str().unwrap(), "--wait", "-o", out.to_str().unwrap()];
+    args.extend_from_slice(&adaptive);
+    let (code, stdout, err) = farm.cli(&args);
+    assert_eq!(code, 0, "submit --wait failed: {err}");
+    let local = local_render(&scene, &adaptive, &farm.tmp.join("adaptive-local.exr"));
+    assert!(std::fs::read(&out).unwrap() == local, "noise-target farm EXR differs from the local render");
+    let j = farm.job(stdout.trim());
+    assert_eq!(j["budget"]["stop"], "noise_target", "{j}");
+    assert!(j["budget"]["tiles_converged"].as_u64().unwrap() > 0, "{j}");
+    assert!(j["progress"]["spp_min"].as_u64().unwrap() < j["progress"]["spp_max"].as_u64().unwrap(), "{j}");
+    assert!(j["noise"]["estimated_rel_error"].as_f64().unwrap() <= 0.05, "{j}");
+    assert_eq!(j["noise"]["tiles"].as_array().unwrap().len(), 9);
+    let exr = renderer::image_io::read_exr(&out).unwrap();
+    let attr = exr.tessera.unwrap();
+    let rel: f64 = renderer::image_io::attribute_field(&attr, "rel_error").unwrap().parse().unwrap();
+    assert!((rel - j["noise"]["estimated_rel_error"].as_f64().unwrap()).abs() <= 1e-4 * rel, "{attr}");
+
+    let timed = ["--width", "96", "--height", "96", "--pass-spp", "4", "--time-budget", "1.5"];
+    let out = farm.tmp.join("timed.exr");
+    let mut args = vec!["submit", scene.to_str().unwrap(), "--wait", "-o", out.to_str().unwrap()];
+    args.extend_from_slice(&timed);
+    let (code, stdout, err) = farm.cli(&args);
+    assert_eq!(code, 0, "submit --wait failed: {err}");
+    let j = farm.job(stdout.trim());
+    assert_eq!(j["budget"]["stop"], "time_budget", "{j}");
+    let exr = renderer::image_io::read_exr(&out).unwrap();
+    let spp = exr.channel("spp").unwrap().to_vec();
+    assert!(spp.iter().all(|&s| s == spp[0]) && spp[0] >= 4.0, "every pixel holds the same whole passes");
+    let n = (spp[0] as u32).to_string();
+    let fixed = ["--width", "96", "--height", "96", "--pass-spp", "4", "--spp", &n];
+    let fixed_path = farm.tmp.join("timed-local.exr");
+    local_render(&scene, &fixed, &fixed_path);
+    let local = renderer::image_io::read_exr(&fixed_path).unwrap();
+    for c in ["R", "G", "B", "variance", "spp"] {
+        assert!(exr.channel(c) == local.channel(c), "channel {c} differs from the {n}-spp render");
+    }
+    println!("time budget 1.5 s on 2 workers: {n} spp, elapsed {}", j["elapsed_s"]);
+}

@@ -1,0 +1,90 @@
+//! The `tessera` command's local features end to end: budgets on `tessera render` and
+//! `tessera bench convergence`.
+
+use std::process::Command;
+use tessera_tests::*;
+
+fn tessera(args: &[&str], dir: &std::path::Path) -> (bool, String, String) {
+    let out = Command::new(tessera_bin()).args(args).current_dir(dir).output().expect("tessera runs");
+    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+}
+
+#[test]
+fn render_reports_noise_and_honours_budgets() {
+    let tmp = temp_dir("cli-render");
+    let (ok, _, err) =
+        tessera(&["render", "-o", "n.exr", "--width", "64", "--height", "64", "--noise-target", "0.05"], &tmp);
+    assert!(ok, "{err}");
+    assert!(err.contains("estimated noise: relative error"), "{err}");
+    assert!(err.contains("stopped by noise_target"), "{err}");
+    let exr = renderer::image_io::read_exr(&tmp.join("n.exr")).unwrap();
+    let attr = exr.tessera.expect("tessera attribute");
+    let rel: f64 = renderer::image_io::attribute_field(&attr, "rel_error").unwrap().parse().unwrap();
+    assert!(rel > 0.0 && rel <= 0.05, "{attr}");
+    assert_eq!(renderer::image_io::attribute_field(&attr, "stop"), Some("noise_target"));
+    let tiles = renderer::image_io::attribute_field(&attr, "tiles").unwrap();
+    assert_eq!(tiles.split(';').count(), 4, "2×2 tiles of 32 px: {tiles}");
+
+    let (ok, _, err) =
+        tessera(&["render", "-o", "t.exr", "--width", "64", "--height", "64", "--time-budget", "0.5"], &tmp);
+    assert!(ok, "{err}");
+    assert!(err.contains("stopped by time_budget"), "{err}");
+
+    for bad in [["--noise-target", "0"], ["--time-budget", "-1"], ["--min-spp", "1"]] {
+        let mut args = vec!["render", "-o", "x.exr", "--width", "8", "--height", "8"];
+        args.extend_from_slice(&bad);
+        let (ok, _, err) = tessera(&args, &tmp);
+        assert!(!ok && err.contains("error:"), "{bad:?} was accepted: {err}");
+    }
+}
+
+#[test]
+fn bench_convergence_writes_csv_plots_and_summary() {
+    let tmp = temp_dir("cli-convergence");
+    let scenes = repo_root().join("scenes");
+    let extra = scenes.join("khronos/DamagedHelmet/DamagedHelmet.gltf");
+    let (ok, stdout, err) = tessera(
+        &[
+            "bench",
+            "convergence",
+            "--suite",
+            "cornell",
+            "--switches",
+            "integrator,sampler",
+            "--time-cap",
+            "0.05",
+            "--scenes-dir",
+            scenes.to_str().unwrap(),
+            "--reference-spp",
+            "16",
+            "--width",
+            "32",
+            "--height",
+            "32",
+            "-o",
+            "out",
+            extra.to_str().unwrap(),
+        ],
+        &tmp,
+    );
+    assert!(ok, "{err}");
+    let csv = std::fs::read_to_string(tmp.join("out/convergence.csv")).unwrap();
+    let rows: Vec<Vec<&str>> = csv.lines().skip(1).map(|l| l.split(',').collect()).collect();
+    for (scene, value) in [("cornell", "bsdf"), ("cornell", "independent"), ("DamagedHelmet", "mis")] {
+        let r: Vec<_> = rows.iter().filter(|r| r[0] == scene && r[2] == value).collect();
+        assert!(!r.is_empty(), "no {scene} {value} rows:\n{csv}");
+        // spp doubles from 1, errors and times are positive numbers.
+        for (k, row) in r.iter().enumerate() {
+            assert_eq!(row[3].parse::<u32>().unwrap(), 1 << k);
+            assert!(row[4].parse::<f64>().unwrap() > 0.0 && row[5].parse::<f64>().unwrap() > 0.0, "{row:?}");
+        }
+    }
+    assert!(rows.iter().any(|r| r[8] == "Tessera mis 16 spp"), "the helmet has no committed reference");
+    for png in ["cornell.png", "DamagedHelmet.png"] {
+        let bytes = std::fs::read(tmp.join("out").join(png)).unwrap();
+        assert_eq!(&bytes[1..4], b"PNG");
+    }
+    assert!(stdout.contains("| integrator | bsdf |"), "{stdout}");
+    let (ok, _, err) = tessera(&["bench", "convergence", "--suite", "nowhere", "-o", "out2"], &tmp);
+    assert!(!ok && err.contains("not in the suite"), "{err}");
+}

@@ -15,12 +15,14 @@ img{max-width:160px;image-rendering:pixelated}input,select{margin-right:6px}
 <p>Token: <input id="token" type="password" placeholder="TESSERA_TOKEN (if set)"> <span id="msg" class="err"></span></p>
 <form id="submit"><b>Submit</b>
  <input type="file" name="scene" multiple required>
- spp <input name="spp" type="number" value="64" min="1" style="width:6em">
+ spp <input name="spp" type="number" placeholder="64" min="1" style="width:6em">
+ noise target <input name="noise_target" type="number" step="any" placeholder="e.g. 0.02" style="width:6em">
+ time budget <input name="time_budget" type="number" step="any" placeholder="s" style="width:5em">
  width <input name="width" type="number" placeholder="auto" style="width:6em">
  <select name="integrator"><option>mis</option><option>nee</option><option>bsdf</option></select>
  priority <input name="priority" type="number" value="0" style="width:4em">
  <button>Submit</button></form>
-<h2>Jobs</h2><table id="jobs"><tr><th>job</th><th>state</th><th>progress</th><th>elapsed / ETA</th><th>rel. error</th><th>preview</th><th></th></tr></table>
+<h2>Jobs</h2><table id="jobs"><tr><th>job</th><th>state</th><th>progress</th><th>elapsed / ETA</th><th>rel. error</th><th>spp</th><th>preview</th><th></th></tr></table>
 <h2>Workers</h2><table id="workers"><tr><th>id</th><th>name</th><th>cores</th><th>units done</th><th>rejected</th><th>last seen</th></tr></table>
 <script>
 const tok = document.getElementById('token');
@@ -37,11 +39,12 @@ async function api(path, opts={}) {
 async function refresh() {
   try {
     const jobs = (await (await api('/jobs')).json()).jobs.reverse();
-    document.getElementById('jobs').innerHTML = '<tr><th>job</th><th>state</th><th>progress</th><th>elapsed / ETA</th><th>rel. error</th><th>preview</th><th></th></tr>' +
+    document.getElementById('jobs').innerHTML = '<tr><th>job</th><th>state</th><th>progress</th><th>elapsed / ETA</th><th>rel. error</th><th>spp</th><th>preview</th><th></th></tr>' +
       jobs.map(j => `<tr><td>${esc(j.id)}<br><small>${esc(j.name)}</small></td><td>${esc(j.state)}${j.error ? '<br><span class=err>' + esc(j.error) + '</span>' : ''}</td>
       <td><div class=bar><div style="width:${(100*j.progress.fraction).toFixed(1)}%"></div></div>${j.progress.units_done}/${j.progress.units_total} units</td>
       <td>${j.elapsed_s?.toFixed(1) ?? '-'} s / ${j.eta_s?.toFixed(0) ?? '-'} s</td>
-      <td>${j.noise.estimated_rel_error?.toExponential(2) ?? '-'}</td>
+      <td>${j.noise.estimated_rel_error?.toExponential(2) ?? '-'}${j.budget.noise_target ? ' / target ' + j.budget.noise_target : ''}</td>
+      <td>${j.progress.spp_min ?? 0}${j.progress.spp_max !== j.progress.spp_min ? '..' + j.progress.spp_max : ''}<br><small>${esc(j.budget.stop)}${j.budget.time_budget_s ? ', budget ' + j.budget.time_budget_s + ' s' : ''}</small></td>
       <td><img data-src="/api/v1/jobs/${esc(j.id)}/preview.png"></td>
       <td>${j.state === 'done' ? `<a href="#" data-dl="${esc(j.id)}">EXR</a>` : (['queued','running'].includes(j.state) ? `<a href="#" data-cancel="${esc(j.id)}">cancel</a>` : '')}</td></tr>`).join('');
     for (const img of document.querySelectorAll('img[data-src]')) {
@@ -66,8 +69,11 @@ document.getElementById('submit').onsubmit = async e => {
   e.preventDefault();
   const f = e.target, fd = new FormData();
   for (const file of f.scene.files) fd.append('scene', file, file.name);
-  const s = {spp: +f.spp.value, integrator: f.integrator.value, priority: +f.priority.value};
+  const s = {integrator: f.integrator.value, priority: +f.priority.value};
+  if (f.spp.value) s.spp = +f.spp.value;
   if (f.width.value) s.width = +f.width.value;
+  if (f.noise_target.value) s.noise_target = +f.noise_target.value;
+  if (f.time_budget.value) s.time_budget = +f.time_budget.value;
   fd.append('settings', JSON.stringify(s));
   try { await api('/jobs', {method: 'POST', body: fd}); refresh(); } catch (err) { msg(err.message); }
 };

@@ -39,6 +39,24 @@ def rel_mse(img, ref):
     return float(np.mean((y - r) ** 2 / (r ** 2 + 0.01)))
 
 
+def reference(mi, name):
+    """The reference's RGB and its own expected relMSE (variance channel, same metric): subtracted
+    from every measurement, since E[(x - r)^2] = var x + var r + bias^2."""
+    b = mi.Bitmap(os.path.join(mr.HERE, f"{name}.exr"))
+    a = np.array(b, dtype=np.float64)
+    names = [b.struct_()[i].name for i in range(b.channel_count())]
+    rgb = a[:, :, :3]
+    y = rgb @ LUM
+    own = float(np.mean(a[:, :, names.index("variance")] / (y ** 2 + 0.01)))
+    return rgb, own
+
+
+def resolved(points, own):
+    """(spp, seconds, relMSE) points whose floor-subtracted relMSE stands clear of the reference's
+    own noise (>= 1/4 of it), as tessera bench convergence marks them."""
+    return [(s, t, e) for s, t, e in points if e > 0 and e >= 0.25 * own]
+
+
 def ladder(render, cap, runs):
     """render(spp, seed) -> (seconds, image); spp doubles while the next render should fit in cap."""
     points, spp = [], 1
@@ -97,16 +115,19 @@ def main():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    results = {}  # scene -> renderer -> [(spp, seconds, relMSE)]
+    results = {}  # scene -> renderer -> [(spp, seconds, relMSE less the reference's own)]
+    floors = {}
     for name in SUITE:
         rel, w, h = mr.SCENES[name]
         gltf = os.path.join(mr.ROOT, rel)
-        ref = np.array(mi.Bitmap(os.path.join(mr.HERE, f"{name}.exr")), dtype=np.float64)[:, :, :3]
+        ref, own = reference(mi, name)
+        floors[name] = own
         env = mr.ENVIRONMENTS.get(name)
         res = {}
         # Tessera: the defaults (mis, Sobol, auto light sampler, env sampling on) from the benchmark.
         res["Tessera"] = [(int(r["spp"]), float(r["seconds"]), float(r["rel_mse"])) for r in rows
-                          if r["scene"] == name and r["switch"] == "integrator" and r["value"] == "mis"]
+                          if r["scene"] == name and r["switch"] == "integrator" and r["value"] == "mis"
+                          and r["resolved"] == "true"]
         with tempfile.TemporaryDirectory() as tmp:
             scene = mi.load_dict(mr.build_scene(gltf, w, h, 1, tmp, env))
 
@@ -116,11 +137,13 @@ def main():
                 return time.perf_counter() - t0, img
 
             pts = ladder(mitsuba, a.time_cap, a.runs)
-            res["Mitsuba 3"] = [(s, t, statistics.median(rel_mse(i, ref) for i in imgs)) for s, t, imgs in pts]
+            res["Mitsuba 3"] = resolved([(s, t, statistics.median(rel_mse(i, ref) for i in imgs) - own)
+                                         for s, t, imgs in pts], own)
         cy = cycles_scene.CyclesScene(gltf, w, h, env=os.path.join(mr.ROOT, env[0]) if env else None)
         # Cycles' per-render overhead (scene sync, BVH build) is inside its times.
         pts = ladder(cy.render, a.time_cap, a.runs)
-        res["Cycles"] = [(s, t, statistics.median(rel_mse(i, ref) for i in imgs)) for s, t, imgs in pts]
+        res["Cycles"] = resolved([(s, t, statistics.median(rel_mse(i, ref) for i in imgs) - own)
+                                  for s, t, imgs in pts], own)
         results[name] = res
         print(name, {k: v[-1] for k, v in res.items()}, flush=True)
 
@@ -143,10 +166,10 @@ def main():
     fig.tight_layout()
     fig.savefig(os.path.join(OUT, "renderers.png"), dpi=90)
 
-    write_page(a, rows, results)
+    write_page(a, rows, results, floors)
 
 
-def write_page(a, rows, results):
+def write_page(a, rows, results, floors):
     L = []
     add = L.append
     add("# Speed against accuracy\n")
@@ -157,7 +180,9 @@ def write_page(a, rows, results):
     add(f"(this machine: 2 cores, shared; time cap {a.time_cap:g} s per render, {a.runs} run(s) per point; "
         f"generated {time.strftime('%Y-%m-%d')}). Error is the relMSE of luminance against the Mitsuba "
         "reference of the scene (8192 spp, `scenes/references/`): mean over pixels of (Y − Y_ref)² / (Y_ref² + 0.01), "
-        "the metric of `renderer/src/noise.rs`. Efficiency = 1 / (relMSE × seconds): higher is better, and "
+        "the metric of `renderer/src/noise.rs`, less the reference's own expected relMSE (from its variance channel; "
+        + ", ".join(f"{k} {v:.1e}" for k, v in floors.items())
+        + "). Points within 4× of that floor are not resolvable and are left out (they stay in the CSVs). Efficiency = 1 / (relMSE × seconds): higher is better, and "
         "for an unbiased estimator it is roughly constant along a ladder, so it is the number to compare.\n")
     add("Raw data: [`convergence.csv`](speed-vs-accuracy/convergence.csv) (every technique switch), "
         "[`renderers.csv`](speed-vs-accuracy/renderers.csv) (Tessera, Mitsuba, Cycles), "
@@ -170,17 +195,20 @@ def write_page(a, rows, results):
         "Times: Tessera's render call; `mi.render()` on a loaded scene; Cycles' `render.render()`, which also "
         "synchronises the scene and builds its BVH on every call (visible as its flat start at 1–4 spp).\n")
     add("![relMSE against time: Tessera, Mitsuba, Cycles](speed-vs-accuracy/renderers.png)\n")
-    add("| scene | equal time | Tessera relMSE | Mitsuba relMSE | Cycles relMSE | target (Mitsuba's last point) | "
+    add("| scene | equal time | Tessera relMSE | Mitsuba relMSE | Cycles relMSE | target (reached by all) | "
         "time to target: Tessera | Mitsuba | Cycles | Tessera speed-up vs Mitsuba | vs Cycles |")
     add("|---|---|---|---|---|---|---|---|---|---|---|")
     for name, res in results.items():
         tp = {r: [(p[1], p[2]) for p in pts] for r, pts in res.items()}
-        t_eq = min(pts[-1][0] for pts in tp.values())
+        t_eq = min(pts[-1][0] for pts in tp.values() if pts)
         errs = {r: error_at(p, t_eq) for r, p in tp.items()}
-        target = res["Mitsuba 3"][-1][2]
+        # The error every renderer reached: the largest of their last resolved points.
+        target = max(pts[-1][2] for pts in res.values() if pts)
         tt = {r: time_to(p, target) for r, p in tp.items()}
-        ratio = lambda o: (f"{tt[o] / tt['Tessera']:.2f}×" if tt[o] and tt["Tessera"] else
-                           ("Tessera below target at 1 spp" if res["Tessera"][0][2] <= target else "-"))
+        def ratio(o):
+            if tt[o] and tt["Tessera"]:
+                return f"{tt[o] / tt['Tessera']:.2f}×"
+            return "Tessera below it at 1 spp" if res["Tessera"][0][2] <= target else "-"
         add(f"| {name} | {t_eq:.2f} s | {fmt(errs['Tessera'])} | {fmt(errs['Mitsuba 3'])} | {fmt(errs['Cycles'])} | "
             f"{target:.3e} | {fmt(tt['Tessera'], '.2f')} s | {fmt(tt['Mitsuba 3'], '.2f')} s | "
             f"{fmt(tt['Cycles'], '.2f')} s | {ratio('Mitsuba 3')} | {ratio('Cycles')} |")
@@ -195,6 +223,8 @@ def write_page(a, rows, results):
         "estimate to the true error at the largest spp.\n")
     by = {}
     for r in rows:
+        if r["resolved"] != "true":
+            continue
         by.setdefault(r["scene"], {}).setdefault(r["switch"], {}).setdefault(r["value"], []).append(
             (float(r["seconds"]), float(r["rel_mse"]), int(r["spp"]), r["est_rel_mse"]))
     best_lines = []

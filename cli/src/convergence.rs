@@ -3,7 +3,9 @@
 //! spp 1, 2, 4, … while the next render fits in a time cap, and records wall time, the true relMSE
 //! against a converged reference (Mitsuba 3 where one is committed, else a long Tessera render), the
 //! estimated relMSE (the render's own noise estimate, so its accuracy is measured too) and the
-//! efficiency 1 / (relMSE × time). Writes `convergence.csv`, one PNG per scene (error and efficiency
+//! efficiency 1 / (relMSE × time). The reference's own noise (its variance channel, same metric) is
+//! subtracted from the measured relMSE; points within 4× of it are kept in the CSV but marked
+//! unresolved and left out of plots and tables. Writes `convergence.csv`, one PNG per scene (error and efficiency
 //! against time, log-log, one panel per switch) and `summary.md` (relMSE of every switch value at the
 //! same time, interpolated log-log between measured points).
 
@@ -105,14 +107,26 @@ fn techniques(switches: &[String], has_env: bool) -> Result<Vec<Technique>> {
 struct Point {
     spp: u32,
     seconds: f64,
+    /// relMSE of the render itself: measured against the reference, less the reference's own
+    /// expected relMSE (E[(x − r)²] = var x + var r + bias²).
     rel_mse: f64,
+    /// As measured against the reference.
+    raw_rel_mse: f64,
     est_rel_mse: f64,
+    /// Whether `rel_mse` stands clear of the reference's own noise (≥ ¼ of it); below that the
+    /// difference of two noisy numbers says little, and the point is left out of plots and tables.
+    resolved: bool,
 }
 
 impl Point {
     fn efficiency(&self) -> f64 {
         1.0 / (self.rel_mse * self.seconds)
     }
+}
+
+/// The resolved points of a ladder.
+fn resolved(points: &[Point]) -> Vec<Point> {
+    points.iter().copied().filter(|p| p.resolved).collect()
 }
 
 /// A scene to measure and what it is compared with.
@@ -126,6 +140,8 @@ struct Subject {
     height: u32,
     reference: Vec<[f32; 3]>,
     reference_kind: String,
+    /// The reference's own expected relMSE, from its variance channel (same metric).
+    reference_rel_mse: f64,
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -137,11 +153,23 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
 }
 
-fn rgb_of(path: &Path) -> Result<(u32, u32, Vec<[f32; 3]>)> {
+/// A reference's size, RGB pixels and own expected relMSE (from its `variance` channel).
+fn reference_of(path: &Path) -> Result<(u32, u32, Vec<[f32; 3]>, f64)> {
     let e = read_exr(path)?;
     let ch = |c: &str| e.channel(c).ok_or_else(|| anyhow!("{}: no {c} channel", path.display()));
-    let (r, g, b) = (ch("R")?, ch("G")?, ch("B")?);
-    Ok((e.width, e.height, (0..r.len()).map(|i| [r[i], g[i], b[i]]).collect()))
+    let (r, g, b, v) = (ch("R")?, ch("G")?, ch("B")?, ch("variance")?);
+    let rgb: Vec<[f32; 3]> = (0..r.len()).map(|i| [r[i], g[i], b[i]]).collect();
+    let own = rgb
+        .iter()
+        .zip(v)
+        .map(|(p, v)| {
+            let y = renderer::math::luminance(renderer::math::Vec3::from(*p)) as f64;
+            *v as f64 / (y * y + renderer::noise::REL_MSE_FLOOR)
+        })
+        .filter(|x| x.is_finite())
+        .sum::<f64>()
+        / rgb.len().max(1) as f64;
+    Ok((e.width, e.height, rgb, own))
 }
 
 fn load(path: &Path) -> Result<Scene> {
@@ -155,7 +183,7 @@ fn subjects(a: &ConvergenceArgs) -> Result<Vec<Subject>> {
             bail!("'{name}' is not in the suite (cornell, veach, envlit, many_lights, glass)");
         };
         let reference = a.scenes_dir.join("references").join(format!("{name}.exr"));
-        let (width, height, rgb) = rgb_of(&reference).with_context(|| {
+        let (width, height, rgb, own) = reference_of(&reference).with_context(|| {
             format!("the suite needs {} (run from the repository root or pass --scenes-dir)", reference.display())
         })?;
         out.push(Subject {
@@ -167,14 +195,15 @@ fn subjects(a: &ConvergenceArgs) -> Result<Vec<Subject>> {
             height,
             reference: rgb,
             reference_kind: "Mitsuba 3 scalar_rgb".into(),
+            reference_rel_mse: own,
         });
     }
     for path in &a.scenes {
         let name = path.file_stem().map_or("scene".into(), |s| s.to_string_lossy().to_string());
         let committed = a.scenes_dir.join("references").join(format!("{name}.exr"));
-        let (width, height, reference, kind) = if committed.exists() {
-            let (w, h, rgb) = rgb_of(&committed)?;
-            (w, h, rgb, "Mitsuba 3 scalar_rgb".to_string())
+        let (width, height, reference, kind, own) = if committed.exists() {
+            let (w, h, rgb, own) = reference_of(&committed)?;
+            (w, h, rgb, "Mitsuba 3 scalar_rgb".to_string(), own)
         } else {
             let mut scene = load(path)?;
             let settings = RenderSettings {
@@ -191,7 +220,8 @@ fn subjects(a: &ConvergenceArgs) -> Result<Vec<Subject>> {
             let img = FinalImage::from_sums(&r.image);
             let file = a.out.join(format!("{name}-reference.exr"));
             img.write_exr(&file, &renderer::image_io::standard_attributes(&settings, &r.image, r.stop))?;
-            (a.width, a.height, img.rgb, format!("Tessera mis {} spp", a.reference_spp))
+            let own = renderer::noise::estimate(&r.image).rel_mse;
+            (a.width, a.height, img.rgb, format!("Tessera mis {} spp", a.reference_spp), own)
         };
         out.push(Subject {
             name,
@@ -202,6 +232,7 @@ fn subjects(a: &ConvergenceArgs) -> Result<Vec<Subject>> {
             height,
             reference,
             reference_kind: kind,
+            reference_rel_mse: own,
         });
     }
     Ok(out)
@@ -225,7 +256,17 @@ fn ladder(scene: &Scene, settings: &RenderSettings, subject: &Subject, a: &Conve
             );
             estimates.push(renderer::noise::estimate(&r.image).rel_mse);
         }
-        let p = Point { spp, seconds: median(times), rel_mse: median(errors), est_rel_mse: median(estimates) };
+        let raw = median(errors);
+        let floor = subject.reference_rel_mse;
+        let rel_mse = raw - floor;
+        let p = Point {
+            spp,
+            seconds: median(times),
+            rel_mse,
+            raw_rel_mse: raw,
+            est_rel_mse: median(estimates),
+            resolved: rel_mse > 0.0 && rel_mse >= 0.25 * floor,
+        };
         points.push(p);
         if 2.0 * p.seconds > a.time_cap || spp >= 1 << 16 {
             return Ok(points);
@@ -252,7 +293,9 @@ pub fn run(a: ConvergenceArgs) -> Result<()> {
     }
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let subjects = subjects(&a)?;
-    let mut csv = String::from("scene,switch,value,spp,seconds,rel_mse,est_rel_mse,efficiency,reference\n");
+    let mut csv = String::from(
+        "scene,switch,value,spp,seconds,rel_mse,est_rel_mse,efficiency,reference,raw_rel_mse,reference_rel_mse,resolved\n",
+    );
     let mut summary = format!(
         "# Convergence: relMSE against time per technique switch\n\nMade by `tessera bench convergence` (time cap {} s, {} run(s) per point, {} threads). relMSE is against the reference named per scene; equal-time columns interpolate log-log between measured points. The estimate/true column is the render's own noise estimate divided by its true error at the largest spp.\n",
         a.time_cap,
@@ -297,7 +340,7 @@ pub fn run(a: ConvergenceArgs) -> Result<()> {
                 let est = if p.est_rel_mse.is_finite() { format!("{:.6e}", p.est_rel_mse) } else { String::new() };
                 writeln!(
                     csv,
-                    "{},{},{},{},{:.6},{:.6e},{},{:.6e},{}",
+                    "{},{},{},{},{:.6},{:.6e},{},{:.6e},{},{:.6e},{:.6e},{}",
                     subject.name,
                     t.switch,
                     t.value,
@@ -306,7 +349,10 @@ pub fn run(a: ConvergenceArgs) -> Result<()> {
                     p.rel_mse,
                     est,
                     p.efficiency(),
-                    subject.reference_kind
+                    subject.reference_kind,
+                    p.raw_rel_mse,
+                    subject.reference_rel_mse,
+                    p.resolved
                 )?;
             }
             measured.push((t.clone(), points));
@@ -326,16 +372,17 @@ pub fn run(a: ConvergenceArgs) -> Result<()> {
 fn write_summary(out: &mut String, subject: &Subject, measured: &Measurements) -> Result<()> {
     writeln!(
         out,
-        "\n## {} ({}×{}, reference: {})\n\n| switch | value | equal time | relMSE at equal time | efficiency 1/(relMSE·s) | largest spp | relMSE there | estimate/true |\n|---|---|---|---|---|---|---|---|",
-        subject.name, subject.width, subject.height, subject.reference_kind
+        "\n## {} ({}×{}, reference: {}, its own relMSE {:.2e}, subtracted)\n\n| switch | value | equal time | relMSE at equal time | efficiency 1/(relMSE·s) | largest spp | relMSE there | estimate/true |\n|---|---|---|---|---|---|---|---|",
+        subject.name, subject.width, subject.height, subject.reference_kind, subject.reference_rel_mse
     )?;
     let mut switches: Vec<&str> = measured.iter().map(|(t, _)| t.switch).collect();
     switches.dedup();
     for sw in switches {
-        let group: Vec<&(Technique, Vec<Point>)> = measured.iter().filter(|(t, _)| t.switch == sw).collect();
+        let group: Vec<(&Technique, Vec<Point>)> =
+            measured.iter().filter(|(t, _)| t.switch == sw).map(|(t, p)| (t, resolved(p))).collect();
         // The longest time every value of the switch reached.
         let t_eq = group.iter().map(|(_, p)| p.last().map_or(0.0, |p| p.seconds)).fold(f64::INFINITY, f64::min);
-        for (t, points) in group {
+        for (t, points) in &group {
             let Some(last) = points.last() else { continue };
             let at = error_at(points, t_eq);
             writeln!(
@@ -382,7 +429,8 @@ fn plot(path: &Path, subject: &Subject, measured: &Measurements) -> Result<()> {
         .map_err(plot_err)?;
     let areas = root.split_evenly((2, cols));
     for (c, sw) in switches.iter().enumerate() {
-        let group: Vec<&(Technique, Vec<Point>)> = measured.iter().filter(|(t, _)| t.switch == *sw).collect();
+        let group: Vec<(&Technique, Vec<Point>)> =
+            measured.iter().filter(|(t, _)| t.switch == *sw).map(|(t, p)| (t, resolved(p))).collect();
         for row in 0..2 {
             let value = |p: &Point| if row == 0 { p.rel_mse } else { p.efficiency() };
             let pts: Vec<(f64, f64)> = group
@@ -453,7 +501,14 @@ mod tests {
 
     #[test]
     fn interpolation_is_log_log_and_bounded() {
-        let p = |seconds, rel_mse| Point { spp: 1, seconds, rel_mse, est_rel_mse: f64::NAN };
+        let p = |seconds, rel_mse| Point {
+            spp: 1,
+            seconds,
+            rel_mse,
+            raw_rel_mse: rel_mse,
+            est_rel_mse: f64::NAN,
+            resolved: true,
+        };
         let pts = [p(1.0, 1.0), p(4.0, 0.25)];
         // relMSE ∝ 1/t: at t = 2, 0.5.
         assert!((error_at(&pts, 2.0).unwrap() - 0.5).abs() < 1e-12);

@@ -76,7 +76,12 @@ fn bench_convergence_writes_csv_plots_and_summary() {
         // spp doubles from 1, errors and times are positive numbers.
         for (k, row) in r.iter().enumerate() {
             assert_eq!(row[3].parse::<u32>().unwrap(), 1 << k);
-            assert!(row[4].parse::<f64>().unwrap() > 0.0 && row[5].parse::<f64>().unwrap() > 0.0, "{row:?}");
+            assert!(row[4].parse::<f64>().unwrap() > 0.0 && row[9].parse::<f64>().unwrap() > 0.0, "{row:?}");
+            // rel_mse = raw − the reference's own relMSE, resolved only clear of it.
+            let (rel, raw, own) =
+                (row[5].parse::<f64>().unwrap(), row[9].parse::<f64>().unwrap(), row[10].parse::<f64>().unwrap());
+            assert!((rel - (raw - own)).abs() <= 1e-5 * raw, "{row:?}");
+            assert_eq!(row[11] == "true", rel > 0.0 && rel >= 0.25 * own, "{row:?}");
         }
     }
     assert!(rows.iter().any(|r| r[8] == "Tessera mis 16 spp"), "the helmet has no committed reference");

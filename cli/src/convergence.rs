@@ -80,24 +80,24 @@ impl Technique {
     }
 }
 
+/// Every switch and its values (the first is not necessarily the default).
+const SWITCHES: &[(&str, &[&str])] = &[
+    ("integrator", &["mis", "nee", "bsdf"]),
+    ("sampler", &["sobol", "independent"]),
+    ("light_sampler", &["uniform", "power", "tree"]),
+    ("env_sampling", &["on", "off"]),
+];
+
 fn techniques(switches: &[String], has_env: bool) -> Result<Vec<Technique>> {
     let mut out = Vec::new();
     for sw in switches {
-        let values: &[&'static str] = match sw.as_str() {
-            "integrator" => &["mis", "nee", "bsdf"],
-            "sampler" => &["sobol", "independent"],
-            "light_sampler" => &["uniform", "power", "tree"],
-            "env_sampling" if has_env => &["on", "off"],
-            "env_sampling" => &[],
-            other => bail!("unknown switch '{other}' (expected integrator, sampler, light_sampler, env_sampling)"),
+        let Some(&(switch, values)) = SWITCHES.iter().find(|(name, _)| name == sw) else {
+            bail!("unknown switch '{sw}' (expected integrator, sampler, light_sampler, env_sampling)");
         };
-        let switch: &'static str = match sw.as_str() {
-            "integrator" => "integrator",
-            "sampler" => "sampler",
-            "light_sampler" => "light_sampler",
-            _ => "env_sampling",
-        };
-        out.extend(values.iter().map(|v| Technique { switch, value: v }));
+        // Without an environment there is nothing for env_sampling to switch.
+        if switch != "env_sampling" || has_env {
+            out.extend(values.iter().map(|&value| Technique { switch, value }));
+        }
     }
     Ok(out)
 }

@@ -253,11 +253,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         rays / elapsed / 1e6,
         args.output.display()
     );
-    let worst = result
-        .tiles
-        .iter()
-        .map(|(t, _)| (t.rect, renderer::noise::estimate(t)))
-        .max_by(|a, b| a.1.rel_mse.total_cmp(&b.1.rel_mse));
+    let worst = renderer::noise::worst(result.tiles.iter().map(|(t, _)| t));
     eprintln!(
         "estimated noise: relative error {:.3e} (relMSE {:.3e}); worst tile {}; stopped by {}",
         noise.rel_error,

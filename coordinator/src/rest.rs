@@ -296,12 +296,7 @@ fn job_json(j: &Job) -> Value {
         eta_s = Some(eta_s.unwrap_or(f64::INFINITY).min((b - spent).max(0.0)));
     }
     let noise = j.noise();
-    let worst = j
-        .tile_sums
-        .iter()
-        .map(|t| (t.rect, renderer::noise::estimate(t)))
-        .filter(|(_, e)| e.rel_mse.is_finite())
-        .max_by(|a, b| a.1.rel_mse.total_cmp(&b.1.rel_mse));
+    let worst = renderer::noise::worst(&j.tile_sums);
     json!({
         "id": j.id,
         "name": j.spec.name,

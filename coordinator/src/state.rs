@@ -217,18 +217,7 @@ impl Job {
 
     /// The image's estimated noise (see `renderer::noise`); `None` before every pixel has two samples.
     pub fn noise(&self) -> Option<noise::NoiseEstimate> {
-        let mut sum = 0.0;
-        let mut pixels = 0usize;
-        let (mut spp_min, mut spp_max) = (u32::MAX, 0);
-        for t in &self.tile_sums {
-            let e = noise::estimate(t);
-            sum += e.rel_mse * t.rect.pixels() as f64;
-            pixels += t.rect.pixels();
-            spp_min = spp_min.min(e.spp_min);
-            spp_max = spp_max.max(e.spp_max);
-        }
-        let rel_mse = sum / pixels.max(1) as f64;
-        rel_mse.is_finite().then(|| noise::NoiseEstimate { rel_mse, rel_error: rel_mse.sqrt(), spp_min, spp_max })
+        Some(noise::estimate(&self.image())).filter(|e| e.rel_mse.is_finite())
     }
 
     /// Closes the job at the passes already started when another pass would not fit in its time

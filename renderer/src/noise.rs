@@ -62,6 +62,15 @@ pub fn estimate_rect(sums: &PartialSums, rect: Rect) -> NoiseEstimate {
     NoiseEstimate { rel_mse, rel_error: rel_mse.sqrt(), spp_min: if n == 0 { 0 } else { spp_min }, spp_max }
 }
 
+/// The noisiest of `tiles` whose noise is known (every pixel with two samples or more).
+pub fn worst<'a>(tiles: impl IntoIterator<Item = &'a PartialSums>) -> Option<(Rect, NoiseEstimate)> {
+    tiles
+        .into_iter()
+        .map(|t| (t.rect, estimate(t)))
+        .filter(|(_, e)| e.rel_mse.is_finite())
+        .max_by(|a, b| a.1.rel_mse.total_cmp(&b.1.rel_mse))
+}
+
 /// The measured relMSE of an RGB image against a reference of the same size (luminance, the
 /// metric of the module documentation). `None` when the sizes differ.
 pub fn rel_mse_against(image: &[[f32; 3]], reference: &[[f32; 3]]) -> Option<f64> {

@@ -190,7 +190,7 @@ impl Farm for FarmService {
         };
         let t = std::time::Instant::now();
         let mut farm = lock(&self.shared.farm);
-        let outcome = farm.submit_at(&header.worker_id, &header.unit_id, sums, crate::now_ms());
+        let outcome = farm.submit(&header.worker_id, &header.unit_id, sums, crate::now_ms());
         let reply = match outcome {
             SubmitOutcome::Merged { tiles_changed, job_complete } => {
                 let job_id = header.unit_id.rsplit_once('/').map(|(j, _)| j.to_string()).unwrap_or_default();

@@ -168,8 +168,12 @@ impl Job {
 
     /// Tiles that stopped before the sample cap because they met the noise target.
     pub fn tiles_converged(&self) -> usize {
-        let cap = self.spec.settings.pass_count();
-        (0..self.tiles.len()).filter(|&t| self.planned[t] < cap && !self.budget_spent).count()
+        let s = &self.spec.settings;
+        (0..self.tiles.len())
+            .filter(|&t| {
+                self.folded[t] < s.pass_count() && !budget::tile_needs_more(s, &self.tile_sums[t], self.folded[t])
+            })
+            .count()
     }
 
     /// Pixel-samples folded into the image so far, and planned in total.
@@ -410,14 +414,9 @@ impl Farm {
         Some((job.tiles[tile], job.spec.settings.pass_range(pass)))
     }
 
-    /// Validates and merges a unit's result.
-    pub fn submit(&mut self, worker: &str, unit_id: &str, sums: Result<PartialSums, String>) -> SubmitOutcome {
-        self.submit_at(worker, unit_id, sums, i64::MIN)
-    }
-
-    /// [`Farm::submit`] at time `now_ms`, so that a time budget can close the job at the pass
-    /// boundary this result completes.
-    pub fn submit_at(
+    /// Validates and merges a unit's result, received at `now_ms` (so that a time budget can close
+    /// the job at the pass boundary this result completes).
+    pub fn submit(
         &mut self,
         worker: &str,
         unit_id: &str,
@@ -470,7 +469,7 @@ impl Farm {
         }
         job.drop_beyond_plan(tile);
         // A completed pass boundary is where a time budget may close the job.
-        if now_ms != i64::MIN && job.folded.iter().zip(&job.planned).all(|(&f, &p)| f >= job.started_passes.min(p)) {
+        if job.folded.iter().zip(&job.planned).all(|(&f, &p)| f >= job.started_passes.min(p)) {
             job.close_if_budget_spent(now_ms);
         }
         let complete = job.is_complete();
@@ -530,18 +529,18 @@ mod tests {
         // Tile 0, pass 1 first: waits for pass 0.
         let u = &units[2];
         assert_eq!(
-            f.submit("w", &u.unit_id, Ok(sums(u.rect, 4, 2.0))),
+            f.submit("w", &u.unit_id, Ok(sums(u.rect, 4, 2.0)), 0),
             SubmitOutcome::Merged { tiles_changed: vec![], job_complete: false }
         );
         let u = &units[0];
         assert_eq!(
-            f.submit("w", &u.unit_id, Ok(sums(u.rect, 4, 1.0))),
+            f.submit("w", &u.unit_id, Ok(sums(u.rect, 4, 1.0)), 0),
             SubmitOutcome::Merged { tiles_changed: vec![0], job_complete: false }
         );
         assert_eq!(f.jobs["a"].folded[0], 2);
-        assert_eq!(f.submit("w2", &u.unit_id, Ok(sums(u.rect, 4, 1.0))), SubmitOutcome::Duplicate);
+        assert_eq!(f.submit("w2", &u.unit_id, Ok(sums(u.rect, 4, 1.0)), 0), SubmitOutcome::Duplicate);
         for u in [&units[1], &units[3]] {
-            f.submit("w", &u.unit_id, Ok(sums(u.rect, 4, 1.0)));
+            f.submit("w", &u.unit_id, Ok(sums(u.rect, 4, 1.0)), 0);
         }
         assert!(f.jobs["a"].is_complete());
         assert_eq!(f.jobs["a"].tile_sums[0].sum_rgb[0][0], 4.0 + 8.0);
@@ -554,11 +553,11 @@ mod tests {
         let u = f.lease("liar", 0, 1000).unwrap();
         let mut bad = sums(u.rect, 4, 1.0);
         bad.sum_rgb[3][1] = f64::NAN;
-        assert!(matches!(f.submit("liar", &u.unit_id, Ok(bad)), SubmitOutcome::Rejected(_)));
+        assert!(matches!(f.submit("liar", &u.unit_id, Ok(bad), 0), SubmitOutcome::Rejected(_)));
         let wrong = sums(Rect { x0: 0, y0: 0, width: 3, height: 3 }, 4, 1.0);
-        assert!(matches!(f.submit("liar", &u.unit_id, Ok(wrong)), SubmitOutcome::Rejected(_)));
+        assert!(matches!(f.submit("liar", &u.unit_id, Ok(wrong), 0), SubmitOutcome::Rejected(_)));
         let short = sums(u.rect, 3, 1.0);
-        assert!(matches!(f.submit("liar", &u.unit_id, Ok(short)), SubmitOutcome::Rejected(_)));
+        assert!(matches!(f.submit("liar", &u.unit_id, Ok(short), 0), SubmitOutcome::Rejected(_)));
         assert!(f.jobs["a"].bad_workers.contains("liar"));
         assert!(f.lease("liar", 0, 1000).is_none(), "a bad worker gets no more units of the job");
         let again = f.lease("honest", 0, 1000).unwrap();
@@ -619,7 +618,7 @@ mod tests {
                 let n = u.samples.len() as u32;
                 let sums = if u.rect.x0 == 0 { noisy(u.rect, n, 0.99, 1.01) } else { noisy(u.rect, n, 0.0, 2.0) };
                 if let SubmitOutcome::Merged { job_complete: true, .. } =
-                    f.submit(&format!("w{k}"), &u.unit_id, Ok(sums))
+                    f.submit(&format!("w{k}"), &u.unit_id, Ok(sums), 0)
                 {
                     f.jobs.get_mut("a").unwrap().state = JobState::Done;
                 }
@@ -652,17 +651,17 @@ mod tests {
         let units: Vec<WorkUnit> = std::iter::from_fn(|| f.lease("w", 0, 1000)).collect();
         assert_eq!(units.len(), 4);
         for u in &units {
-            f.submit("w", &u.unit_id, Ok(noisy(u.rect, 8, 1.0, 1.0)));
+            f.submit("w", &u.unit_id, Ok(noisy(u.rect, 8, 1.0, 1.0)), 0);
         }
         // Both tiles are flat: done at min_spp (16 = 2 passes).
         assert!(f.jobs["a"].is_complete());
         let job = f.jobs.get_mut("a").unwrap();
         job.planned[0] = 1; // as if the tile had converged after one pass
         let late = f.jobs["a"].unit_id(1, 0);
-        assert_eq!(f.submit("w", &late, Ok(noisy(units[0].rect, 8, 1.0, 1.0))), SubmitOutcome::Duplicate);
+        assert_eq!(f.submit("w", &late, Ok(noisy(units[0].rect, 8, 1.0, 1.0)), 0), SubmitOutcome::Duplicate);
         let beyond = f.jobs["a"].unit_id(3, 0);
-        assert_eq!(f.submit("w", &beyond, Ok(noisy(units[0].rect, 8, 1.0, 1.0))), SubmitOutcome::Stale);
-        assert_eq!(f.submit("w", "a/999999999", Ok(noisy(units[0].rect, 8, 1.0, 1.0))), SubmitOutcome::Stale);
+        assert_eq!(f.submit("w", &beyond, Ok(noisy(units[0].rect, 8, 1.0, 1.0)), 0), SubmitOutcome::Stale);
+        assert_eq!(f.submit("w", "a/999999999", Ok(noisy(units[0].rect, 8, 1.0, 1.0)), 0), SubmitOutcome::Stale);
     }
 
     #[test]
@@ -672,7 +671,7 @@ mod tests {
         let first: Vec<WorkUnit> = (0..2).map(|_| f.lease("w", 0, 10_000).unwrap()).collect();
         // The first pass is done at 300 ms: 300 + 300 fits in 1 s, so pass 1 starts.
         for u in &first {
-            f.submit_at("w", &u.unit_id, Ok(noisy(u.rect, 8, 1.0, 2.0)), 300);
+            f.submit("w", &u.unit_id, Ok(noisy(u.rect, 8, 1.0, 2.0)), 300);
         }
         let second = f.lease("w", 300, 10_000).unwrap();
         assert_eq!(second.samples, 8..16);
@@ -681,8 +680,8 @@ mod tests {
         let other = f.lease("w", 700, 10_000).unwrap();
         assert_eq!(other.samples, 8..16);
         assert!(f.lease("w", 700, 10_000).is_none(), "the budget is spent");
-        f.submit_at("w", &second.unit_id, Ok(noisy(second.rect, 8, 1.0, 2.0)), 800);
-        let out = f.submit_at("w", &other.unit_id, Ok(noisy(other.rect, 8, 1.0, 2.0)), 900);
+        f.submit("w", &second.unit_id, Ok(noisy(second.rect, 8, 1.0, 2.0)), 800);
+        let out = f.submit("w", &other.unit_id, Ok(noisy(other.rect, 8, 1.0, 2.0)), 900);
         assert_eq!(out, SubmitOutcome::Merged { tiles_changed: vec![1], job_complete: true });
         let job = &f.jobs["a"];
         assert_eq!(job.folded, vec![2, 2], "every tile holds the same whole passes");

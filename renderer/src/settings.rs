@@ -166,10 +166,4 @@ impl RenderSettings {
     pub fn pass_range(&self, k: u32) -> std::ops::Range<u32> {
         self.samples_after(k)..self.samples_after(k.saturating_add(1))
     }
-
-    /// The sample passes of this render: `[k·pass_spp, min((k+1)·pass_spp, spp))`.
-    pub fn passes(&self) -> impl Iterator<Item = std::ops::Range<u32>> + '_ {
-        let p = self.pass_spp.max(1);
-        (0..self.spp.div_ceil(p)).map(move |k| k * p..((k + 1) * p).min(self.spp))
-    }
 }

@@ -18,7 +18,7 @@ fn assemble(settings: &RenderSettings, tile: u32, scene: &renderer::Scene) -> Pa
     // Tiles in reverse order, to show tile order does not matter either.
     let mut tiles = Rect::tiles(settings.width, settings.height, tile);
     tiles.reverse();
-    for pass in settings.passes() {
+    for pass in (0..settings.pass_count()).map(|k| settings.pass_range(k)) {
         for t in &tiles {
             image.merge_tile(&render_tile(scene, settings, *t, pass.clone())).unwrap();
         }

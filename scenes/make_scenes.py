@@ -73,6 +73,28 @@ def icosphere(center, radius, level):
     return [add(center, mul(v, radius)) for v in verts], faces
 
 
+def uv_sphere(center, radius, segments, rings):
+    """Blender-style UV sphere: single-vertex poles with triangle fans, flat triangles, front faces
+    outwards; 2·segments·(rings − 1) triangles (as renderer/src/testing.rs `uv_sphere`)."""
+    p = [add(center, [0, radius, 0])]
+    for r in range(1, rings):
+        th = math.pi * r / rings
+        for s in range(segments):
+            ph = 2 * math.pi * s / segments
+            p.append(add(center, mul([math.sin(th) * math.cos(ph), math.cos(th), -math.sin(th) * math.sin(ph)], radius)))
+    p.append(add(center, [0, -radius, 0]))
+    ring = lambda r, s: 1 + (r - 1) * segments + s % segments
+    bottom = len(p) - 1
+    t = []
+    for s in range(segments):
+        t.append((0, ring(1, s), ring(1, s + 1)))
+        for r in range(1, rings - 1):
+            a, b, c, d = ring(r, s), ring(r + 1, s), ring(r + 1, s + 1), ring(r, s + 1)
+            t += [(a, b, c), (a, c, d)]
+        t.append((ring(rings - 1, s), bottom, ring(rings - 1, s + 1)))
+    return p, t
+
+
 class Gltf:
     def __init__(self):
         self.blob = bytearray()
@@ -294,9 +316,43 @@ def many_lights():
     g.write(os.path.join(HERE, "many_lights", "many_lights.gltf"))
 
 
+def sphere_light():
+    """Issue 10's case: a Lambert floor (0.4) at y = −4.2 under a one-sided UV-sphere light (radius 0.3,
+    48 × 24, flat triangles, emissive 11.11) at the origin; camera at (0, 3, 6) looking at the floor."""
+    g = Gltf()
+    floor = g.material("floor", (0.4, 0.4, 0.4))
+    light = g.material("bulb", (0, 0, 0), emission=(11.11, 11.11, 11.11))
+    p, t = quad([0, -4.2, 0], [0, 0, 5.0], [5.0, 0, 0])  # Z × X = +Y: facing up
+    g.mesh("floor", p, t, floor)
+    p, t = uv_sphere([0, 0, 0], 0.3, 48, 24)
+    g.mesh("bulb", p, t, light)
+    g.camera([0, 3, 6], [0, -4.2, 0], 50.0, 1.0)
+    g.write(os.path.join(HERE, "sphere_light", "sphere_light.gltf"))
+
+
+def sphere_lights():
+    """Four one-sided UV-sphere bulbs of 1152 flat triangles each (32 × 19) over a Lambert floor with a
+    white box: mesh emitters as modellers make them, for the light samplers' cost (issue 10)."""
+    g = Gltf()
+    floor = g.material("floor", (0.5, 0.5, 0.5))
+    white = g.material("white", (0.8, 0.8, 0.8))
+    p, t = quad([0, 0, 0], [0, 0, 6.0], [6.0, 0, 0])
+    g.mesh("floor", p, t, floor)
+    p, t = cuboid([0.3, 0.4, -0.5], [0.4, 0.4, 0.4], 25)
+    g.mesh("box", p, t, white)
+    for i, (x, z, e) in enumerate([(-2.0, -1.0, 30.0), (1.8, -1.6, 20.0), (-0.8, 1.4, 40.0), (2.2, 1.2, 25.0)]):
+        m = g.material(f"bulb{i}", (0, 0, 0), emission=(e, 0.9 * e, 0.75 * e))
+        p, t = uv_sphere([x, 1.2 + 0.3 * i, z], 0.15 + 0.05 * i, 32, 19)
+        g.mesh(f"bulb{i}", p, t, m)
+    g.camera([0, 4.0, 7.0], [0, 0.4, 0], 45.0, 4 / 3)
+    g.write(os.path.join(HERE, "sphere_lights", "sphere_lights.gltf"))
+
+
 if __name__ == "__main__":
     cornell()
     veach()
     envlit()
     glass()
     many_lights()
+    sphere_light()
+    sphere_lights()

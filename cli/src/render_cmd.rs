@@ -73,7 +73,7 @@ pub struct RenderFlags {
     /// Rotation of the environment about +Y, degrees (right-handed).
     #[arg(long, default_value_t = 0.0)]
     pub env_rotate: f32,
-    /// Light selection for NEE: auto (tree from 16 lights, else power), uniform, power, or tree
+    /// Light selection for NEE: auto (the best of the three as measured by a pilot run), uniform, power, or tree
     /// (light BVH: power, distance, orientation).
     #[arg(long, default_value = "auto")]
     pub light_sampler: renderer::light::LightSamplerKind,

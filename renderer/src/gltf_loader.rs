@@ -315,8 +315,13 @@ impl Loader {
                 if weights.iter().any(|&w| w != 0.0) {
                     return Err(self.unsupported(format!("morph target weights on mesh {}", m.index())));
                 }
+                let mesh_name = match m.name() {
+                    Some(n) => format!("mesh {} '{}'", m.index(), n.chars().take(64).collect::<String>()),
+                    None => format!("mesh {}", m.index()),
+                };
                 for prim in m.primitives() {
-                    self.primitive(&prim, world, buffers, &mut mesh, &materials, default_material)?;
+                    let what = format!("{mesh_name} primitive {} (node {})", prim.index(), node.index());
+                    self.primitive(&prim, &what, world, buffers, &mut mesh, &materials, default_material)?;
                 }
             }
             for child in node.children() {
@@ -330,9 +335,11 @@ impl Loader {
         Ok(scene)
     }
 
+    #[allow(clippy::too_many_arguments)] // the primitive, its name, transform, and the scene being built
     fn primitive(
         &self,
         prim: &gltf::Primitive,
+        what: &str,
         world: Mat4,
         buffers: &[Vec<u8>],
         mesh: &mut Mesh,
@@ -351,6 +358,14 @@ impl Loader {
         let n = self.check_accessor(&pos_acc, "POSITION", &[DataType::F32], Dimensions::Vec3)?;
         let positions: Vec<[f32; 3]> =
             reader.read_positions().ok_or_else(|| self.invalid("POSITION data missing"))?.collect();
+        // A NaN or infinite vertex would poison the BVH bounds and every ray near it: refuse it,
+        // naming where it is (issue 10; the glTF spec requires finite positions).
+        if let Some((i, p)) = positions.iter().enumerate().find(|(_, p)| !p.iter().all(|c| c.is_finite())) {
+            return Err(self.invalid(format!(
+                "{what}: POSITION accessor {} vertex {i} is {p:?}, not a finite position",
+                pos_acc.index()
+            )));
+        }
         let normals: Option<Vec<[f32; 3]>> = match prim.get(&gltf::Semantic::Normals) {
             Some(a) => {
                 self.expect_count(self.check_accessor(&a, "NORMAL", &[DataType::F32], Dimensions::Vec3)?, n, "NORMAL")?;
@@ -433,7 +448,14 @@ impl Loader {
         }
         let normal_m = linear.inverse().transpose();
         let base = mesh.positions.len() as u32;
+        let first_world = mesh.positions.len();
         mesh.positions.extend(positions.iter().map(|p| world.transform_point3(Vec3::from(*p))));
+        if let Some(i) = mesh.positions[first_world..].iter().position(|p| !p.is_finite()) {
+            return Err(self.invalid(format!(
+                "{what}: vertex {i} {:?} is not finite once placed by its node transforms (overflow)",
+                positions[i]
+            )));
+        }
         match &normals {
             Some(ns) => mesh.normals.extend(ns.iter().map(|v| (normal_m * Vec3::from(*v)).normalize_or_zero())),
             None => mesh.normals.extend(std::iter::repeat_n(Vec3::ZERO, n)),

@@ -6,7 +6,7 @@
 //! reaches `rr_depth` and is based on the path throughput.
 
 use crate::light::emitted;
-use crate::math::{balance_heuristic, offset_ray_origin, power_heuristic, Frame, Vec2, Vec3};
+use crate::math::{balance_heuristic, offset_ray_origin, power_heuristic, Frame, Vec2, Vec3, SHADOW_EPSILON};
 use crate::sampler::{dims, PixelSample};
 use crate::scene::Scene;
 use crate::settings::{IntegratorKind, MisHeuristic, RenderSettings};
@@ -163,11 +163,14 @@ pub fn radiance(
                         } else if ls.dist.is_infinite() {
                             scene.visibility(origin, ls.wi, f32::INFINITY)
                         } else {
+                            // An area light: aim just off its surface and stop a relative
+                            // SHADOW_EPSILON short, so the emitter's own triangle (or a coplanar
+                            // neighbour) is never reported as the occluder (see SHADOW_EPSILON).
                             let target = offset_ray_origin(ls.p, ls.n);
                             let to = target - origin;
                             let dist = to.length();
                             if dist > 0.0 {
-                                scene.visibility(origin, to / dist, dist)
+                                scene.visibility(origin, to / dist, dist * (1.0 - SHADOW_EPSILON))
                             } else {
                                 0.0
                             }

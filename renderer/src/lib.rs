@@ -40,6 +40,7 @@ pub mod gltf_loader;
 pub mod image_io;
 pub mod integrator;
 pub mod light;
+pub mod light_choice;
 pub mod light_tree;
 pub mod material;
 pub mod math;

@@ -64,9 +64,8 @@ pub struct LightSet {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum LightSamplerKind {
-    /// `tree` for scenes with at least `AUTO_TREE_LIGHTS` finite lights, else `power` (measured: on the
-    /// 4-light Veach scene power reaches a lower error in equal time; on the 1024-light scene the tree
-    /// is more than 20× better).
+    /// Power, uniform or tree, whichever a deterministic pilot run measures as the most efficient on
+    /// this scene (`light_choice`): a light count says nothing about benefit (issue 10).
     #[default]
     Auto,
     /// Every light equally likely.
@@ -76,9 +75,6 @@ pub enum LightSamplerKind {
     /// By a light BVH's importance for the shading point (power, distance, orientation).
     Tree,
 }
-
-/// With `auto`, scenes with at least this many finite lights get the light tree.
-pub const AUTO_TREE_LIGHTS: usize = 16;
 
 crate::named_choices!(LightSamplerKind, "light sampler", { "auto" => Self::Auto, "uniform" => Self::Uniform, "power" => Self::Power, "tree" => Self::Tree });
 
@@ -166,15 +162,16 @@ impl LightSet {
         self.selection.len()
     }
 
+    /// Finite lights (area lights, point and spot lights): what a tree would be built over.
+    pub fn finite_count(&self) -> usize {
+        self.lights.len() + self.punctual.iter().filter(|p| p.kind != PunctualKind::Directional).count()
+    }
+
     /// Switches the selection strategy; `Tree` builds the light BVH (only when there are at least
-    /// two finite lights: with one, every strategy picks it).
-    pub fn set_kind(&mut self, kind: LightSamplerKind, mesh: &Mesh) {
-        let finite = self.lights.len() + self.punctual.iter().filter(|p| p.kind != PunctualKind::Directional).count();
-        let kind = match kind {
-            LightSamplerKind::Auto if finite >= AUTO_TREE_LIGHTS => LightSamplerKind::Tree,
-            LightSamplerKind::Auto => LightSamplerKind::Power,
-            k => k,
-        };
+    /// two finite lights: with one, every strategy picks it). `Auto` is decided by the scene, which
+    /// runs `light_choice::choose`; here it falls back to power.
+    pub fn set_kind_exact(&mut self, kind: LightSamplerKind, mesh: &Mesh) {
+        let kind = if kind == LightSamplerKind::Auto { LightSamplerKind::Power } else { kind };
         self.kind = kind;
         self.tree = None;
         if kind != LightSamplerKind::Tree {
@@ -237,6 +234,34 @@ impl LightSet {
         if bounds.len() >= 2 {
             self.tree = LightTree::build(&bounds);
         }
+    }
+
+    /// Number of separate emitters among the area lights: triangles that share a vertex position
+    /// belong to one emitter (a bulb, a panel, a neon tube as modelled), whatever their count. This
+    /// is what `auto` counts, so a 1152-triangle sphere is one light for the decision, not 1152.
+    pub fn emitter_count(&self, mesh: &Mesh) -> usize {
+        let n = self.lights.len();
+        let mut parent: Vec<u32> = (0..n as u32).collect();
+        fn find(parent: &mut [u32], mut i: u32) -> u32 {
+            while parent[i as usize] != i {
+                let up = parent[parent[i as usize] as usize];
+                parent[i as usize] = up;
+                i = up;
+            }
+            i
+        }
+        let mut first_at: std::collections::HashMap<[u32; 3], u32> = std::collections::HashMap::with_capacity(3 * n);
+        for (li, l) in self.lights.iter().enumerate() {
+            for p in mesh.vertices(l.triangle) {
+                let key = [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()];
+                let other = *first_at.entry(key).or_insert(li as u32);
+                let (a, b) = (find(&mut parent, li as u32), find(&mut parent, other));
+                if a != b {
+                    parent[a.max(b) as usize] = a.min(b);
+                }
+            }
+        }
+        (0..n as u32).filter(|&i| find(&mut parent, i) == i).count()
     }
 
     /// Chooses a light for a shading point: (global index, probability).

@@ -51,12 +51,23 @@ impl Scene {
         let punctual = std::mem::take(&mut self.lights.punctual);
         let kind = self.lights.kind;
         self.lights = LightSet::build(&self.mesh, &self.materials, &self.textures, punctual, env, radius);
-        self.lights.set_kind(kind, &self.mesh);
+        self.lights.set_kind_exact(kind, &self.mesh);
     }
 
-    /// Chooses how NEE selects lights (builds the light tree only when asked for).
+    /// Chooses how NEE selects lights (builds the light tree only when asked for); `auto` as seen
+    /// through the default camera at 64×64.
     pub fn set_light_sampler(&mut self, kind: crate::light::LightSamplerKind) {
-        self.lights.set_kind(kind, &self.mesh);
+        let view = self.camera(None).ok().map(|c| (c, 64, 64));
+        self.set_light_sampler_for(kind, view);
+    }
+
+    /// As `set_light_sampler`, with `auto` measured through `view` (camera, image width, height).
+    pub fn set_light_sampler_for(&mut self, kind: crate::light::LightSamplerKind, view: Option<(Camera, u32, u32)>) {
+        if kind != crate::light::LightSamplerKind::Auto {
+            return self.lights.set_kind_exact(kind, &self.mesh);
+        }
+        let (chosen, scores) = crate::light_choice::choose(self, view);
+        tracing::info!(?chosen, ?scores, emitters = self.lights.emitter_count(&self.mesh), "light sampler auto");
     }
 
     /// Everything a render with `settings` needs beyond the glTF: the environment (map paths relative
@@ -67,7 +78,8 @@ impl Scene {
         base: &std::path::Path,
     ) -> Result<(), crate::RenderError> {
         self.attach_environment(&settings.environment, base)?;
-        self.set_light_sampler(settings.light_sampler);
+        let view = self.camera(settings.camera).ok().map(|c| (c, settings.width, settings.height));
+        self.set_light_sampler_for(settings.light_sampler, view);
         Ok(())
     }
 
@@ -77,7 +89,7 @@ impl Scene {
         let env = self.lights.environment.take();
         let kind = self.lights.kind;
         self.lights = LightSet::build(&self.mesh, &self.materials, &self.textures, punctual, env, radius);
-        self.lights.set_kind(kind, &self.mesh);
+        self.lights.set_kind_exact(kind, &self.mesh);
     }
 
     /// Loads and attaches the environment described by `settings`; `base` resolves a relative map path.

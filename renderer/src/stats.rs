@@ -252,7 +252,8 @@ pub fn z_test(mean: &[f32], var: &[f32], reference: &[f32], ref_var: &[f32]) -> 
     let alpha = sidak(0.01, n);
     let (mut accepted, mut worst_z, mut worst_pixel) = (0usize, 0.0f64, 0usize);
     for i in 0..n {
-        let diff = ((mean[i] as f64 - reference[i] as f64).abs() - floor).max(0.0);
+        let diff =
+            ((mean[i] as f64 - reference[i] as f64).abs() - floor.max(1e-5 * reference[i].abs() as f64)).max(0.0);
         let v = var[i] as f64 + ref_var[i] as f64;
         let z = if v > 0.0 {
             diff / v.sqrt()

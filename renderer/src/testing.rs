@@ -103,6 +103,49 @@ impl SceneBuilder {
         self.triangles(&p, &f, material);
     }
 
+    /// Blender-style UV sphere: `segments` around, `rings` from pole to pole, single-vertex poles with
+    /// triangle fans and flat triangles (no vertex normals), front faces outwards. It has
+    /// 2·segments·(rings − 1) triangles: 48 × 24 gives 2208, the case of issue 10.
+    pub fn uv_sphere(&mut self, center: Vec3, radius: f32, segments: u32, rings: u32, material: u32) {
+        let (segments, rings) = (segments.max(3), rings.max(2));
+        let mut p = vec![center + Vec3::Y * radius];
+        for r in 1..rings {
+            let theta = std::f32::consts::PI * r as f32 / rings as f32;
+            for s in 0..segments {
+                let phi = 2.0 * std::f32::consts::PI * s as f32 / segments as f32;
+                let dir = Vec3::new(theta.sin() * phi.cos(), theta.cos(), -theta.sin() * phi.sin());
+                p.push(center + dir * radius);
+            }
+        }
+        p.push(center - Vec3::Y * radius);
+        let ring = |r: u32, s: u32| 1 + (r - 1) * segments + s % segments;
+        let bottom = p.len() as u32 - 1;
+        let mut t = Vec::new();
+        for s in 0..segments {
+            t.push([0, ring(1, s), ring(1, s + 1)]);
+            for r in 1..rings - 1 {
+                let (a, b, c, d) = (ring(r, s), ring(r + 1, s), ring(r + 1, s + 1), ring(r, s + 1));
+                t.push([a, b, c]);
+                t.push([a, c, d]);
+            }
+            t.push([ring(rings - 1, s), bottom, ring(rings - 1, s + 1)]);
+        }
+        self.triangles(&p, &t, material);
+    }
+
+    /// Disc of `radius` at `c` as a fan of `segments` triangles, front face along `normal`.
+    pub fn disc(&mut self, c: Vec3, normal: Vec3, radius: f32, segments: u32, material: u32) {
+        let f = crate::math::Frame::from_normal(normal.normalize());
+        let mut p = vec![c];
+        for s in 0..segments.max(3) {
+            let phi = 2.0 * std::f32::consts::PI * s as f32 / segments.max(3) as f32;
+            p.push(c + (f.s * phi.cos() + f.t * phi.sin()) * radius);
+        }
+        let n = segments.max(3);
+        let t: Vec<[u32; 3]> = (0..n).map(|s| [0, 1 + s, 1 + (s + 1) % n]).collect();
+        self.triangles(&p, &t, material);
+    }
+
     /// Quad centred at `c` spanning ±u, ±v, front face along u × v.
     pub fn quad(&mut self, c: Vec3, u: Vec3, v: Vec3, material: u32) {
         let p = [c - u - v, c + u - v, c + u + v, c - u + v];
@@ -136,6 +179,12 @@ pub fn lambert(albedo: Vec3) -> Material {
 /// A metal with base color `color` and `roughness`.
 pub fn metal(color: Vec3, roughness: f32) -> Material {
     Material { name: "metal".into(), base_color: color.extend(1.0), metallic: 1.0, roughness, ..Material::default() }
+}
+
+/// A black emitter of radiance `le`, emitting from its front face only (glTF's default, not
+/// `doubleSided`).
+pub fn one_sided_emitter(le: Vec3) -> Material {
+    Material { double_sided: false, ..emitter(le) }
 }
 
 /// A black, double-sided emitter of radiance `le`.

@@ -14,8 +14,13 @@ fn root() -> PathBuf {
 /// A minimal glTF with one triangle (positions only, optional indices), a material, and `extra`
 /// JSON merged into the top level; `nodes` replaces the default single node.
 fn gltf_json(nodes: &str, extra: &str, indices: bool) -> String {
+    gltf_json_with([[0.0f32, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], nodes, extra, indices)
+}
+
+/// As `gltf_json`, with the triangle's three vertices given.
+fn gltf_json_with(vertices: [[f32; 3]; 3], nodes: &str, extra: &str, indices: bool) -> String {
     let mut bin = Vec::new();
-    for v in [[0.0f32, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]] {
+    for v in vertices {
         for c in v {
             bin.extend_from_slice(&c.to_le_bytes());
         }
@@ -190,4 +195,19 @@ fn own_bvh_and_obvhs_agree_on_every_hit() {
         assert_eq!(a.occluded(o, d, 1.0), b.occluded(o, d, 1.0), "ray {i}");
     }
     assert!(hits > 1000, "the test rays must hit the helmet ({hits})");
+}
+
+#[test]
+fn non_finite_vertices_are_refused_naming_mesh_accessor_and_vertex() {
+    for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+        let json = gltf_json_with([[0.0, 0.0, 0.0], [1.0, bad, 0.0], [0.0, 1.0, 0.0]], "[{\"mesh\":0}]", "", true);
+        let e = load_str(&json).err().expect("a non-finite vertex must be refused").to_string();
+        assert!(e.contains("mesh 0 primitive 0") && e.contains("POSITION accessor 0 vertex 1"), "{e}");
+    }
+    // Finite in the file, infinite once scaled by the node: refused too.
+    let e = load_str(&gltf_json(r#"[{"mesh":0,"translation":[3e38,0,0],"scale":[1e38,1,1]}]"#, "", true))
+        .err()
+        .expect("overflowing transform must be refused")
+        .to_string();
+    assert!(e.contains("not finite once placed"), "{e}");
 }

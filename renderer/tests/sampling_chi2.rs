@@ -95,7 +95,7 @@ fn every_sampler_matches_its_pdf() {
     let reference = Vec3::new(0.1, -0.2, 0.05);
     let normal = Some(Vec3::new(0.3, 0.9, 0.1).normalize());
     for kind in [LightSamplerKind::Uniform, LightSamplerKind::Power, LightSamplerKind::Tree] {
-        scene.lights.set_kind(kind, &scene.mesh);
+        scene.lights.set_kind_exact(kind, &scene.mesh);
         let scene = &scene;
         let light_chi2 = chi2_directions(
             N,

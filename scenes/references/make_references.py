@@ -9,7 +9,8 @@ matrices/TRS, triangle meshes, Lambert = KHR_materials_specular specularFactor 0
 metallic 1 + baseColor 1, emissive + KHR_materials_emissive_strength, perspective camera) and builds
 the equivalent Mitsuba scene, following ../shared/guide: `path` integrator, `hdrfilm` with a box
 filter, `perspective` with fov_axis y, Lambert = `diffuse`, white metal = `roughconductor`
-(material none, GGX, alpha = roughness²), one-sided `area` emitters, `face_normals`.
+(material none, GGX, alpha = roughness²), every non-dielectric BSDF wrapped in `twosided` (glTF surfaces
+reflect on both faces), one-sided `area` emitters, `face_normals`.
 
 It renders `--passes` independent passes (different seeds) and writes
 `scenes/references/<scene>.exr` with channels R, G, B (the mean) and `variance` (the variance of the
@@ -37,6 +38,8 @@ SCENES = {
     "envlit": ("envlit/envlit.gltf", 128, 96),
     "glass": ("glass/glass.gltf", 128, 96),
     "many_lights": ("many_lights/many_lights.gltf", 128, 96),
+    "sphere_light": ("sphere_light/sphere_light.gltf", 128, 128),
+    "sphere_lights": ("sphere_lights/sphere_lights.gltf", 128, 96),
 }
 # scene name -> (environment map under scenes/, Tessera --env-rotate degrees). Tessera's mapping equals
 # Mitsuba's envmap with to_world = rotate(Y, 90° + rotate) (../shared/guide; checked with a probe render).
@@ -98,6 +101,14 @@ def write_ply(path, pos, faces):
 
 
 def material_dict(m):
+    """The Mitsuba BSDF of a glTF material. glTF surfaces reflect on both faces (Tessera turns the
+    shading frame to the side a ray arrives from), so every non-dielectric BSDF is wrapped in
+    `twosided`: a one-sided Mitsuba BSDF is black from behind (issue 10: a thin plate's underside)."""
+    d = _material_dict(m)
+    return d if d["type"] in ("dielectric", "roughdielectric") else {"type": "twosided", "bsdf": d}
+
+
+def _material_dict(m):
     ext = m.get("extensions", {})
     pbr = m.get("pbrMetallicRoughness", {})
     base = pbr.get("baseColorFactor", [1, 1, 1, 1])[:3]
@@ -160,7 +171,7 @@ def build_scene(gltf_path, width, height, spp, tmp, env=None):
                 strength = m.get("extensions", {}).get("KHR_materials_emissive_strength", {}).get("emissiveStrength", 1.0)
                 if max(em) > 0:
                     shape["emitter"] = {"type": "area", "radiance": {"type": "rgb", "value": [e * strength for e in em]}}
-                    shape["bsdf"] = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0, 0, 0]}} if material_dict(m)["type"] == "diffuse" else shape["bsdf"]
+                    shape["bsdf"] = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0, 0, 0]}} if _material_dict(m)["type"] == "diffuse" else shape["bsdf"]
                 scene[f"shape{k}"] = shape
                 k += 1
         for c in node.get("children", []):

@@ -1,0 +1,177 @@
+//! `--light-sampler auto`: chooses power, uniform or tree selection for a scene by *measured
+//! benefit*, with a small deterministic pilot run at scene preparation.
+//!
+//! Why a pilot and not a light count: the count says nothing about benefit. Four 1152-triangle
+//! sphere bulbs are 4608 "lights" to a count (the old rule picked the tree, whose walk then made
+//! each sample 2.25–2.7× dearer), yet whether the tree pays for that depends on where the lights
+//! are: on `scenes/veach` (four equal bulbs seen from everywhere) power was 16–62 % better at equal
+//! time; on `scenes/sphere_lights` (four unequal bulbs over a floor) the tree was 1.3× better than
+//! uniform and 2.4× better than power (issue 10's measurements, `tessera bench convergence`).
+//!
+//! The pilot: the first surfaces hit by `PILOT_POINTS` camera rays (stratified over the image; for a
+//! scene seen by no camera ray, area-weighted points on its non-emissive surfaces), and at each
+//! `PILOT_SAMPLES` unshadowed next-event estimates f·Le·cos/pdf towards the camera with every
+//! candidate, the same random numbers for all candidates. Score = Σ over points of the estimate's
+//! relative variance, × a per-sample cost model (1 for power and uniform, 1 + `TREE_LEVEL_COST` ×
+//! tree depth for the tree). The lowest score wins. Everything is a function of the scene alone
+//! (hashed random numbers, no clocks), so a farm worker and `tessera render` choose the same
+//! sampler: the determinism rule holds.
+
+use crate::bsdf::Bsdf;
+use crate::camera::Camera;
+use crate::light::{LightSamplerKind, LightSet};
+use crate::material::Material;
+use crate::math::{luminance, offset_ray_origin, Frame, Vec2, Vec3};
+use crate::mesh::Mesh;
+use crate::sampler::hash_u64;
+use crate::scene::Scene;
+use crate::texture::Texture;
+
+/// Shading points of the pilot.
+pub const PILOT_POINTS: u64 = 256;
+/// Light samples per point and candidate.
+pub const PILOT_SAMPLES: u64 = 32;
+/// Extra cost of one tree level relative to a whole path sample with power selection: measured on
+/// `scenes/sphere_lights` (4608 emissive triangles, depth 12.2): a tree sample cost 2.25× a power
+/// sample, (2.25 − 1) / 12.2 ≈ 0.10.
+pub const TREE_LEVEL_COST: f64 = 0.10;
+
+/// A uniform number in [0, 1) from a hash of (stream, index).
+fn rand(stream: u64, i: u64) -> f32 {
+    (hash_u64(stream.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ i) >> 40) as f32 / (1u64 << 24) as f32
+}
+
+/// A shading point of the pilot: position (offset off the surface), normal on the viewer's side,
+/// direction to the viewer, and the BSDF there (None: Lambert, for points no camera ray found).
+struct PilotPoint {
+    p: Vec3,
+    n: Vec3,
+    wo: Vec3,
+    bsdf: Option<Bsdf>,
+}
+
+/// First hits of a stratified grid of camera rays (`view`: camera and image size).
+fn camera_points(scene: &Scene, view: Option<(Camera, u32, u32)>) -> Vec<PilotPoint> {
+    let Some((camera, w, h)) = view else { return Vec::new() };
+    let side = (PILOT_POINTS as f64).sqrt() as u64;
+    let mut out = Vec::new();
+    for k in 0..side * side {
+        let film = Vec2::new(
+            ((k % side) as f32 + rand(8, k)) / side as f32 * w as f32,
+            ((k / side) as f32 + rand(9, k)) / side as f32 * h as f32,
+        );
+        let d = camera.ray_direction(film, w, h);
+        let Some(hit) = scene.intersect(camera.origin, d, f32::INFINITY) else { continue };
+        let sp = scene.mesh.surface_point(hit.triangle, hit.b1, hit.b2);
+        let m = &scene.materials[scene.mesh.triangles[hit.triangle as usize].material as usize];
+        if m.is_emissive() {
+            continue;
+        }
+        let n = if sp.ng.dot(d) < 0.0 { sp.ng } else { -sp.ng };
+        let bsdf = m.bsdf(&scene.textures, sp.uv);
+        if bsdf.is_delta_only() {
+            continue;
+        }
+        out.push(PilotPoint { p: offset_ray_origin(sp.p, n), n, wo: -d, bsdf: Some(bsdf) });
+    }
+    out
+}
+
+/// Deterministic area-weighted points on non-emissive triangles, either side.
+fn surface_points(mesh: &Mesh, materials: &[Material]) -> Vec<PilotPoint> {
+    let mut cdf = Vec::new();
+    let mut tris = Vec::new();
+    let mut total = 0.0f64;
+    for (i, t) in mesh.triangles.iter().enumerate() {
+        if materials.get(t.material as usize).is_none_or(|m| m.is_emissive()) {
+            continue;
+        }
+        let a = mesh.area(i as u32) as f64;
+        if a > 0.0 && a.is_finite() {
+            total += a;
+            cdf.push(total);
+            tris.push(i as u32);
+        }
+    }
+    if tris.is_empty() {
+        return Vec::new();
+    }
+    (0..PILOT_POINTS)
+        .map(|k| {
+            let u = rand(1, k) as f64 * total;
+            let j = cdf.partition_point(|&c| c <= u).min(tris.len() - 1);
+            let b = crate::math::sample_uniform_triangle(Vec2::new(rand(2, k), rand(3, k)));
+            let (p, ng, _) = mesh.position_normal_uv(tris[j], b.y, b.z);
+            let n = if rand(4, k) < 0.5 { ng } else { -ng };
+            PilotPoint { p: offset_ray_origin(p, n), n, wo: n, bsdf: None }
+        })
+        .collect()
+}
+
+/// Σ over points of the relative variance of the unshadowed NEE estimate with the light set's
+/// current selection.
+fn pilot_variance(
+    lights: &LightSet,
+    mesh: &Mesh,
+    materials: &[Material],
+    textures: &[Texture],
+    points: &[PilotPoint],
+) -> f64 {
+    let mut per_point = Vec::with_capacity(points.len());
+    for (k, pt) in points.iter().enumerate() {
+        let frame = Frame::from_normal(pt.n);
+        let wo = frame.to_local(pt.wo);
+        let (mut s, mut s2) = (0.0f64, 0.0f64);
+        for i in 0..PILOT_SAMPLES {
+            let idx = k as u64 * PILOT_SAMPLES + i;
+            let u = Vec2::new(rand(5, idx), rand(6, idx));
+            let c = match lights.sample(mesh, materials, textures, pt.p, Some(pt.n), rand(7, idx), u) {
+                Some(ls) if ls.pdf > 0.0 && ls.wi.dot(pt.n) > 0.0 => {
+                    let wi = frame.to_local(ls.wi);
+                    let f = match &pt.bsdf {
+                        Some(b) => luminance(b.eval(wo, wi)) as f64,
+                        None => std::f64::consts::FRAC_1_PI,
+                    };
+                    f * luminance(ls.le) as f64 * wi.z as f64 / ls.pdf as f64
+                }
+                _ => 0.0,
+            };
+            let c = if c.is_finite() { c } else { 0.0 };
+            s += c;
+            s2 += c * c;
+        }
+        let m = s / PILOT_SAMPLES as f64;
+        per_point.push((m, (s2 / PILOT_SAMPLES as f64 - m * m).max(0.0)));
+    }
+    // Relative to each point's own level (as the image relMSE is per pixel), floored at 1 % of the
+    // average level so that points no light reaches do not dominate.
+    let avg = per_point.iter().map(|p| p.0).sum::<f64>() / per_point.len().max(1) as f64;
+    per_point.iter().map(|&(m, v)| v / (m * m + 0.01 * avg * avg).max(1e-30)).sum()
+}
+
+/// The pilot's choice for `scene` seen through `view` (camera, width, height), and the scores it
+/// compared. Leaves the scene's light set switched to the choice.
+pub fn choose(scene: &mut Scene, view: Option<(Camera, u32, u32)>) -> (LightSamplerKind, Vec<(LightSamplerKind, f64)>) {
+    if scene.lights.finite_count() < 2 {
+        scene.lights.set_kind_exact(LightSamplerKind::Power, &scene.mesh);
+        return (LightSamplerKind::Power, Vec::new());
+    }
+    let mut points = camera_points(scene, view);
+    if points.len() < PILOT_POINTS as usize / 8 {
+        points.extend(surface_points(&scene.mesh, &scene.materials));
+    }
+    let mut scores = Vec::new();
+    for kind in [LightSamplerKind::Power, LightSamplerKind::Uniform, LightSamplerKind::Tree] {
+        scene.lights.set_kind_exact(kind, &scene.mesh);
+        let cost = match kind {
+            LightSamplerKind::Tree => 1.0 + TREE_LEVEL_COST * (scene.lights.finite_count() as f64).log2(),
+            _ => 1.0,
+        };
+        let v = pilot_variance(&scene.lights, &scene.mesh, &scene.materials, &scene.textures, &points);
+        scores.push((kind, v * cost));
+    }
+    let best =
+        scores.iter().copied().fold((LightSamplerKind::Power, f64::INFINITY), |b, s| if s.1 < b.1 { s } else { b });
+    scene.lights.set_kind_exact(best.0, &scene.mesh);
+    (best.0, scores)
+}

@@ -7,7 +7,8 @@
 
 use crate::render_cmd::RenderFlags;
 use clap::Args;
-use serde_json::{json, Value};
+use renderer::settings_request::SettingsRequest;
+use serde_json::Value;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -113,8 +114,8 @@ pub struct SubmitArgs {
     pub scene: PathBuf,
     #[command(flatten)]
     pub flags: RenderFlags,
-    /// Higher runs first.
-    #[arg(long, default_value_t = 0)]
+    /// Higher runs first (-1000..=1000; negative values may be written `--priority -1`).
+    #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
     pub priority: i32,
     /// Wait for the job, with a progress bar, then download the EXR.
     #[arg(long)]
@@ -185,23 +186,8 @@ fn multipart(files: &[(String, Vec<u8>)], env: Option<&(String, Vec<u8>)>, setti
 pub fn submit(a: SubmitArgs) -> anyhow::Result<()> {
     let files = scene_files(&a.scene)?;
     let f = &a.flags;
-    let mut settings = json!({
-        "spp": f.spp, "time_budget": f.time_budget, "noise_target": f.noise_target, "min_spp": f.min_spp, "camera": f.camera, "integrator": f.integrator, "mis_heuristic": f.mis_heuristic, "sampler": f.sampler,
-        "seed": f.seed, "max_depth": f.max_depth, "rr_depth": f.rr_depth, "filter": f.filter, "pass_spp": f.pass_spp, "priority": a.priority,
-    });
-    if let Some(w) = f.width {
-        settings["width"] = json!(w);
-    }
-    if let Some(h) = f.height {
-        settings["height"] = json!(h);
-    }
-    settings["light_sampler"] = json!(f.light_sampler);
-    settings["env_strength"] = json!(f.env_strength);
-    settings["env_rotate"] = json!(f.env_rotate);
-    settings["env_sampling"] = json!(f.env_sampling == "on");
-    if let Some(c) = f.env_color {
-        settings["env_color"] = json!(c);
-    }
+    let request = SettingsRequest { priority: Some(a.priority as i64), ..f.request() };
+    let settings = serde_json::to_value(&request).map_err(|e| fail(1, format!("settings: {e}")))?;
     let env = match &f.env {
         Some(p) => {
             let data = std::fs::read(p).map_err(|e| fail(1, format!("{}: {e}", p.display())))?;
@@ -211,6 +197,9 @@ pub fn submit(a: SubmitArgs) -> anyhow::Result<()> {
         None => None,
     };
     let api = Api::new(&a.conn)?;
+    // Ask a cheap authenticated question first: a wrong token is then a clear 401 (exit 4), not a
+    // broken pipe halfway through a large upload that the coordinator refused unread.
+    api.get_json("/workers")?;
     let (ctype, body) = multipart(&files, env.as_ref(), &settings);
     let mut r = api.check(
         api.auth(api.agent.post(&format!("{}/api/v1/jobs", api.base))).header("Content-Type", &ctype).send(&body[..]),

@@ -35,6 +35,16 @@ pub struct CoordinatorArgs {
     /// PEM private key for --tls-cert.
     #[arg(long, env = "TESSERA_TLS_KEY", requires = "tls_cert")]
     pub tls_key: Option<PathBuf>,
+    /// Most connections served at once (REST, web and workers); more are closed on arrival.
+    #[arg(long, default_value_t = 512, env = "TESSERA_MAX_CONNECTIONS")]
+    pub max_connections: usize,
+    /// Largest size of the coordinator's database in MiB (writes beyond it are answered like a full
+    /// disk: 507, nothing stored is lost). Default: as large as the disk allows.
+    #[arg(long, env = "TESSERA_MAX_DB_MB")]
+    pub max_db_mb: Option<u64>,
+    /// Seconds a client has to send a request's headers (HTTP/1).
+    #[arg(long, default_value_t = 10.0, env = "TESSERA_HEADER_TIMEOUT_SECONDS")]
+    pub header_timeout_seconds: f64,
 }
 
 pub fn coordinator(a: CoordinatorArgs) -> Result<()> {
@@ -43,6 +53,7 @@ pub fn coordinator(a: CoordinatorArgs) -> Result<()> {
     if !(a.lease_seconds > 0.0 && a.lease_seconds < 86400.0) {
         anyhow::bail!("--lease-seconds must be between 0 and 86400");
     }
+    tracing::info!(listen = %a.listen, data_dir = %a.data_dir.display(), "coordinator starting");
     let config = coordinator::Config {
         listen: a.listen,
         data_dir: a.data_dir,
@@ -56,6 +67,12 @@ pub fn coordinator(a: CoordinatorArgs) -> Result<()> {
         },
         lease: std::time::Duration::from_secs_f64(a.lease_seconds),
         tls: a.tls_cert.zip(a.tls_key),
+        conn: coordinator::conn::ConnLimits {
+            max_connections: a.max_connections.max(1),
+            header_read_timeout: std::time::Duration::from_secs_f64(a.header_timeout_seconds.clamp(0.1, 3600.0)),
+            ..Default::default()
+        },
+        max_db_bytes: a.max_db_mb.map(|m| m << 20),
     };
     let rt = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
     rt.block_on(async move {

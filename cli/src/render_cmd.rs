@@ -4,6 +4,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use renderer::image_io::FinalImage;
 use renderer::sampler::SamplerKind;
+use renderer::settings_request::{SceneFacts, SettingsLimits, SettingsRequest};
 use renderer::{Counters, IntegratorKind, MisHeuristic, PixelFilter, RenderSettings, Scene};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
@@ -12,12 +13,14 @@ use std::time::{Duration, Instant};
 /// The Cornell box shipped inside the binary, rendered when no scene is given.
 pub const EMBEDDED_CORNELL: &[u8] = include_bytes!("../../scenes/cornell/cornell.gltf");
 
-/// Flags shared by every command that describes a render (render, bench; later submit).
+/// Flags shared by every command that describes a render (render, bench, submit). They carry no
+/// defaults of their own: they become a `renderer::settings_request::SettingsRequest`, which owns
+/// every default and bound (the one settings schema), and `tessera submit` sends that same request.
 #[derive(Args, Clone, Debug)]
 pub struct RenderFlags {
     /// Samples per pixel (default 64). With --time-budget or --noise-target: the cap (default 65536).
     #[arg(long)]
-    pub spp: Option<u32>,
+    pub spp: Option<u64>,
     /// Stop at the last whole pass that fits in this many seconds of rendering (the image stays
     /// unbiased: every pixel gets the same passes).
     #[arg(long, value_name = "SECONDS")]
@@ -26,66 +29,68 @@ pub struct RenderFlags {
     /// REL (e.g. 0.02): noisy tiles get more samples than quiet ones.
     #[arg(long, value_name = "REL")]
     pub noise_target: Option<f64>,
-    /// With --noise-target: samples every pixel gets before its tile may stop.
-    #[arg(long, default_value_t = 32)]
-    pub min_spp: u32,
+    /// With --noise-target: samples every pixel gets before its tile may stop (default 32).
+    #[arg(long)]
+    pub min_spp: Option<u64>,
     /// Image width (default: 640, or from --height and the camera's aspect ratio).
     #[arg(long)]
-    pub width: Option<u32>,
+    pub width: Option<u64>,
     /// Image height (default: from the width and the camera's aspect ratio).
     #[arg(long)]
-    pub height: Option<u32>,
+    pub height: Option<u64>,
     /// Index of the glTF camera to render through (default: the first, or a framing view).
     #[arg(long)]
-    pub camera: Option<usize>,
-    /// Light transport: mis (NEE + BSDF sampling), nee, or bsdf (BSDF sampling only).
-    #[arg(long, default_value = "mis")]
-    pub integrator: IntegratorKind,
-    /// MIS weighting: power or balance heuristic.
-    #[arg(long, default_value = "power")]
-    pub mis_heuristic: MisHeuristic,
-    /// Sample generator: sobol (Owen-scrambled) or independent (PCG).
-    #[arg(long, default_value = "sobol")]
-    pub sampler: SamplerKind,
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
-    /// Maximum number of bounces (0 = emission only, 1 = direct lighting).
-    #[arg(long, default_value_t = 64)]
-    pub max_depth: u32,
-    /// Bounce from which Russian roulette may end paths.
-    #[arg(long, default_value_t = 5)]
-    pub rr_depth: u32,
-    /// Pixel filter, importance-sampled: box or tent.
-    #[arg(long, default_value = "box")]
-    pub filter: PixelFilter,
-    /// Samples per pass, the unit of accumulation (part of the image's identity: see ARCHITECTURE.md).
-    #[arg(long, default_value_t = 16)]
-    pub pass_spp: u32,
+    pub camera: Option<u64>,
+    /// Light transport: mis (NEE + BSDF sampling, the default), nee, or bsdf (BSDF sampling only).
+    #[arg(long)]
+    pub integrator: Option<IntegratorKind>,
+    /// MIS weighting: power (default) or balance heuristic.
+    #[arg(long)]
+    pub mis_heuristic: Option<MisHeuristic>,
+    /// Sample generator: sobol (Owen-scrambled, the default) or independent (PCG).
+    #[arg(long)]
+    pub sampler: Option<SamplerKind>,
+    /// Seed of every random decision (default 0).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Maximum number of bounces (0 = emission only, 1 = direct lighting; default 64).
+    #[arg(long)]
+    pub max_depth: Option<u64>,
+    /// Bounce from which Russian roulette may end paths (default 5).
+    #[arg(long)]
+    pub rr_depth: Option<u64>,
+    /// Pixel filter, importance-sampled: box (default) or tent.
+    #[arg(long)]
+    pub filter: Option<PixelFilter>,
+    /// Samples per pass, the unit of accumulation (part of the image's identity: see ARCHITECTURE.md;
+    /// default 16).
+    #[arg(long)]
+    pub pass_spp: Option<u64>,
     /// Environment map: lat-long OpenEXR or Radiance .hdr.
     #[arg(long)]
     pub env: Option<PathBuf>,
     /// Uniform environment radiance R,G,B (when there is no --env).
     #[arg(long, value_parser = parse_rgb)]
-    pub env_color: Option<[f32; 3]>,
-    /// Multiplier of the environment's radiance.
-    #[arg(long, default_value_t = 1.0)]
-    pub env_strength: f32,
-    /// Rotation of the environment about +Y, degrees (right-handed).
-    #[arg(long, default_value_t = 0.0)]
-    pub env_rotate: f32,
-    /// Light selection for NEE: auto (the best of the three as measured by a pilot run), uniform, power, or tree
-    /// (light BVH: power, distance, orientation).
-    #[arg(long, default_value = "auto")]
-    pub light_sampler: renderer::light::LightSamplerKind,
-    /// Importance-sample the environment for NEE: on or off (off: only BSDF sampling finds it).
-    #[arg(long, default_value = "on", value_parser = ["on", "off"])]
-    pub env_sampling: String,
+    pub env_color: Option<[f64; 3]>,
+    /// Multiplier of the environment's radiance (default 1).
+    #[arg(long)]
+    pub env_strength: Option<f64>,
+    /// Rotation of the environment about +Y, degrees (right-handed; default 0).
+    #[arg(long, allow_negative_numbers = true)]
+    pub env_rotate: Option<f64>,
+    /// Light selection for NEE: auto (the best of the three as measured by a pilot run; default),
+    /// uniform, power, or tree (light BVH: power, distance, orientation).
+    #[arg(long)]
+    pub light_sampler: Option<renderer::light::LightSamplerKind>,
+    /// Importance-sample the environment for NEE: on (default) or off (only BSDF sampling finds it).
+    #[arg(long, value_parser = ["on", "off"])]
+    pub env_sampling: Option<String>,
 }
 
-fn parse_rgb(s: &str) -> Result<[f32; 3], String> {
-    let v: Vec<f32> = s
+fn parse_rgb(s: &str) -> Result<[f64; 3], String> {
+    let v: Vec<f64> = s
         .split(',')
-        .map(|x| x.trim().parse::<f32>().map_err(|_| format!("'{x}' is not a number")))
+        .map(|x| x.trim().parse::<f64>().map_err(|_| format!("'{x}' is not a number")))
         .collect::<Result<_, _>>()?;
     match v[..] {
         [r, g, b] if v.iter().all(|x| x.is_finite() && *x >= 0.0) => Ok([r, g, b]),
@@ -94,49 +99,40 @@ fn parse_rgb(s: &str) -> Result<[f32; 3], String> {
 }
 
 impl RenderFlags {
-    /// `--spp`, or its default: 64, or the budget cap when a budget decides instead.
-    pub fn spp_or_default(&self) -> u32 {
-        match self.spp {
-            Some(n) => n,
-            None if self.time_budget.is_some() || self.noise_target.is_some() => renderer::budget::BUDGET_SPP_CAP,
-            None => 64,
-        }
-    }
-
-    /// Settings for `scene`, with the image size derived from the camera's aspect ratio when not given.
-    pub fn settings(&self, scene: &Scene) -> Result<RenderSettings> {
-        let aspect = match scene.camera(self.camera) {
-            Ok(c) => c.aspect_ratio,
-            Err((i, n)) => bail!("the scene has no camera {i} (it has {n})"),
-        };
-        let (width, height) = renderer::settings::image_size(aspect, self.width, self.height);
-        let s = RenderSettings {
-            width,
-            height,
-            spp: self.spp_or_default(),
-            pass_spp: self.pass_spp,
+    /// The request these flags make (what `tessera submit` sends; `settings` resolves it locally).
+    pub fn request(&self) -> SettingsRequest {
+        SettingsRequest {
+            spp: self.spp,
+            width: self.width,
+            height: self.height,
+            camera: self.camera,
             integrator: self.integrator,
             mis_heuristic: self.mis_heuristic,
             sampler: self.sampler,
             seed: self.seed,
             max_depth: self.max_depth,
             rr_depth: self.rr_depth,
-            camera: self.camera,
             filter: self.filter,
-            environment: renderer::environment::EnvironmentSettings {
-                map: self.env.as_ref().map(|p| p.to_string_lossy().into_owned()),
-                color: self.env_color,
-                strength: self.env_strength,
-                rotate_deg: self.env_rotate,
-                sampling: self.env_sampling == "on",
-            },
+            env_color: self.env_color,
+            env_strength: self.env_strength,
+            env_rotate: self.env_rotate,
+            env_sampling: self.env_sampling.as_deref().map(|v| v == "on"),
             light_sampler: self.light_sampler,
+            pass_spp: self.pass_spp,
+            time_budget: self.time_budget,
             noise_target: self.noise_target,
             min_spp: self.min_spp,
-            time_budget: self.time_budget,
-        };
-        s.validate().map_err(anyhow::Error::msg)?;
-        Ok(s)
+            ..SettingsRequest::default()
+        }
+    }
+
+    /// Settings for `scene`: the request resolved against the scene's cameras (same code as the farm).
+    pub fn settings(&self, scene: &Scene) -> Result<RenderSettings> {
+        let camera = self.camera.map(|c| usize::try_from(c).unwrap_or(usize::MAX));
+        let facts =
+            SceneFacts { cameras: scene.cameras.len(), aspect: scene.camera(camera).ok().and_then(|c| c.aspect_ratio) };
+        let env_map = self.env.as_ref().map(|p| p.to_string_lossy().into_owned());
+        Ok(self.request().resolve(facts, env_map, SettingsLimits::default())?)
     }
 }
 
@@ -265,4 +261,73 @@ pub fn run(args: RenderArgs) -> Result<()> {
         tracing::warn!(nonfinite, "samples with non-finite radiance were replaced by zero");
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Wrapper {
+        #[command(flatten)]
+        flags: RenderFlags,
+    }
+
+    /// Every field of the one settings schema has a flag, and flags carry no defaults of their own
+    /// (so `tessera render`, `tessera submit` and the farm resolve the same defaults).
+    #[test]
+    fn flags_cover_the_settings_schema_and_default_nothing() {
+        let all = Wrapper::try_parse_from([
+            "t",
+            "--spp",
+            "8",
+            "--width",
+            "16",
+            "--height",
+            "8",
+            "--camera",
+            "0",
+            "--integrator",
+            "nee",
+            "--mis-heuristic",
+            "balance",
+            "--sampler",
+            "independent",
+            "--seed",
+            "3",
+            "--max-depth",
+            "4",
+            "--rr-depth",
+            "2",
+            "--filter",
+            "tent",
+            "--env-color",
+            "1,1,1",
+            "--env-strength",
+            "2",
+            "--env-rotate",
+            "-30",
+            "--env-sampling",
+            "off",
+            "--light-sampler",
+            "tree",
+            "--pass-spp",
+            "4",
+            "--time-budget",
+            "5",
+            "--noise-target",
+            "0.1",
+            "--min-spp",
+            "4",
+        ])
+        .expect("parses");
+        let v = serde_json::to_value(all.flags.request()).expect("encodes");
+        let given: Vec<&str> = v.as_object().expect("object").keys().map(String::as_str).collect();
+        for f in renderer::settings_request::FIELDS {
+            assert!(f.name == "priority" || given.contains(&f.name), "no flag for settings.{}", f.name);
+        }
+        let none = Wrapper::try_parse_from(["t"]).expect("parses");
+        assert_eq!(none.flags.request(), SettingsRequest::default());
+    }
 }

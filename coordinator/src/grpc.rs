@@ -1,7 +1,7 @@
 //! The workers' gRPC service (`proto/tessera.proto`): register, lease (long-poll), fetch scene,
 //! heartbeat, submit result. Every call must carry the worker secret.
 
-use crate::state::SubmitOutcome;
+use crate::service::{ResultError, ResultReply};
 use crate::{lock, now_ms, Shared, WorkerInfo};
 use proto::v1::farm_server::{Farm, FarmServer};
 use proto::v1::*;
@@ -32,7 +32,8 @@ pub fn router(shared: Arc<Shared>) -> axum::Router {
         Ok(req)
     };
     let svc = FarmServer::with_interceptor(FarmService { shared }, check);
-    tonic::service::Routes::new(svc).into_axum_router()
+    // Only the service's own paths are gRPC: anything else is the REST router's 404.
+    axum::Router::new().route_service("/tessera.v1.Farm/{*method}", svc)
 }
 
 struct FarmService {
@@ -68,8 +69,7 @@ impl Farm for FarmService {
                 env!("CARGO_PKG_VERSION")
             )));
         }
-        let n = lock(&self.shared.workers).len();
-        let id = format!("w{}-{}", n + 1, now_ms() % 1_000_000);
+        let id = crate::new_id("w");
         let name: String = r.name.chars().take(64).collect();
         tracing::info!(worker = %id, %name, cores = r.cores, version = %r.version, "worker registered");
         lock(&self.shared.workers).insert(
@@ -98,15 +98,13 @@ impl Farm for FarmService {
             let unit =
                 lock(&self.shared.farm).lease(&r.worker_id, now_ms(), self.shared.config.lease.as_millis() as i64);
             if let Some(u) = unit {
-                let settings_json = serde_json::to_string(&u.settings).map_err(|e| Status::internal(e.to_string()))?;
-                let size = lock(&self.shared.store).scene(&u.scene_hash).ok().flatten().map_or(0, |s| s.len() as u64);
                 return Ok(Response::new(LeaseReply {
                     unit: Some(WorkUnit {
                         unit_id: u.unit_id,
                         job_id: u.job_id,
                         scene_hash: u.scene_hash,
-                        scene_size: size,
-                        settings_json,
+                        scene_size: u.scene_size,
+                        settings_json: u.settings_json.to_string(),
                         rect: Some(to_proto_rect(u.rect)),
                         sample_start: u.samples.start,
                         sample_end: u.samples.end,
@@ -125,9 +123,13 @@ impl Farm for FarmService {
     async fn fetch_scene(&self, req: Request<FetchSceneRequest>) -> Result<Response<Self::FetchSceneStream>, Status> {
         let r = req.into_inner();
         self.touch(&r.worker_id)?;
-        let data = lock(&self.shared.store)
-            .scene(&r.scene_hash)
+        // Read (and checked against its hash) outside the farm lock; a corrupt blob is an error.
+        let shared = self.shared.clone();
+        let hash = r.scene_hash.clone();
+        let data = tokio::task::spawn_blocking(move || lock(&shared.store).scene(&hash))
+            .await
             .map_err(|e| Status::internal(e.to_string()))?
+            .map_err(|e| Status::data_loss(e.to_string()))?
             .ok_or_else(|| Status::not_found(format!("no scene with hash {}", r.scene_hash)))?;
         let total = data.len() as u64;
         let chunks: Vec<Result<SceneChunk, Status>> =
@@ -144,6 +146,9 @@ impl Farm for FarmService {
             now_ms(),
             self.shared.config.lease.as_millis() as i64,
         );
+        if deadline.is_none() {
+            lock(&self.shared.metrics).heartbeats_refused += 1;
+        }
         Ok(Response::new(HeartbeatReply {
             keep_going: deadline.is_some(),
             lease_deadline_unix_ms: deadline.unwrap_or(0),
@@ -188,53 +193,19 @@ impl Farm for FarmService {
         } else {
             PartialSums::decode(rect, &payload)
         };
-        let t = std::time::Instant::now();
-        let mut farm = lock(&self.shared.farm);
-        let outcome = farm.submit(&header.worker_id, &header.unit_id, sums, crate::now_ms());
+        let pixel_samples = rect.pixels() as u64 * samples.len() as u64;
+        let shared = self.shared.clone();
+        let (worker, unit) = (header.worker_id.clone(), header.unit_id.clone());
+        // Merging, checkpointing and possibly finishing the job (EXR encoding) block: off the runtime.
+        let outcome = tokio::task::spawn_blocking(move || shared.accept_result(&worker, &unit, sums, pixel_samples))
+            .await
+            .map_err(|e| Status::internal(e.to_string()))?;
         let reply = match outcome {
-            SubmitOutcome::Merged { tiles_changed, job_complete } => {
-                let job_id = header.unit_id.rsplit_once('/').map(|(j, _)| j.to_string()).unwrap_or_default();
-                if let Some(job) = farm.jobs.get_mut(&job_id) {
-                    {
-                        let store = lock(&self.shared.store);
-                        for &tile in &tiles_changed {
-                            if let Err(e) = store.put_tile(&job.id, tile, job.folded[tile], &job.tile_sums[tile]) {
-                                tracing::error!(job = %job.id, tile, error = %e, "checkpoint failed");
-                            }
-                        }
-                        if job.started_ms.is_some() {
-                            let _ = store.update_job_state(job);
-                        }
-                    }
-                    if job_complete {
-                        self.shared.finish_job(job);
-                    }
-                }
-                let mut m = lock(&self.shared.metrics);
-                m.units_merged += 1;
-                m.samples_merged += rect.pixels() as u64 * samples.len() as u64;
-                m.merge_seconds_sum += t.elapsed().as_secs_f64();
-                if let Some(w) = lock(&self.shared.workers).get_mut(&header.worker_id) {
-                    w.units_done += 1;
-                }
-                SubmitReply { accepted: true, message: "merged".into() }
-            }
-            SubmitOutcome::Duplicate => {
-                SubmitReply { accepted: false, message: "unit already merged: result dropped".into() }
-            }
-            SubmitOutcome::Stale => {
-                SubmitReply { accepted: false, message: "job finished or cancelled: result dropped".into() }
-            }
-            SubmitOutcome::Rejected(why) => {
-                drop(farm);
-                tracing::warn!(worker = %header.worker_id, unit = %header.unit_id, %why, "result rejected; worker put on the job's bad list");
-                lock(&self.shared.metrics).units_rejected += 1;
-                if let Some(w) = lock(&self.shared.workers).get_mut(&header.worker_id) {
-                    w.units_rejected += 1;
-                }
-                self.shared.work_available.notify_waiters();
-                return Err(Status::invalid_argument(format!("result rejected: {why}")));
-            }
+            Ok(ResultReply::Merged) => SubmitReply { accepted: true, message: "merged".into() },
+            Ok(ResultReply::Dropped(why)) => SubmitReply { accepted: false, message: why.into() },
+            Err(e @ ResultError::NotLeased(_)) => return Err(Status::permission_denied(e.to_string())),
+            Err(e @ ResultError::Invalid(_)) => return Err(Status::invalid_argument(e.to_string())),
+            Err(e @ ResultError::Storage(_)) => return Err(Status::unavailable(e.to_string())),
         };
         Ok(Response::new(reply))
     }

@@ -5,14 +5,16 @@
 //! Modules: `state` (scheduling and merging, no I/O), `store` (SQLite persistence), `grpc` (the
 //! worker protocol), `rest` (the user API), `web` (the page).
 
+pub mod conn;
 pub mod grpc;
 pub mod rest;
+pub mod service;
 pub mod state;
 pub mod store;
 pub mod tls;
 mod web;
 
-use state::{Farm, Job, JobState};
+use state::Farm;
 use std::collections::HashMap;
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -48,6 +50,10 @@ pub struct Config {
     pub lease: Duration,
     /// PEM certificate chain and private key: serve HTTPS (and gRPC over TLS) instead of plain HTTP.
     pub tls: Option<(PathBuf, PathBuf)>,
+    /// Connection cap and timeouts.
+    pub conn: conn::ConnLimits,
+    /// Largest database size (`TESSERA_MAX_DB_MB`); None: as large as the disk allows.
+    pub max_db_bytes: Option<u64>,
 }
 
 #[derive(Clone, Debug, serde::Serialize)]
@@ -70,6 +76,11 @@ pub struct Metrics {
     pub units_expired: u64,
     pub merge_seconds_sum: f64,
     pub samples_merged: u64,
+    /// Results and heartbeats refused because the caller did not hold the lease.
+    pub results_forged: u64,
+    pub heartbeats_refused: u64,
+    /// Storage failures (a result not merged, an image not stored: all retried).
+    pub storage_errors: u64,
 }
 
 pub struct Shared {
@@ -83,6 +94,19 @@ pub struct Shared {
     pub started: std::time::Instant,
 }
 
+/// An identifier that cannot collide: `prefix` and 16 hex digits of a hash of a process-wide
+/// counter, the time and the process id, keyed by the OS-seeded `RandomState` (so neither
+/// guessable from the submission time nor repeated across restarts). Job rows are inserted without
+/// replace, so a clash could only ever make an insert fail and retry.
+pub fn new_id(prefix: &str) -> String {
+    use std::hash::BuildHasher;
+    static COUNTER: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let n = COUNTER.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let t = SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_nanos()).unwrap_or(0);
+    let h = std::collections::hash_map::RandomState::new().hash_one((n, t, std::process::id()));
+    format!("{prefix}{h:016x}")
+}
+
 pub fn now_ms() -> i64 {
     SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_millis() as i64).unwrap_or(0)
 }
@@ -93,10 +117,24 @@ pub fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
+/// A worker not heard from for this long is dropped from the registry (it re-registers if alive).
+pub const WORKER_FORGET_MS: i64 = 10 * 60 * 1000;
+
 impl Shared {
+    /// Forgets workers not seen for `WORKER_FORGET_MS` (their leases expired long before).
+    pub fn prune_workers(&self, now: i64) {
+        lock(&self.workers).retain(|id, w| {
+            let keep = now - w.last_seen_ms < WORKER_FORGET_MS;
+            if !keep {
+                tracing::info!(worker = %id, name = %w.name, "worker forgotten (not seen for 10 minutes)");
+            }
+            keep
+        });
+    }
+
     /// Opens the store and restores every job from it.
     pub fn open(config: Config) -> Result<Arc<Self>, store::StoreError> {
-        let store = Store::open(&config.data_dir)?;
+        let store = Store::open(&config.data_dir, config.max_db_bytes)?;
         let mut farm = Farm::default();
         for job in store.load_jobs()? {
             if !job.state.is_final() {
@@ -113,29 +151,6 @@ impl Shared {
             work_available: tokio::sync::Notify::new(),
             started: std::time::Instant::now(),
         }))
-    }
-
-    /// Writes the final EXR of a completed job and marks it done.
-    pub fn finish_job(&self, job: &mut Job) {
-        let sums = job.image();
-        let image = renderer::image_io::FinalImage::from_sums(&sums);
-        match image.exr_bytes(&renderer::image_io::standard_attributes(&job.spec.settings, &sums, job.stop_reason())) {
-            Ok(bytes) => {
-                job.state = JobState::Done;
-                job.finished_ms = Some(now_ms());
-                if let Err(e) = lock(&self.store).finish_job(job, &bytes) {
-                    tracing::error!(job = %job.id, error = %e, "cannot store the finished image");
-                    job.state = JobState::Failed;
-                    job.error = Some(format!("cannot store the finished image: {e}"));
-                }
-            }
-            Err(e) => {
-                job.state = JobState::Failed;
-                job.error = Some(format!("cannot encode the EXR: {e}"));
-                let _ = lock(&self.store).update_job_state(job);
-            }
-        }
-        tracing::info!(job = %job.id, state = job.state.as_str(), "job finished");
     }
 }
 
@@ -166,16 +181,14 @@ pub async fn serve_on(
         let mut tick = tokio::time::interval(Duration::from_millis(250));
         loop {
             tick.tick().await;
-            let expired = {
-                let mut farm = lock(&s.farm);
-                // Jobs a time budget closed between results have nothing left to wait for.
-                for id in farm.finished_jobs() {
-                    if let Some(job) = farm.jobs.get_mut(&id) {
-                        s.finish_job(job);
-                    }
-                }
-                farm.expire(now_ms())
-            };
+            // Jobs a time budget closed between results (or whose image could not be stored
+            // yet) have nothing left to wait for: finish them, outside the farm lock.
+            let finished = lock(&s.farm).finished_jobs(now_ms());
+            for id in finished {
+                s.finish_job(&id);
+            }
+            let expired = lock(&s.farm).expire(now_ms());
+            s.prune_workers(now_ms());
             if !expired.is_empty() {
                 lock(&s.metrics).units_expired += expired.len() as u64;
                 for (job, worker) in &expired {
@@ -185,18 +198,9 @@ pub async fn serve_on(
             }
         }
     });
-    let app = rest::router(shared.clone()).merge(grpc::router(shared.clone()));
-    tracing::info!(addr = %listener.local_addr()?, tls = tls.is_some(), "coordinator listening (REST, web, gRPC)");
-    if let Some(cfg) = tls {
-        axum::serve(tls::TlsListener { inner: listener, acceptor: tokio_rustls::TlsAcceptor::from(cfg) }, app).await?;
-        return Ok(());
-    }
-    // TCP_NODELAY: a streamed result (header, then data) would otherwise stall ~40 ms per unit
-    // on Nagle's algorithm meeting delayed ACKs.
-    use axum::serve::ListenerExt;
-    let listener = listener.tap_io(|tcp| {
-        let _ = tcp.set_nodelay(true);
-    });
-    axum::serve(listener, app).await?;
+    let app = rest::router(shared.clone()).merge(grpc::router(shared.clone())).fallback(rest::not_found);
+    tracing::info!(addr = %listener.local_addr()?, tls = tls.is_some(), max_connections = shared.config.conn.max_connections, "coordinator listening (REST, web, gRPC)");
+    let acceptor = tls.map(tokio_rustls::TlsAcceptor::from);
+    conn::serve(listener, acceptor, app, shared.config.conn).await?;
     Ok(())
 }

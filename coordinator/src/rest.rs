@@ -1,5 +1,6 @@
 //! The REST API (`/api/v1`, JSON, bearer token), the web page, `/metrics` and the OpenAPI document.
 
+use crate::service::ServiceError;
 use crate::state::{Job, JobSpec, JobState};
 use crate::{lock, now_ms, Shared};
 use axum::body::Bytes;
@@ -10,8 +11,7 @@ use axum::routing::{get, post};
 use axum::{Json, Router};
 use renderer::bundle::SceneBundle;
 use renderer::image_io::FinalImage;
-use renderer::sampler::SamplerKind;
-use renderer::{IntegratorKind, MisHeuristic, PixelFilter, RenderSettings};
+use renderer::settings_request::{SceneFacts, SettingsLimits, SettingsRequest};
 use serde_json::{json, Value};
 use sha2::Digest;
 use std::sync::Arc;
@@ -37,12 +37,13 @@ pub fn router(shared: Arc<Shared>) -> Router {
     let limit = shared.config.limits.max_upload_bytes;
     let api = Router::new()
         .route("/jobs", post(submit).get(list_jobs))
-        .route("/jobs/{id}", get(get_job).delete(cancel_job))
+        .route("/jobs/{id}", get(get_job).delete(delete_job))
         .route("/jobs/{id}/cancel", post(cancel_job))
         .route("/jobs/{id}/image.exr", get(download))
         .route("/jobs/{id}/preview.png", get(preview))
         .route("/workers", get(list_workers))
         .layer(axum::middleware::from_fn_with_state(shared.clone(), auth))
+        .layer(axum::middleware::from_fn_with_state(shared.clone(), upload_guard))
         .layer(DefaultBodyLimit::max(limit));
     Router::new()
         .route("/", get(|| async { Html(crate::web::PAGE) }))
@@ -52,6 +53,36 @@ pub fn router(shared: Arc<Shared>) -> Router {
         .nest("/api/v1", api)
         .with_state(shared)
 }
+
+/// Answer for any path that is neither REST, the page, metrics nor the workers' gRPC service.
+pub async fn not_found(uri: axum::http::Uri) -> ApiError {
+    err(StatusCode::NOT_FOUND, format!("no such resource: {}", uri.path()))
+}
+
+/// Refuses an upload whose declared length is over the limit before any of it is read, and bounds
+/// the time a request may take (a client trickling its body cannot hold a connection forever).
+async fn upload_guard(State(s): S, req: axum::extract::Request, next: axum::middleware::Next) -> Response {
+    let limit = s.config.limits.max_upload_bytes;
+    let declared =
+        req.headers().get(header::CONTENT_LENGTH).and_then(|v| v.to_str().ok()).and_then(|v| v.parse::<u64>().ok());
+    if let Some(n) = declared.filter(|&n| n > limit as u64 + 64 * 1024) {
+        return err(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            format!("upload of {n} bytes exceeds the limit of {limit} bytes (TESSERA_MAX_UPLOAD_MB)"),
+        )
+        .into_response();
+    }
+    match tokio::time::timeout(REQUEST_TIMEOUT, next.run(req)).await {
+        Ok(r) => r,
+        Err(_) => {
+            err(StatusCode::REQUEST_TIMEOUT, format!("request not completed within {} s", REQUEST_TIMEOUT.as_secs()))
+                .into_response()
+        }
+    }
+}
+
+/// Longest a REST request (an upload included) may take.
+pub const REQUEST_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(600);
 
 async fn auth(State(s): S, req: axum::extract::Request, next: axum::middleware::Next) -> Response {
     if let Some(token) = &s.config.token {
@@ -67,36 +98,6 @@ async fn auth(State(s): S, req: axum::extract::Request, next: axum::middleware::
     next.run(req).await
 }
 
-/// Render settings a client may send; unknown fields are refused.
-#[derive(serde::Deserialize, Default)]
-#[serde(deny_unknown_fields)]
-struct SubmitSettings {
-    name: Option<String>,
-    priority: Option<i32>,
-    spp: Option<u32>,
-    width: Option<u32>,
-    height: Option<u32>,
-    camera: Option<usize>,
-    integrator: Option<IntegratorKind>,
-    mis_heuristic: Option<MisHeuristic>,
-    sampler: Option<SamplerKind>,
-    seed: Option<u64>,
-    max_depth: Option<u32>,
-    rr_depth: Option<u32>,
-    filter: Option<PixelFilter>,
-    env_color: Option<[f32; 3]>,
-    env_strength: Option<f32>,
-    env_rotate: Option<f32>,
-    env_sampling: Option<bool>,
-    light_sampler: Option<renderer::light::LightSamplerKind>,
-    pass_spp: Option<u32>,
-    /// Seconds; with it (or a noise target) `spp` is a cap, by default the farm's spp limit.
-    time_budget: Option<f64>,
-    /// Relative standard error each tile must reach (adaptive sampling).
-    noise_target: Option<f64>,
-    min_spp: Option<u32>,
-}
-
 async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Value>), ApiError> {
     let limits = s.config.limits.clone();
     if lock(&s.farm).queued_jobs() >= limits.max_queued_jobs {
@@ -106,7 +107,7 @@ async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Va
         ));
     }
     let mut files: Vec<(String, Vec<u8>)> = Vec::new();
-    let mut settings = SubmitSettings::default();
+    let mut settings = SettingsRequest::default();
     let mut total = 0usize;
     let mut env_map: Option<String> = None;
     loop {
@@ -168,99 +169,52 @@ async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Va
     let bundle = SceneBundle { main, files };
     bundle.validate().map_err(|e| err(StatusCode::UNPROCESSABLE_ENTITY, e))?;
 
+    // Farm-level fields first: they need no scene.
+    let (name, priority) = settings.job_fields().map_err(|e| err(StatusCode::UNPROCESSABLE_ENTITY, e.to_string()))?;
     // Check the scene loads here, so a broken file is refused now rather than failing on workers.
-    let dir = s.config.data_dir.join("tmp").join(format!("upload-{}-{}", now_ms(), std::process::id()));
+    let dir = s.config.data_dir.join("tmp").join(format!("upload-{}", crate::new_id("u")));
     let b = bundle.clone();
     let d = dir.clone();
-    let env_default = renderer::environment::EnvironmentSettings::default();
-    let environment = renderer::environment::EnvironmentSettings {
-        map: env_map,
-        color: settings.env_color,
-        strength: settings.env_strength.unwrap_or(env_default.strength),
-        rotate_deg: settings.env_rotate.unwrap_or(env_default.rotate_deg),
-        sampling: settings.env_sampling.unwrap_or(env_default.sampling),
-    };
-    let env = environment.clone();
-    let loaded = tokio::task::spawn_blocking(move || -> Result<Option<f32>, String> {
+    let env_probe =
+        renderer::environment::EnvironmentSettings { map: env_map.clone(), color: None, ..Default::default() };
+    let loaded = tokio::task::spawn_blocking(move || -> Result<Vec<Option<f32>>, String> {
         let main = b.unpack(&d).map_err(|e| format!("cannot unpack the scene: {e}"))?;
         let strip = |e: String| e.replace(&format!("{}/", d.display()), "");
         let mut scene = renderer::gltf_loader::load(&main).map_err(|e| strip(e.to_string()))?;
-        scene.attach_environment(&env, &d).map_err(|e| strip(e.to_string()))?;
-        Ok(scene.camera(None).ok().and_then(|c| c.aspect_ratio))
+        scene.attach_environment(&env_probe, &d).map_err(|e| strip(e.to_string()))?;
+        Ok(scene.cameras.iter().map(|c| c.aspect_ratio).collect())
     })
     .await
-    .map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
+    .map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()));
     let _ = std::fs::remove_dir_all(&dir);
-    let aspect = loaded.map_err(|e| err(StatusCode::UNPROCESSABLE_ENTITY, e))?;
-
-    let d = RenderSettings::default();
-    let (width, height) = renderer::settings::image_size(aspect, settings.width, settings.height);
-    let rs = RenderSettings {
-        width,
-        height,
-        spp: settings.spp.unwrap_or(if settings.time_budget.is_some() || settings.noise_target.is_some() {
-            limits.max_spp.min(renderer::budget::BUDGET_SPP_CAP)
-        } else {
-            d.spp
-        }),
-        pass_spp: settings.pass_spp.unwrap_or(d.pass_spp),
-        integrator: settings.integrator.unwrap_or(d.integrator),
-        mis_heuristic: settings.mis_heuristic.unwrap_or(d.mis_heuristic),
-        sampler: settings.sampler.unwrap_or(d.sampler),
-        seed: settings.seed.unwrap_or(d.seed),
-        max_depth: settings.max_depth.unwrap_or(d.max_depth),
-        rr_depth: settings.rr_depth.unwrap_or(d.rr_depth),
-        camera: settings.camera,
-        filter: settings.filter.unwrap_or(d.filter),
-        environment,
-        light_sampler: settings.light_sampler.unwrap_or(d.light_sampler),
-        noise_target: settings.noise_target,
-        min_spp: settings.min_spp.unwrap_or(d.min_spp),
-        time_budget: settings.time_budget,
+    let aspects = loaded?.map_err(|e| err(StatusCode::UNPROCESSABLE_ENTITY, e))?;
+    let facts = SceneFacts {
+        cameras: aspects.len(),
+        aspect: match settings.camera {
+            Some(c) => aspects.get(c as usize).copied().flatten(),
+            None => aspects.first().copied().flatten(),
+        },
     };
-    rs.validate().map_err(|e| err(StatusCode::UNPROCESSABLE_ENTITY, e))?;
-    if rs.width > limits.max_side || rs.height > limits.max_side {
-        return Err(err(
-            StatusCode::UNPROCESSABLE_ENTITY,
-            format!("resolution {}x{} exceeds this farm's limit of {} per side", rs.width, rs.height, limits.max_side),
-        ));
-    }
-    if rs.spp > limits.max_spp {
-        return Err(err(
-            StatusCode::UNPROCESSABLE_ENTITY,
-            format!("spp {} exceeds this farm's limit of {}", rs.spp, limits.max_spp),
-        ));
-    }
+    let farm_limits = SettingsLimits { max_side: limits.max_side, max_spp: limits.max_spp };
+    let rs = settings
+        .resolve(facts, env_map, farm_limits)
+        .map_err(|e| err(StatusCode::UNPROCESSABLE_ENTITY, e.to_string()))?;
     let encoded = bundle.encode();
     let hash = hex::encode(sha2::Sha256::digest(&encoded));
-    let id = format!("j{}", now_ms());
-    let id = {
-        let farm = lock(&s.farm);
-        let mut id = id;
-        while farm.jobs.contains_key(&id) {
-            id.push('x');
-        }
-        id
-    };
-    let spec = JobSpec {
-        name: settings.name.unwrap_or_else(|| bundle.main.clone()),
-        scene_hash: hash,
-        settings: rs,
-        priority: settings.priority.unwrap_or(0),
-    };
-    let job = Job::new(id.clone(), spec, now_ms());
-    {
-        let store = lock(&s.store);
-        store
-            .put_scene(&job.spec.scene_hash, &encoded)
-            .map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
-        store.put_job(&job).map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
-    }
-    let body = job_json(&job);
-    lock(&s.farm).add_job(job);
-    s.work_available.notify_waiters();
-    tracing::info!(job = %id, "job submitted");
+    let spec = JobSpec { name: name.unwrap_or_else(|| bundle.main.clone()), scene_hash: hash, settings: rs, priority };
+    let shared = s.clone();
+    let id = tokio::task::spawn_blocking(move || shared.submit_job(spec, &encoded))
+        .await
+        .map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
+        .map_err(service_err)?;
+    let body = lock(&s.farm).jobs.get(&id).map(job_json).unwrap_or(Value::Null);
     Ok((StatusCode::CREATED, Json(body)))
+}
+
+/// The HTTP answer to a refused service call.
+fn service_err(e: ServiceError) -> ApiError {
+    let status = StatusCode::from_u16(e.status()).unwrap_or(StatusCode::INTERNAL_SERVER_ERROR);
+    err(status, e.to_string())
 }
 
 /// A file part of the upload: its file name and bytes (bounded by the body limit layer).
@@ -296,12 +250,18 @@ fn job_json(j: &Job) -> Value {
         eta_s = Some(eta_s.unwrap_or(f64::INFINITY).min((b - spent).max(0.0)));
     }
     let noise = j.noise();
-    let worst = renderer::noise::worst(&j.tile_sums);
+    let worst = j
+        .tiles
+        .iter()
+        .zip(j.tile_noise())
+        .filter(|(_, e)| e.rel_mse.is_finite())
+        .max_by(|a, b| a.1.rel_mse.total_cmp(&b.1.rel_mse))
+        .map(|(r, e)| (*r, *e));
     json!({
         "id": j.id,
         "name": j.spec.name,
         "state": j.state.as_str(),
-        "error": j.error,
+        "error": j.error.clone().or_else(|| j.finish_error.clone()),
         "priority": j.spec.priority,
         "scene_hash": j.spec.scene_hash,
         "submitted_ms": j.submitted_ms,
@@ -333,13 +293,13 @@ fn job_json(j: &Job) -> Value {
 /// Per-tile noise of a job (only on the single-job resource: a large image has thousands of tiles).
 fn tiles_json(j: &Job) -> Value {
     let tiles: Vec<Value> = j
-        .tile_sums
+        .tiles
         .iter()
+        .zip(j.tile_noise())
         .zip(j.folded.iter().zip(&j.planned))
-        .map(|(t, (f, p))| {
-            let e = renderer::noise::estimate(t);
+        .map(|((r, e), (f, p))| {
             json!({
-                "x0": t.rect.x0, "y0": t.rect.y0, "width": t.rect.width, "height": t.rect.height,
+                "x0": r.x0, "y0": r.y0, "width": r.width, "height": r.height,
                 "spp": e.spp_max, "passes_done": f, "passes_planned": p,
                 "rel_error": e.rel_error.is_finite().then_some(e.rel_error),
             })
@@ -362,13 +322,33 @@ async fn get_job(State(s): S, Path(id): Path<String>) -> Result<Json<Value>, Api
 }
 
 async fn cancel_job(State(s): S, Path(id): Path<String>) -> Result<Json<Value>, ApiError> {
-    let mut farm = lock(&s.farm);
-    let job = farm.cancel(&id, now_ms()).ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no job '{id}'")))?;
-    let body = job_json(job);
-    if job.state == JobState::Cancelled {
-        let _ = lock(&s.store).update_job_state(job);
-    }
+    let shared = s.clone();
+    let i = id.clone();
+    tokio::task::spawn_blocking(move || shared.cancel_job(&i))
+        .await
+        .map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
+        .map_err(service_err)?;
+    s.work_available.notify_waiters();
+    let body = lock(&s.farm)
+        .jobs
+        .get(&id)
+        .map(job_json)
+        .ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no job '{id}'")))?;
     Ok(Json(body))
+}
+
+/// `DELETE /jobs/{id}`: removes the job and its data (cancelling it first if it still runs).
+async fn delete_job(State(s): S, Path(id): Path<String>) -> Result<Json<Value>, ApiError> {
+    let shared = s.clone();
+    let i = id.clone();
+    tokio::task::spawn_blocking(move || {
+        shared.cancel_job(&i)?;
+        shared.delete_job(&i)
+    })
+    .await
+    .map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
+    .map_err(service_err)?;
+    Ok(Json(json!({ "id": id, "deleted": true })))
 }
 
 async fn download(State(s): S, Path(id): Path<String>) -> Result<Response, ApiError> {
@@ -383,20 +363,38 @@ async fn download(State(s): S, Path(id): Path<String>) -> Result<Response, ApiEr
             format!("job '{id}' is {}, not done: no image yet (the preview is at /preview.png)", state.as_str()),
         ));
     }
-    let exr = lock(&s.store)
-        .image(&id)
+    let shared = s.clone();
+    let i = id.clone();
+    let exr = tokio::task::spawn_blocking(move || lock(&shared.store).image(&i))
+        .await
+        .map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
         .map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
         .ok_or_else(|| err(StatusCode::NOT_FOUND, "image missing"))?;
     Ok(([(header::CONTENT_TYPE, "image/x-exr")], Bytes::from(exr)).into_response())
 }
 
 async fn preview(State(s): S, Path(id): Path<String>) -> Result<Response, ApiError> {
-    let img = {
+    // A running job's image is copied out under the lock and encoded outside it; a finished one's
+    // preview was stored when it finished (its accumulation is no longer in memory).
+    let image = {
         let farm = lock(&s.farm);
         let job = farm.jobs.get(&id).ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no job '{id}'")))?;
-        FinalImage::from_sums(&job.image())
+        (!job.released).then(|| job.image())
     };
-    let png = img.png_bytes(0.0).map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e))?;
+    let shared = s.clone();
+    let png = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, ApiError> {
+        match image {
+            Some(img) => {
+                FinalImage::from_sums(&img).png_bytes(0.0).map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e))
+            }
+            None => lock(&shared.store)
+                .preview(&id)
+                .map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
+                .ok_or_else(|| err(StatusCode::NOT_FOUND, format!("job '{id}' has no stored preview"))),
+        }
+    })
+    .await
+    .map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))??;
     Ok(([(header::CONTENT_TYPE, "image/png")], Bytes::from(png)).into_response())
 }
 
@@ -436,8 +434,45 @@ async fn metrics(State(s): S) -> Response {
     let m = lock(&s.metrics);
     let up = s.started.elapsed().as_secs_f64().max(1e-3);
     out += &format!(
-        "tessera_units_merged_total {}\ntessera_units_rejected_total {}\ntessera_leases_expired_total {}\ntessera_samples_merged_total {}\ntessera_samples_per_second {:.1}\ntessera_merge_seconds_sum {:.6}\ntessera_merge_seconds_count {}\n",
-        m.units_merged, m.units_rejected, m.units_expired, m.samples_merged, m.samples_merged as f64 / up, m.merge_seconds_sum, m.units_merged
+        "tessera_units_merged_total {}\ntessera_units_rejected_total {}\ntessera_leases_expired_total {}\ntessera_samples_merged_total {}\ntessera_samples_per_second {:.1}\ntessera_merge_seconds_sum {:.6}\ntessera_merge_seconds_count {}\ntessera_results_refused_not_leased_total {}\ntessera_heartbeats_refused_total {}\ntessera_storage_errors_total {}\n",
+        m.units_merged, m.units_rejected, m.units_expired, m.samples_merged, m.samples_merged as f64 / up, m.merge_seconds_sum, m.units_merged,
+        m.results_forged, m.heartbeats_refused, m.storage_errors
     );
     ([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], out).into_response()
+}
+
+#[cfg(test)]
+mod tests {
+    use renderer::settings_request::{SettingsRequest, FIELDS};
+    use serde_json::Value;
+
+    /// A request with every field set, to list the schema's field names.
+    fn full_request() -> SettingsRequest {
+        serde_json::from_str(
+            r#"{"name":"n","priority":1,"spp":1,"width":1,"height":1,"camera":0,"integrator":"mis","mis_heuristic":"power",
+               "sampler":"sobol","seed":1,"max_depth":1,"rr_depth":1,"filter":"box","env_color":[1,1,1],"env_strength":1,
+               "env_rotate":0,"env_sampling":true,"light_sampler":"auto","pass_spp":1,"time_budget":1,"noise_target":0.1,"min_spp":2}"#,
+        )
+        .expect("every field")
+    }
+
+    /// The OpenAPI document's settings schema is checked against the one settings schema
+    /// (renderer/src/settings_request.rs): same fields, same bounds, same defaults.
+    #[test]
+    fn openapi_settings_match_the_settings_schema() {
+        let doc: Value = serde_json::from_str(super::OPENAPI).expect("openapi.json parses");
+        let props = doc["components"]["schemas"]["Settings"]["properties"].as_object().expect("Settings properties");
+        let full = serde_json::to_value(full_request()).expect("encodes");
+        let mut ours: Vec<&String> = full.as_object().expect("object").keys().collect();
+        let mut theirs: Vec<&String> = props.keys().collect();
+        ours.sort();
+        theirs.sort();
+        assert_eq!(ours, theirs, "OpenAPI settings properties differ from SettingsRequest's fields");
+        for f in FIELDS {
+            let p = &props[f.name];
+            assert_eq!(p["minimum"].as_f64(), Some(f.min), "{}: minimum", f.name);
+            assert_eq!(p["maximum"].as_f64(), Some(f.max), "{}: maximum", f.name);
+            assert_eq!(p.get("default").and_then(Value::as_f64), f.default, "{}: default", f.name);
+        }
+    }
 }

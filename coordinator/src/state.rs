@@ -73,7 +73,9 @@ pub struct WorkUnit {
     pub unit_id: String,
     pub job_id: String,
     pub scene_hash: String,
-    pub settings: RenderSettings,
+    /// The job's settings as JSON, serialised once per job (not per unit).
+    pub settings_json: std::sync::Arc<str>,
+    pub scene_size: u64,
     pub rect: Rect,
     pub samples: Range<u32>,
     pub deadline_ms: i64,
@@ -102,6 +104,25 @@ pub struct Job {
     waiting: Vec<BTreeMap<u32, PartialSums>>,
     /// Per tile: passes leased and not yet returned.
     leases: Vec<BTreeMap<u32, Lease>>,
+    /// Per tile: passes whose lease expired and nobody holds now, with the worker that held it:
+    /// only that worker may still heartbeat or return them (a late result is still good work).
+    lapsed: Vec<BTreeMap<u32, String>>,
+    /// Per tile: the noise estimate of its folded sums, kept current at every fold so that job
+    /// listings never walk the pixels.
+    tile_noise: Vec<noise::NoiseEstimate>,
+    /// The settings as sent to workers, serialised once.
+    pub settings_json: std::sync::Arc<str>,
+    /// Size of the scene bundle in bytes (workers are told it with each unit).
+    pub scene_size: u64,
+    /// True once a finished job's accumulation has been dropped from memory (its image and
+    /// preview are on disk).
+    pub released: bool,
+    /// Set while the finished image is being encoded and stored outside the farm lock.
+    pub finishing: bool,
+    /// The last storage failure while finishing (retried by the tick; nothing is lost meanwhile).
+    pub finish_error: Option<String>,
+    /// After a failed finish, not before this time (ms).
+    pub finish_retry_ms: i64,
     /// Passes of which at least one unit was leased: the boundary a time budget stops at.
     started_passes: u32,
     /// Set when the time budget closed the job.
@@ -117,9 +138,19 @@ impl Job {
         let s = &spec.settings;
         let tiles = Rect::tiles(s.width, s.height, TILE);
         let n = tiles.len();
+        let unknown = noise::NoiseEstimate { rel_mse: f64::INFINITY, rel_error: f64::INFINITY, spp_min: 0, spp_max: 0 };
         Job {
             id,
-            tile_sums: tiles.iter().map(|t| PartialSums::new(*t)).collect(),
+            lapsed: vec![BTreeMap::new(); n],
+            tile_noise: vec![unknown; n],
+            settings_json: serde_json::to_string(s).unwrap_or_default().into(),
+            scene_size: 0,
+            released: false,
+            finishing: false,
+            finish_error: None,
+            finish_retry_ms: 0,
+            // Storage is allocated at a tile's first fold: a queued job costs no image memory.
+            tile_sums: tiles.iter().map(|t| PartialSums::unallocated(*t)).collect(),
             folded: vec![0; n],
             planned: vec![s.pass_count(); n],
             waiting: vec![BTreeMap::new(); n],
@@ -147,6 +178,7 @@ impl Job {
         }
         self.folded[tile] = folded;
         self.tile_sums[tile] = sums;
+        self.tile_noise[tile] = noise::estimate(&self.tile_sums[tile]);
         if !budget::tile_needs_more(&self.spec.settings, &self.tile_sums[tile], folded) {
             self.planned[tile] = folded;
         }
@@ -171,7 +203,9 @@ impl Job {
         let s = &self.spec.settings;
         (0..self.tiles.len())
             .filter(|&t| {
-                self.folded[t] < s.pass_count() && !budget::tile_needs_more(s, &self.tile_sums[t], self.folded[t])
+                self.tile_sums[t].is_allocated()
+                    && self.folded[t] < s.pass_count()
+                    && !budget::tile_needs_more(s, &self.tile_sums[t], self.folded[t])
             })
             .count()
     }
@@ -212,16 +246,52 @@ impl Job {
     pub fn image(&self) -> PartialSums {
         let s = &self.spec.settings;
         let mut img = PartialSums::new(Rect { x0: 0, y0: 0, width: s.width, height: s.height });
-        for t in &self.tile_sums {
-            // Tiles come from Rect::tiles of this very image, so they always fit.
+        for t in self.tile_sums.iter().filter(|t| t.is_allocated()) {
+            // Tiles come from Rect::tiles of this very image, so they always fit (a released job's
+            // tiles are empty and skipped).
             let _ = img.merge_tile(t);
         }
         img
     }
 
     /// The image's estimated noise (see `renderer::noise`); `None` before every pixel has two samples.
+    /// Combined from the per-tile estimates kept at each fold (pixel-weighted), so it costs one step
+    /// per tile, not per pixel.
     pub fn noise(&self) -> Option<noise::NoiseEstimate> {
-        Some(noise::estimate(&self.image())).filter(|e| e.rel_mse.is_finite())
+        let (mut total, mut n) = (0.0f64, 0usize);
+        let (mut spp_min, mut spp_max) = (u32::MAX, 0u32);
+        for (t, e) in self.tiles.iter().zip(&self.tile_noise) {
+            total += e.rel_mse * t.pixels() as f64;
+            n += t.pixels();
+            spp_min = spp_min.min(e.spp_min);
+            spp_max = spp_max.max(e.spp_max);
+        }
+        let rel_mse = total / n.max(1) as f64;
+        rel_mse.is_finite().then(|| noise::NoiseEstimate { rel_mse, rel_error: rel_mse.sqrt(), spp_min, spp_max })
+    }
+
+    /// The per-tile noise estimates (kept current at each fold).
+    pub fn tile_noise(&self) -> &[noise::NoiseEstimate] {
+        &self.tile_noise
+    }
+
+    /// True when some tile holds samples.
+    pub fn has_samples(&self) -> bool {
+        self.tile_sums.iter().any(PartialSums::is_allocated)
+    }
+
+    /// Drops the accumulation of a finished job (its image and preview are stored by then, its
+    /// checkpoints are on disk): memory follows work in flight, not jobs ever submitted.
+    pub fn release(&mut self) {
+        for t in &mut self.tile_sums {
+            *t = PartialSums::unallocated(t.rect);
+        }
+        for t in 0..self.tiles.len() {
+            self.waiting[t].clear();
+            self.leases[t].clear();
+            self.lapsed[t].clear();
+        }
+        self.released = true;
     }
 
     /// Closes the job at the passes already started when another pass would not fit in its time
@@ -247,6 +317,16 @@ impl Job {
         let plan = self.planned[t];
         self.leases[t].retain(|&p, _| p < plan);
         self.waiting[t].retain(|&p, _| p < plan);
+        self.lapsed[t].retain(|&p, _| p < plan);
+    }
+
+    /// True when `worker` may return or heartbeat pass `pass` of tile `t`: it holds the lease, or
+    /// held it until it expired and nobody has taken it since.
+    fn may_return(&self, worker: &str, t: usize, pass: u32) -> bool {
+        match self.leases[t].get(&pass) {
+            Some(l) => l.worker == worker,
+            None => self.lapsed[t].get(&pass).is_some_and(|w| w == worker),
+        }
     }
 
     /// The next unit in pass-major order: the lowest pending pass of any tile, tiles in order.
@@ -275,6 +355,16 @@ impl Job {
     }
 }
 
+/// A tile's folded state, taken before a merge (see `Farm::snapshot_tile`).
+pub struct TileSnapshot {
+    job: String,
+    tile: usize,
+    folded: u32,
+    planned: u32,
+    sums: PartialSums,
+    noise: noise::NoiseEstimate,
+}
+
 /// Why a submitted result was not merged.
 #[derive(Debug, PartialEq)]
 pub enum SubmitOutcome {
@@ -287,6 +377,9 @@ pub enum SubmitOutcome {
     Stale,
     /// The result is malformed; the worker is now on the job's bad list and the unit is re-queued.
     Rejected(String),
+    /// The caller does not hold the unit's lease (a forged or misdirected result): refused, and
+    /// the honest holder keeps its lease.
+    NotLeased(String),
 }
 
 #[derive(Default)]
@@ -327,6 +420,7 @@ impl Farm {
             job.last_served = self.serve_counter;
             let deadline_ms = now_ms + lease_ms;
             job.leases[tile].insert(pass, Lease { worker: worker.to_string(), deadline_ms });
+            job.lapsed[tile].remove(&pass);
             job.started_passes = job.started_passes.max(pass + 1);
             if job.state == JobState::Queued {
                 job.state = JobState::Running;
@@ -336,7 +430,8 @@ impl Farm {
                 unit_id: job.unit_id(pass, tile),
                 job_id: job.id.clone(),
                 scene_hash: job.spec.scene_hash.clone(),
-                settings: job.spec.settings.clone(),
+                settings_json: job.settings_json.clone(),
+                scene_size: job.scene_size,
                 rect: job.tiles[tile],
                 samples: job.spec.settings.pass_range(pass),
                 deadline_ms,
@@ -347,8 +442,43 @@ impl Farm {
 
     /// Unfinished jobs whose every tile holds its planned passes (closed by a time budget between
     /// results, or restored complete): the caller writes their images.
-    pub fn finished_jobs(&self) -> Vec<String> {
-        self.jobs.values().filter(|j| !j.state.is_final() && j.is_complete()).map(|j| j.id.clone()).collect()
+    pub fn finished_jobs(&self, now_ms: i64) -> Vec<String> {
+        self.jobs
+            .values()
+            .filter(|j| !j.state.is_final() && !j.finishing && j.is_complete() && now_ms >= j.finish_retry_ms)
+            .map(|j| j.id.clone())
+            .collect()
+    }
+
+    /// The folded state of the tile a unit belongs to, to undo a merge whose checkpoint could not
+    /// be written (so memory never gets ahead of disk).
+    pub fn snapshot_tile(&self, unit_id: &str) -> Option<TileSnapshot> {
+        let (job_id, idx) = Self::parse_unit(unit_id)?;
+        let job = self.jobs.get(job_id)?;
+        let (_, tile) = job.locate(idx)?;
+        Some(TileSnapshot {
+            job: job_id.to_string(),
+            tile,
+            folded: job.folded[tile],
+            planned: job.planned[tile],
+            sums: job.tile_sums[tile].clone(),
+            noise: job.tile_noise[tile],
+        })
+    }
+
+    /// Undoes a merge: the tile returns to the snapshot; the passes folded since are pending again
+    /// (they will be leased and rendered anew: the same bits, by the determinism rule).
+    pub fn restore_snapshot(&mut self, snap: TileSnapshot) {
+        let Some(job) = self.jobs.get_mut(&snap.job) else { return };
+        let t = snap.tile;
+        if t >= job.tiles.len() {
+            return;
+        }
+        job.folded[t] = snap.folded;
+        job.planned[t] = snap.planned;
+        job.tile_sums[t] = snap.sums;
+        job.tile_noise[t] = snap.noise;
+        job.waiting[t].retain(|&p, _| p >= snap.folded);
     }
 
     fn parse_unit(unit_id: &str) -> Option<(&str, u64)> {
@@ -375,11 +505,14 @@ impl Farm {
                 Some(deadline_ms)
             }
             Some(_) => None,
-            // Our lease expired but nobody else took the unit yet: take it back.
-            None => {
+            // Our lease expired but nobody else took the unit yet: take it back. Anyone else (a
+            // worker that never held it) gets nothing.
+            None if job.lapsed[t].get(&pass).is_some_and(|w| w == worker) => {
+                job.lapsed[t].remove(&pass);
                 job.leases[t].insert(pass, Lease { worker: worker.to_string(), deadline_ms });
                 Some(deadline_ms)
             }
+            None => None,
         }
     }
 
@@ -393,6 +526,7 @@ impl Farm {
                     job.leases[t].iter().filter(|(_, l)| l.deadline_ms < now_ms).map(|(&p, _)| p).collect();
                 for p in gone {
                     let Some(lease) = job.leases[t].remove(&p) else { continue };
+                    job.lapsed[t].insert(p, lease.worker.clone());
                     let n = job.failures.entry(lease.worker.clone()).or_insert(0);
                     *n += 1;
                     if *n >= MAX_WORKER_FAILURES {
@@ -435,6 +569,13 @@ impl Farm {
         if pass >= job.planned[tile] {
             return SubmitOutcome::Stale;
         }
+        if !job.may_return(worker, tile, pass) {
+            let holder = job.leases[tile].get(&pass).map(|l| l.worker.clone());
+            return SubmitOutcome::NotLeased(match holder {
+                Some(h) => format!("unit {unit_id} is leased to worker {h}, not to {worker}"),
+                None => format!("unit {unit_id} was never leased to worker {worker}"),
+            });
+        }
         let expected = job.spec.settings.pass_range(pass).len() as u32;
         let checked = sums.and_then(|s| {
             if s.rect != job.tiles[tile] {
@@ -454,14 +595,19 @@ impl Farm {
             }
         };
         job.leases[tile].remove(&pass);
+        job.lapsed[tile].remove(&pass);
         job.waiting[tile].insert(pass, sums);
         let mut changed = false;
         while job.folded[tile] < job.planned[tile] {
             let Some(next) = job.waiting[tile].remove(&job.folded[tile]) else { break };
-            // Folding in pass order: determinism rule 3.
+            // Folding in pass order: determinism rule 3 (from zeros, as `render` does).
+            if !job.tile_sums[tile].is_allocated() {
+                job.tile_sums[tile] = PartialSums::new(job.tiles[tile]);
+            }
             let _ = job.tile_sums[tile].merge(&next);
             job.folded[tile] += 1;
             changed = true;
+            job.tile_noise[tile] = noise::estimate(&job.tile_sums[tile]);
             // Adaptive sampling: the decision depends on this tile's folded sums alone.
             if !budget::tile_needs_more(&job.spec.settings, &job.tile_sums[tile], job.folded[tile]) {
                 job.planned[tile] = job.folded[tile];
@@ -547,17 +693,46 @@ mod tests {
     }
 
     #[test]
+    fn results_and_heartbeats_need_the_lease() {
+        let mut f = Farm::default();
+        f.add_job(job("a", 0, 1));
+        let u = f.lease("honest", 0, 1000).unwrap();
+        // Finding 3 of issue 11: a registered worker returned tiles it never leased, and a
+        // heartbeat on a unit nobody leased granted a lease.
+        let forged = f.submit("mallory", &u.unit_id, Ok(sums(u.rect, 4, 9.0)), 0);
+        assert!(matches!(forged, SubmitOutcome::NotLeased(ref m) if m.contains("honest")), "{forged:?}");
+        let never = "a/3"; // pass 1 of tile 1: nobody holds it
+        assert!(matches!(
+            f.submit("mallory", never, Ok(sums(f.jobs["a"].tiles[1], 4, 9.0)), 0),
+            SubmitOutcome::NotLeased(_)
+        ));
+        assert_eq!(f.heartbeat("mallory", never, 0, 1000), None);
+        assert_eq!(f.heartbeat("mallory", &u.unit_id, 0, 1000), None);
+        assert!(!f.jobs["a"].bad_workers.contains("honest"));
+        // The honest holder is unaffected and merges.
+        assert!(matches!(f.submit("honest", &u.unit_id, Ok(sums(u.rect, 4, 1.0)), 0), SubmitOutcome::Merged { .. }));
+        // After an expiry only the previous holder may take a lapsed unit back.
+        let v = f.lease("slow", 0, 10).unwrap();
+        f.expire(100);
+        assert_eq!(f.heartbeat("mallory", &v.unit_id, 100, 1000), None);
+        assert!(f.heartbeat("slow", &v.unit_id, 100, 1000).is_some());
+    }
+
+    #[test]
     fn bad_results_blacklist_the_worker_and_requeue_the_unit() {
         let mut f = Farm::default();
         f.add_job(job("a", 0, 1));
-        let u = f.lease("liar", 0, 1000).unwrap();
-        let mut bad = sums(u.rect, 4, 1.0);
+        let units: Vec<WorkUnit> = (0..3).map(|_| f.lease("liar", 0, 1000).unwrap()).collect();
+        let mut bad = sums(units[0].rect, 4, 1.0);
         bad.sum_rgb[3][1] = f64::NAN;
-        assert!(matches!(f.submit("liar", &u.unit_id, Ok(bad), 0), SubmitOutcome::Rejected(_)));
+        assert!(matches!(f.submit("liar", &units[0].unit_id, Ok(bad), 0), SubmitOutcome::Rejected(_)));
         let wrong = sums(Rect { x0: 0, y0: 0, width: 3, height: 3 }, 4, 1.0);
-        assert!(matches!(f.submit("liar", &u.unit_id, Ok(wrong), 0), SubmitOutcome::Rejected(_)));
-        let short = sums(u.rect, 3, 1.0);
-        assert!(matches!(f.submit("liar", &u.unit_id, Ok(short), 0), SubmitOutcome::Rejected(_)));
+        assert!(matches!(f.submit("liar", &units[1].unit_id, Ok(wrong), 0), SubmitOutcome::Rejected(_)));
+        let short = sums(units[2].rect, 3, 1.0);
+        assert!(matches!(f.submit("liar", &units[2].unit_id, Ok(short), 0), SubmitOutcome::Rejected(_)));
+        // Its rejected unit is no longer its own: trying again is refused as not leased.
+        let u = &units[0];
+        assert!(matches!(f.submit("liar", &u.unit_id, Ok(sums(u.rect, 4, 1.0)), 0), SubmitOutcome::NotLeased(_)));
         assert!(f.jobs["a"].bad_workers.contains("liar"));
         assert!(f.lease("liar", 0, 1000).is_none(), "a bad worker gets no more units of the job");
         let again = f.lease("honest", 0, 1000).unwrap();
@@ -607,19 +782,18 @@ mod tests {
         let mut rounds = 0;
         while f.jobs["a"].state != JobState::Done && rounds < 100 {
             rounds += 1;
-            let mut units: Vec<WorkUnit> = (0..workers).filter_map(|w| f.lease(&format!("w{w}"), 0, 1000)).collect();
+            let mut units: Vec<(String, WorkUnit)> =
+                (0..workers).filter_map(|w| f.lease(&format!("w{w}"), 0, 1000).map(|u| (format!("w{w}"), u))).collect();
             if order_reversed {
                 units.reverse();
             }
             if units.is_empty() {
                 break;
             }
-            for (k, u) in units.iter().enumerate() {
+            for (w, u) in &units {
                 let n = u.samples.len() as u32;
                 let sums = if u.rect.x0 == 0 { noisy(u.rect, n, 0.99, 1.01) } else { noisy(u.rect, n, 0.0, 2.0) };
-                if let SubmitOutcome::Merged { job_complete: true, .. } =
-                    f.submit(&format!("w{k}"), &u.unit_id, Ok(sums), 0)
-                {
+                if let SubmitOutcome::Merged { job_complete: true, .. } = f.submit(w, &u.unit_id, Ok(sums), 0) {
                     f.jobs.get_mut("a").unwrap().state = JobState::Done;
                 }
             }

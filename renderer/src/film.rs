@@ -47,6 +47,17 @@ impl PartialSums {
         PartialSums { rect, sum_rgb: vec![[0.0; 3]; n], sum_lum_sq: vec![0.0; n], count: vec![0; n] }
     }
 
+    /// Sums for `rect` that hold no storage yet (a queued or finished farm job's tile): memory
+    /// follows work in flight. `is_allocated` tells them apart; merging needs `new`.
+    pub fn unallocated(rect: Rect) -> Self {
+        PartialSums { rect, sum_rgb: Vec::new(), sum_lum_sq: Vec::new(), count: Vec::new() }
+    }
+
+    /// True when the per-pixel storage exists (see `unallocated`).
+    pub fn is_allocated(&self) -> bool {
+        self.count.len() == self.rect.pixels()
+    }
+
     /// Adds one sample to pixel `i` (index within the rect).
     #[inline]
     pub fn add_sample(&mut self, i: usize, l: Vec3) {

@@ -52,6 +52,7 @@ pub mod render;
 pub mod sampler;
 pub mod scene;
 pub mod settings;
+pub mod settings_request;
 pub mod stats;
 pub mod testing;
 pub mod texture;

@@ -3,6 +3,7 @@
 
 pub use renderer;
 pub use worker;
+pub use {proto, rusqlite};
 
 use serde_json::Value;
 use std::path::{Path, PathBuf};
@@ -11,6 +12,10 @@ use std::time::{Duration, Instant};
 
 /// The `tessera` binary built alongside these tests (target/<profile>/tessera).
 pub fn tessera_bin() -> PathBuf {
+    // Benchmarks may measure another build (e.g. the previous release) in the same harness.
+    if let Some(b) = std::env::var_os("TESSERA_BIN") {
+        return PathBuf::from(b);
+    }
     let exe = std::env::current_exe().expect("test executable path");
     let dir = exe.parent().and_then(Path::parent).expect("target dir");
     let bin = dir.join("tessera");
@@ -94,7 +99,12 @@ impl Farm {
         let child = Command::new(tessera_bin())
             .args(["coordinator", "--listen", &format!("127.0.0.1:{}", self.port), "--data-dir"])
             .arg(&self.data_dir)
-            .args(["--lease-seconds", "1.5", "--max-side", "4096"])
+            .args(["--lease-seconds", "1.5"])
+            .args(if self.env.iter().any(|(k, _)| k == "TESSERA_MAX_SIDE") {
+                &[][..]
+            } else {
+                &["--max-side", "4096"][..]
+            })
             .envs(self.env.iter().map(|(k, v)| (k.as_str(), v.as_str())))
             .env("TESSERA_LOG", "info")
             .stdout(Stdio::null())

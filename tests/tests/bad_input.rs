@@ -24,7 +24,7 @@ fn bad_requests_get_clear_4xx_answers_and_the_coordinator_keeps_serving() {
         ("truncated glb", tok, vec![("cut.glb", glb[..glb.len() / 3].to_vec())], "{}", 422, "cut.glb"),
         ("unknown settings field", tok, vec![("c.glb", glb.clone())], r#"{"spp": 4, "colour": "red"}"#, 400, "colour"),
         ("malformed settings", tok, vec![("c.glb", glb.clone())], "{spp:", 400, "settings JSON"),
-        ("spp 0", tok, vec![("c.glb", glb.clone())], r#"{"spp": 0}"#, 422, "spp 0"),
+        ("spp 0", tok, vec![("c.glb", glb.clone())], r#"{"spp": 0}"#, 422, "settings.spp"),
         (
             "resolution over the limit",
             tok,

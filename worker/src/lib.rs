@@ -197,8 +197,17 @@ async fn session(
             sample_end: samples.end,
             payload_size: payload.len() as u64,
         };
-        let reply = submit(client, header, payload).await?;
-        tracing::info!(unit = %unit.unit_id, seconds = t.elapsed().as_secs_f64(), accepted = reply.accepted, message = %reply.message, "unit done");
+        match submit(client, header, payload).await {
+            Ok(reply) => {
+                tracing::info!(unit = %unit.unit_id, seconds = t.elapsed().as_secs_f64(), accepted = reply.accepted, message = %reply.message, "unit done");
+            }
+            // The lease went to someone else, the result was refused, or the coordinator could
+            // not store it (it re-leases the unit): this unit is over, the session is not.
+            Err(s) if matches!(s.code(), Code::PermissionDenied | Code::InvalidArgument | Code::Unavailable) => {
+                tracing::warn!(unit = %unit.unit_id, code = ?s.code(), error = %s.message(), "result not merged");
+            }
+            Err(s) => return Err(s),
+        }
     }
     Ok(())
 }

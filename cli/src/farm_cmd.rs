@@ -42,6 +42,11 @@ pub struct CoordinatorArgs {
     /// disk: 507, nothing stored is lost). Default: as large as the disk allows.
     #[arg(long, env = "TESSERA_MAX_DB_MB")]
     pub max_db_mb: Option<u64>,
+    /// Most image pixels of running jobs at once: a queued job starts only while it fits beside the
+    /// running ones (or when none runs). The coordinator holds 36 bytes a pixel in flight, so the
+    /// default 2^28 (268 Mpx, e.g. four 8192² frames) bounds that at 9.7 GB. 0: no limit.
+    #[arg(long, default_value_t = 1 << 28, env = "TESSERA_MAX_PIXELS_IN_FLIGHT")]
+    pub max_pixels_in_flight: u64,
     /// Seconds a client has to send a request's headers (HTTP/1).
     #[arg(long, default_value_t = 10.0, env = "TESSERA_HEADER_TIMEOUT_SECONDS")]
     pub header_timeout_seconds: f64,
@@ -73,6 +78,7 @@ pub fn coordinator(a: CoordinatorArgs) -> Result<()> {
             ..Default::default()
         },
         max_db_bytes: a.max_db_mb.map(|m| m << 20),
+        max_pixels_in_flight: a.max_pixels_in_flight,
     };
     let rt = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
     rt.block_on(async move {

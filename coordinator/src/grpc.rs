@@ -83,6 +83,7 @@ impl Farm for FarmService {
                 last_seen_ms: now_ms(),
                 units_done: 0,
                 units_rejected: 0,
+                settings_sent: Default::default(),
             },
         );
         Ok(Response::new(RegisterReply { worker_id: id, lease_ms: self.shared.config.lease.as_millis() as u32 }))
@@ -98,13 +99,21 @@ impl Farm for FarmService {
             let unit =
                 lock(&self.shared.farm).lease(&r.worker_id, now_ms(), self.shared.config.lease.as_millis() as i64);
             if let Some(u) = unit {
+                // Settings travel once per job and registration: the worker keeps them by job id.
+                let first = lock(&self.shared.workers).get_mut(&r.worker_id).is_some_and(|w| {
+                    if w.settings_sent.len() > 4096 {
+                        w.settings_sent.clear();
+                    }
+                    w.settings_sent.insert(u.job_id.clone())
+                });
+                let settings_json = if first { u.settings_json.to_string() } else { String::new() };
                 return Ok(Response::new(LeaseReply {
                     unit: Some(WorkUnit {
                         unit_id: u.unit_id,
                         job_id: u.job_id,
                         scene_hash: u.scene_hash,
                         scene_size: u.scene_size,
-                        settings_json: u.settings_json.to_string(),
+                        settings_json,
                         rect: Some(to_proto_rect(u.rect)),
                         sample_start: u.samples.start,
                         sample_end: u.samples.end,

@@ -54,6 +54,8 @@ pub struct Config {
     pub conn: conn::ConnLimits,
     /// Largest database size (`TESSERA_MAX_DB_MB`); None: as large as the disk allows.
     pub max_db_bytes: Option<u64>,
+    /// Most pixels of running jobs at once (`TESSERA_MAX_PIXELS_IN_FLIGHT`; 0: no limit).
+    pub max_pixels_in_flight: u64,
 }
 
 #[derive(Clone, Debug, serde::Serialize)]
@@ -66,6 +68,9 @@ pub struct WorkerInfo {
     pub last_seen_ms: i64,
     pub units_done: u64,
     pub units_rejected: u64,
+    /// Jobs whose settings this registration was sent (they travel once per job).
+    #[serde(skip)]
+    pub settings_sent: std::collections::HashSet<String>,
 }
 
 /// Counters exported on /metrics.
@@ -136,6 +141,7 @@ impl Shared {
     pub fn open(config: Config) -> Result<Arc<Self>, store::StoreError> {
         let store = Store::open(&config.data_dir, config.max_db_bytes)?;
         let mut farm = Farm::default();
+        farm.max_pixels_in_flight = config.max_pixels_in_flight;
         for job in store.load_jobs()? {
             if !job.state.is_final() {
                 tracing::info!(job = %job.id, done = job.units_done(), total = job.unit_count(), "resuming job from checkpoint");

@@ -110,6 +110,9 @@ pub struct Job {
     /// Per tile: the noise estimate of its folded sums, kept current at every fold so that job
     /// listings never walk the pixels.
     tile_noise: Vec<noise::NoiseEstimate>,
+    /// Per tile: stopped before the cap because it met its noise target (kept at each fold, so it
+    /// survives the accumulation being released).
+    converged: Vec<bool>,
     /// The settings as sent to workers, serialised once.
     pub settings_json: std::sync::Arc<str>,
     /// Size of the scene bundle in bytes (workers are told it with each unit).
@@ -142,6 +145,7 @@ impl Job {
         Job {
             id,
             lapsed: vec![BTreeMap::new(); n],
+            converged: vec![false; n],
             tile_noise: vec![unknown; n],
             settings_json: serde_json::to_string(s).unwrap_or_default().into(),
             scene_size: 0,
@@ -181,6 +185,7 @@ impl Job {
         self.tile_noise[tile] = noise::estimate(&self.tile_sums[tile]);
         if !budget::tile_needs_more(&self.spec.settings, &self.tile_sums[tile], folded) {
             self.planned[tile] = folded;
+            self.converged[tile] = folded < self.spec.settings.pass_count();
         }
         self.started_passes = self.started_passes.max(folded);
     }
@@ -200,14 +205,7 @@ impl Job {
 
     /// Tiles that stopped before the sample cap because they met the noise target.
     pub fn tiles_converged(&self) -> usize {
-        let s = &self.spec.settings;
-        (0..self.tiles.len())
-            .filter(|&t| {
-                self.tile_sums[t].is_allocated()
-                    && self.folded[t] < s.pass_count()
-                    && !budget::tile_needs_more(s, &self.tile_sums[t], self.folded[t])
-            })
-            .count()
+        self.converged.iter().filter(|&&c| c).count()
     }
 
     /// Pixel-samples folded into the image so far, and planned in total.
@@ -273,6 +271,11 @@ impl Job {
     /// The per-tile noise estimates (kept current at each fold).
     pub fn tile_noise(&self) -> &[noise::NoiseEstimate] {
         &self.tile_noise
+    }
+
+    /// Pixels of the image (what its accumulation costs, at 36 bytes each).
+    pub fn pixels(&self) -> u64 {
+        self.spec.settings.width as u64 * self.spec.settings.height as u64
     }
 
     /// True when some tile holds samples.
@@ -363,6 +366,7 @@ pub struct TileSnapshot {
     planned: u32,
     sums: PartialSums,
     noise: noise::NoiseEstimate,
+    converged: bool,
 }
 
 /// Why a submitted result was not merged.
@@ -386,6 +390,10 @@ pub enum SubmitOutcome {
 pub struct Farm {
     pub jobs: BTreeMap<String, Job>,
     serve_counter: u64,
+    /// Most image pixels of running jobs at once (`--max-pixels-in-flight`; 0: no limit). A queued
+    /// job starts only while it fits beside the running ones (or when nothing runs), so the
+    /// coordinator's accumulation memory (36 bytes a pixel) is bounded by this, not by the queue.
+    pub max_pixels_in_flight: u64,
 }
 
 impl Farm {
@@ -398,10 +406,14 @@ impl Farm {
     /// first pending unit in pass-major order. A job whose time budget allows no further pass is
     /// closed at its started passes instead (see `finished_jobs`).
     pub fn lease(&mut self, worker: &str, now_ms: i64, lease_ms: i64) -> Option<WorkUnit> {
+        let running: u64 =
+            self.jobs.values().filter(|j| j.state == JobState::Running && !j.released).map(Job::pixels).sum();
+        let limit = self.max_pixels_in_flight;
         let mut candidates: Vec<&mut Job> = self
             .jobs
             .values_mut()
             .filter(|j| !j.state.is_final() && !j.bad_workers.contains(worker) && j.next_pending().is_some())
+            .filter(|j| j.state != JobState::Queued || limit == 0 || running == 0 || running + j.pixels() <= limit)
             .collect();
         candidates.sort_by(|a, b| {
             b.spec
@@ -463,6 +475,7 @@ impl Farm {
             planned: job.planned[tile],
             sums: job.tile_sums[tile].clone(),
             noise: job.tile_noise[tile],
+            converged: job.converged[tile],
         })
     }
 
@@ -478,6 +491,7 @@ impl Farm {
         job.planned[t] = snap.planned;
         job.tile_sums[t] = snap.sums;
         job.tile_noise[t] = snap.noise;
+        job.converged[t] = snap.converged;
         job.waiting[t].retain(|&p, _| p >= snap.folded);
     }
 
@@ -611,6 +625,7 @@ impl Farm {
             // Adaptive sampling: the decision depends on this tile's folded sums alone.
             if !budget::tile_needs_more(&job.spec.settings, &job.tile_sums[tile], job.folded[tile]) {
                 job.planned[tile] = job.folded[tile];
+                job.converged[tile] = job.folded[tile] < job.spec.settings.pass_count();
             }
         }
         job.drop_beyond_plan(tile);
@@ -716,6 +731,25 @@ mod tests {
         f.expire(100);
         assert_eq!(f.heartbeat("mallory", &v.unit_id, 100, 1000), None);
         assert!(f.heartbeat("slow", &v.unit_id, 100, 1000).is_some());
+    }
+
+    #[test]
+    fn pixels_in_flight_bound_the_jobs_that_start() {
+        let mut f = Farm { max_pixels_in_flight: 1000, ..Farm::default() };
+        f.add_job(job("a", 0, 1)); // 40 × 20 = 800 pixels
+        f.add_job(job("b", 0, 2));
+        assert_eq!(f.lease("w", 0, 1000).unwrap().job_id, "a");
+        // b would make 1600 pixels in flight: it waits while a runs.
+        for _ in 0..3 {
+            assert_eq!(f.lease("w", 0, 1000).unwrap().job_id, "a");
+        }
+        assert!(f.lease("w", 0, 1000).is_none());
+        f.cancel("a", 0);
+        assert_eq!(f.lease("w", 0, 1000).unwrap().job_id, "b");
+        // Nothing running: even a job over the limit starts (alone).
+        let mut g = Farm { max_pixels_in_flight: 10, ..Farm::default() };
+        g.add_job(job("c", 0, 1));
+        assert!(g.lease("w", 0, 1000).is_some());
     }
 
     #[test]

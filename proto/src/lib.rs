@@ -8,4 +8,5 @@ pub mod v1 {
 
 /// Bumped whenever the protocol or the meaning of a work unit changes; workers with another value
 /// are refused at registration.
-pub const PROTOCOL_VERSION: u32 = 1;
+/// 2: `WorkUnit.settings_json` is sent once per job and registration (empty afterwards).
+pub const PROTOCOL_VERSION: u32 = 2;

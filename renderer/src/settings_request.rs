@@ -149,9 +149,11 @@ fn int(name: &'static str, v: Option<u64>, cap: Option<u64>) -> Result<Option<u3
     let Some(v) = v else { return Ok(None) };
     let s = spec(name);
     let max = cap.map_or(s.max, |c| (c as f64).min(s.max));
+    if (v as f64) > max && max < s.max {
+        return Err(bad(s.name, format!("{v} is over this farm's limit of {max}")));
+    }
     if (v as f64) < s.min || (v as f64) > max {
-        let why = if cap.is_some_and(|c| (c as f64) < s.max) && v as f64 > max { " (this farm's limit)" } else { "" };
-        return Err(bad(s.name, format!("{v} is outside {}..={max}{why}", s.min)));
+        return Err(bad(s.name, format!("{v} is outside {}..={max}", s.min)));
     }
     Ok(Some(v as u32))
 }

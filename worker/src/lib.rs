@@ -135,6 +135,7 @@ async fn session(
         .into_inner();
     tracing::info!(worker = %reg.worker_id, "registered");
     let lease_ms = reg.lease_ms.max(1000) as u64;
+    let mut settings_by_job: std::collections::HashMap<String, RenderSettings> = std::collections::HashMap::new();
     while !stop.load(Ordering::Relaxed) {
         let reply = match client.lease(LeaseRequest { worker_id: reg.worker_id.clone(), wait_ms: 2000 }).await {
             Ok(r) => r.into_inner(),
@@ -143,11 +144,29 @@ async fn session(
             Err(s) => return Err(s),
         };
         let Some(unit) = reply.unit else { continue };
-        let settings: RenderSettings = match serde_json::from_str(&unit.settings_json) {
-            Ok(s) => s,
-            Err(e) => {
-                tracing::error!(unit = %unit.unit_id, error = %e, "bad settings in the unit");
-                continue;
+        // Settings come with a job's first unit of this registration; later units name the job.
+        let settings: RenderSettings = if unit.settings_json.is_empty() {
+            match settings_by_job.get(&unit.job_id) {
+                Some(s) => s.clone(),
+                None => {
+                    return Err(Status::unavailable(format!("no settings for job {}: registering again", unit.job_id)))
+                }
+            }
+        } else {
+            match serde_json::from_str(&unit.settings_json) {
+                Ok(s) => {
+                    if settings_by_job.len() >= 256 {
+                        settings_by_job.clear();
+                        // The coordinator will not send them again to this registration.
+                        return Err(Status::unavailable("settings cache full: registering again"));
+                    }
+                    settings_by_job.insert(unit.job_id.clone(), s);
+                    settings_by_job[&unit.job_id].clone()
+                }
+                Err(e) => {
+                    tracing::error!(unit = %unit.unit_id, error = %e, "bad settings in the unit");
+                    continue;
+                }
             }
         };
         let scene = match scene_for(config, client, &reg.worker_id, &unit, &settings, loaded).await {

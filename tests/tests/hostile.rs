@@ -313,6 +313,15 @@ fn half_open_connections_do_not_starve_the_coordinator() {
     let (code, ctype, _) = http(&farm.url, "GET", "/no/such/path", None);
     assert_eq!(code, 404);
     assert!(ctype.starts_with("application/json"), "{ctype}");
+    // Finding 4: a 600 MB upload is refused on its Content-Length, before any of it is read.
+    let mut s = std::net::TcpStream::connect(("127.0.0.1", farm.port)).expect("connect");
+    s.write_all(b"POST /api/v1/jobs HTTP/1.1\r\nHost: x\r\nContent-Type: multipart/form-data; boundary=b\r\nContent-Length: 629145600\r\n\r\n")
+        .expect("headers");
+    s.set_read_timeout(Some(Duration::from_secs(2))).unwrap();
+    let mut buf = [0u8; 512];
+    let n = s.read(&mut buf).expect("an answer before any body byte was sent");
+    let head = String::from_utf8_lossy(&buf[..n]);
+    assert!(head.starts_with("HTTP/1.1 413"), "{head}");
 }
 
 fn rss_kb(pid: u32) -> u64 {

@@ -206,6 +206,9 @@ pub fn submit(a: SubmitArgs) -> anyhow::Result<()> {
     )?;
     let job: Value = r.body_mut().read_json().map_err(|e| fail(3, format!("bad reply: {e}")))?;
     let id = job["id"].as_str().unwrap_or_default().to_string();
+    for w in job["warnings"].as_array().into_iter().flatten() {
+        eprintln!("warning: {}", w.as_str().unwrap_or_default());
+    }
     if !a.wait {
         println!("{id}");
         return Ok(());

@@ -187,6 +187,9 @@ pub fn run(args: RenderArgs) -> Result<()> {
     let t0 = Instant::now();
     let scene = load_scene(args.scene.as_deref())?;
     let mut scene = scene;
+    for w in &scene.warnings {
+        eprintln!("warning: {w}");
+    }
     let settings = args.flags.settings(&scene)?;
     scene.prepare(&settings, Path::new("."))?;
     let load_time = t0.elapsed();
@@ -230,7 +233,8 @@ pub fn run(args: RenderArgs) -> Result<()> {
     bar.finish_and_clear();
     let image = &result.image;
     let final_image = FinalImage::from_sums(image);
-    final_image.write_exr(&args.output, &renderer::image_io::standard_attributes(&settings, image, result.stop))?;
+    let attrs = renderer::image_io::standard_attributes(&settings, image, result.stop, &scene.warnings);
+    final_image.write_exr(&args.output, &attrs)?;
     if let Some(p) = &args.preview {
         final_image.write_png(p, args.exposure)?;
     }

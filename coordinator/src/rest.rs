@@ -177,17 +177,17 @@ async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Va
     let d = dir.clone();
     let env_probe =
         renderer::environment::EnvironmentSettings { map: env_map.clone(), color: None, ..Default::default() };
-    let loaded = tokio::task::spawn_blocking(move || -> Result<Vec<Option<f32>>, String> {
+    let loaded = tokio::task::spawn_blocking(move || -> Result<(Vec<Option<f32>>, Vec<String>), String> {
         let main = b.unpack(&d).map_err(|e| format!("cannot unpack the scene: {e}"))?;
         let strip = |e: String| e.replace(&format!("{}/", d.display()), "");
         let mut scene = renderer::gltf_loader::load(&main).map_err(|e| strip(e.to_string()))?;
         scene.attach_environment(&env_probe, &d).map_err(|e| strip(e.to_string()))?;
-        Ok(scene.cameras.iter().map(|c| c.aspect_ratio).collect())
+        Ok((scene.cameras.iter().map(|c| c.aspect_ratio).collect(), scene.warnings.clone()))
     })
     .await
     .map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()));
     let _ = std::fs::remove_dir_all(&dir);
-    let aspects = loaded?.map_err(|e| err(StatusCode::UNPROCESSABLE_ENTITY, e))?;
+    let (aspects, warnings) = loaded?.map_err(|e| err(StatusCode::UNPROCESSABLE_ENTITY, e))?;
     let facts = SceneFacts {
         cameras: aspects.len(),
         aspect: match settings.camera {
@@ -201,7 +201,13 @@ async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Va
         .map_err(|e| err(StatusCode::UNPROCESSABLE_ENTITY, e.to_string()))?;
     let encoded = bundle.encode();
     let hash = hex::encode(sha2::Sha256::digest(&encoded));
-    let spec = JobSpec { name: name.unwrap_or_else(|| bundle.main.clone()), scene_hash: hash, settings: rs, priority };
+    let spec = JobSpec {
+        name: name.unwrap_or_else(|| bundle.main.clone()),
+        scene_hash: hash,
+        settings: rs,
+        priority,
+        warnings,
+    };
     let shared = s.clone();
     let id = tokio::task::spawn_blocking(move || shared.submit_job(spec, &encoded))
         .await
@@ -262,6 +268,7 @@ fn job_json(j: &Job) -> Value {
         "name": j.spec.name,
         "state": j.state.as_str(),
         "error": j.error.clone().or_else(|| j.finish_error.clone()),
+        "warnings": j.spec.warnings,
         "priority": j.spec.priority,
         "scene_hash": j.spec.scene_hash,
         "submitted_ms": j.submitted_ms,

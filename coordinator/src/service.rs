@@ -189,17 +189,17 @@ impl Shared {
     /// storing fails (disk full), the job stays running with its accumulation and checkpoints, and
     /// the tick tries again: nothing is lost.
     pub fn finish_job(&self, id: &str) {
-        let (image, settings, stop) = {
+        let (image, settings, stop, warnings) = {
             let mut farm = lock(&self.farm);
             let Some(job) = farm.jobs.get_mut(id) else { return };
             if job.state.is_final() || job.finishing || job.released || !job.is_complete() {
                 return;
             }
             job.finishing = true;
-            (job.image(), job.spec.settings.clone(), job.stop_reason())
+            (job.image(), job.spec.settings.clone(), job.stop_reason(), job.spec.warnings.clone())
         };
         let encoded = renderer::image_io::FinalImage::from_sums(&image);
-        let exr = encoded.exr_bytes(&renderer::image_io::standard_attributes(&settings, &image, stop));
+        let exr = encoded.exr_bytes(&renderer::image_io::standard_attributes(&settings, &image, stop, &warnings));
         let png = encoded.png_bytes(0.0).unwrap_or_default();
         drop(image);
         let finished_ms = now_ms();

@@ -58,6 +58,9 @@ pub struct JobSpec {
     pub scene_hash: String,
     pub settings: RenderSettings,
     pub priority: i32,
+    /// What the scene is rendered without (optional extensions), as `tessera render` reports it.
+    #[serde(default)]
+    pub warnings: Vec<String>,
 }
 
 /// A unit handed to a worker and not yet returned.
@@ -658,7 +661,11 @@ mod tests {
 
     fn job(id: &str, priority: i32, t: i64) -> Job {
         let settings = RenderSettings { width: 40, height: 20, spp: 8, pass_spp: 4, ..RenderSettings::default() };
-        Job::new(id.into(), JobSpec { name: id.into(), scene_hash: "h".into(), settings, priority }, t)
+        Job::new(
+            id.into(),
+            JobSpec { name: id.into(), scene_hash: "h".into(), settings, priority, warnings: Vec::new() },
+            t,
+        )
     }
 
     fn sums(rect: Rect, n: u32, v: f32) -> PartialSums {
@@ -805,7 +812,11 @@ mod tests {
             time_budget,
             ..RenderSettings::default()
         };
-        Job::new(id.into(), JobSpec { name: id.into(), scene_hash: "h".into(), settings, priority: 0 }, 0)
+        Job::new(
+            id.into(),
+            JobSpec { name: id.into(), scene_hash: "h".into(), settings, priority: 0, warnings: Vec::new() },
+            0,
+        )
     }
 
     /// Plays a noise-target job to the end, returning results in `order` within each round of

@@ -282,5 +282,6 @@ fn quarantine_spec(spec: &str) -> JobSpec {
         scene_hash: String::new(),
         settings: renderer::RenderSettings { width: 1, height: 1, ..Default::default() },
         priority: 0,
+        warnings: Vec::new(),
     })
 }

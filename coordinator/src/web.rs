@@ -9,7 +9,7 @@ body{font:14px system-ui,sans-serif;margin:2em;max-width:1100px;color:#222}
 table{border-collapse:collapse;width:100%}td,th{padding:4px 8px;border-bottom:1px solid #ddd;text-align:left}
 .bar{background:#eee;width:160px;height:10px}.bar div{background:#3a7;height:10px}
 img{max-width:160px;image-rendering:pixelated}input,select{margin-right:6px}
-.err{color:#b00}
+.err{color:#b00} .warn{color:#a60}
 </style></head><body>
 <h1>Tessera render farm</h1>
 <p>Token: <input id="token" type="password" placeholder="TESSERA_TOKEN (if set)"> <span id="msg" class="err"></span></p>
@@ -40,7 +40,7 @@ async function refresh() {
   try {
     const jobs = (await (await api('/jobs')).json()).jobs.reverse();
     document.getElementById('jobs').innerHTML = '<tr><th>job</th><th>state</th><th>progress</th><th>elapsed / ETA</th><th>rel. error</th><th>spp</th><th>preview</th><th></th></tr>' +
-      jobs.map(j => `<tr><td>${esc(j.id)}<br><small>${esc(j.name)}</small></td><td>${esc(j.state)}${j.error ? '<br><span class=err>' + esc(j.error) + '</span>' : ''}</td>
+      jobs.map(j => `<tr><td>${esc(j.id)}<br><small>${esc(j.name)}</small>${(j.warnings || []).map(w => '<br><small class=warn>warning: ' + esc(w) + '</small>').join('')}</td><td>${esc(j.state)}${j.error ? '<br><span class=err>' + esc(j.error) + '</span>' : ''}</td>
       <td><div class=bar><div style="width:${(100*j.progress.fraction).toFixed(1)}%"></div></div>${j.progress.units_done}/${j.progress.units_total} units</td>
       <td>${j.elapsed_s?.toFixed(1) ?? '-'} s / ${j.eta_s?.toFixed(0) ?? '-'} s</td>
       <td>${j.noise.estimated_rel_error?.toExponential(2) ?? '-'}${j.budget.noise_target ? ' / target ' + j.budget.noise_target : ''}</td>

@@ -24,17 +24,29 @@ pub const MAX_TEXTURE_SIDE: u32 = 16384;
 /// Deepest node hierarchy we follow (also guards against cyclic node graphs).
 const MAX_NODE_DEPTH: usize = 256;
 
-/// Extensions this renderer implements. Anything else listed in `extensionsUsed` changes how the
-/// scene should look, so it is refused.
+/// Extensions this renderer implements. Another one in `extensionsRequired` is refused, naming it;
+/// one only in `extensionsUsed` (the file says it renders without it) is ignored with a warning
+/// naming it (`Scene::warnings`: CLI output, EXR header, REST job, web page): never a silent
+/// difference, never a needless refusal.
 const SUPPORTED_EXTENSIONS: &[&str] = &[
     "KHR_materials_emissive_strength",
     "KHR_materials_specular",
     "KHR_materials_ior",
     "KHR_lights_punctual",
     "KHR_materials_transmission",
+    "KHR_texture_transform",
 ];
 /// Extensions that carry only metadata and cannot change the image.
 const HARMLESS_EXTENSIONS: &[&str] = &["KHR_xmp_json_ld", "KHR_xmp"];
+
+/// A texture's KHR_texture_transform, as read from the file.
+#[derive(Clone, Copy, Debug)]
+struct TexTransform {
+    offset: [f32; 2],
+    rotation: f32,
+    scale: [f32; 2],
+    tex_coord: Option<u32>,
+}
 
 /// Loads a scene from a `.glb` or `.gltf` file.
 pub fn load(path: &Path) -> Result<Scene, SceneError> {
@@ -50,11 +62,16 @@ pub fn load_from_bytes(path: &Path, bytes: &[u8]) -> Result<Scene, SceneError> {
     };
     // Extensions first, so that an unsupported one (e.g. Draco compression, whose accessors have no
     // bufferView) is reported by name rather than as the validation errors it causes.
-    loader.check_extensions(bytes)?;
+    let warnings = loader.check_extensions(bytes)?;
     let gltf =
         gltf::Gltf::from_slice(bytes).map_err(|e| SceneError::Parse { path: path.into(), message: e.to_string() })?;
     let buffers = loader.load_buffers(&gltf.document, gltf.blob.as_deref())?;
-    loader.build(&gltf.document, &buffers)
+    let mut scene = loader.build(&gltf.document, &buffers)?;
+    for w in &warnings {
+        tracing::warn!(file = %path.display(), "{w}");
+    }
+    scene.warnings = warnings;
+    Ok(scene)
 }
 
 fn read_bounded(path: &Path, scene: &Path, what: &str) -> Result<Vec<u8>, SceneError> {
@@ -103,7 +120,7 @@ impl Loader {
 
     /// Reads `extensionsUsed`/`extensionsRequired` straight from the JSON (the gltf crate's own
     /// parser already rejects unknown required extensions, with a less helpful message).
-    fn check_extensions(&self, bytes: &[u8]) -> Result<(), SceneError> {
+    fn check_extensions(&self, bytes: &[u8]) -> Result<Vec<String>, SceneError> {
         let json: &[u8] = if bytes.starts_with(b"glTF") {
             match gltf::binary::Glb::from_slice(bytes) {
                 Ok(glb) => return self.check_extension_json(&glb.json),
@@ -115,7 +132,7 @@ impl Loader {
         self.check_extension_json(json)
     }
 
-    fn check_extension_json(&self, json: &[u8]) -> Result<(), SceneError> {
+    fn check_extension_json(&self, json: &[u8]) -> Result<Vec<String>, SceneError> {
         #[derive(serde::Deserialize)]
         struct Extensions {
             #[serde(default, rename = "extensionsUsed")]
@@ -125,12 +142,17 @@ impl Loader {
         }
         let ext: Extensions = serde_json::from_slice(json)
             .map_err(|e| SceneError::Parse { path: self.path.clone(), message: e.to_string() })?;
-        for e in ext.required.iter().chain(&ext.used) {
-            if !SUPPORTED_EXTENSIONS.contains(&e.as_str()) && !HARMLESS_EXTENSIONS.contains(&e.as_str()) {
-                return Err(self.unsupported(format!("extension {e}")));
-            }
+        let modelled = |e: &str| SUPPORTED_EXTENSIONS.contains(&e) || HARMLESS_EXTENSIONS.contains(&e);
+        if let Some(e) = ext.required.iter().find(|e| !modelled(e)) {
+            return Err(self.unsupported(format!("extension {e} (required by the file)")));
         }
-        Ok(())
+        let mut warnings = Vec::new();
+        for e in ext.used.iter().filter(|e| !modelled(e)) {
+            let e: String = e.chars().take(128).collect();
+            warnings.push(format!("extension {e} is not modelled: rendered without it (the file marks it optional)"));
+        }
+        warnings.truncate(64);
+        Ok(warnings)
     }
 
     /// Resolves a URI to bytes: `data:` URIs (base64) or a relative path inside the scene's folder.
@@ -384,24 +406,13 @@ impl Loader {
             }
             None => None,
         };
-        let uvs: Option<Vec<[f32; 2]>> = match prim.get(&gltf::Semantic::TexCoords(0)) {
-            Some(a) => {
-                self.expect_count(
-                    self.check_accessor(
-                        &a,
-                        "TEXCOORD_0",
-                        &[DataType::F32, DataType::U8, DataType::U16],
-                        Dimensions::Vec2,
-                    )?,
-                    n,
-                    "TEXCOORD_0",
-                )?;
-                if a.data_type() != DataType::F32 && !a.normalized() {
-                    return Err(self.unsupported("non-normalized integer TEXCOORD_0"));
-                }
-                reader.read_tex_coords(0).map(|t| t.into_f32().collect())
-            }
-            None => None,
+        let uvs: Option<Vec<[f32; 2]>> = match self.check_tex_coords(prim, 0, n)? {
+            true => reader.read_tex_coords(0).map(|t| t.into_f32().collect()),
+            false => None,
+        };
+        let uvs1: Option<Vec<[f32; 2]>> = match self.check_tex_coords(prim, 1, n)? {
+            true => reader.read_tex_coords(1).map(|t| t.into_f32().collect()),
+            false => None,
         };
         let indices: Vec<u32> = match prim.indices() {
             Some(a) => {
@@ -470,6 +481,14 @@ impl Loader {
             Some(us) => mesh.uvs.extend(us.iter().map(|u| Vec2::from(*u))),
             None => mesh.uvs.extend(std::iter::repeat_n(Vec2::ZERO, n)),
         }
+        // TEXCOORD_1 storage exists only once some primitive has it (most scenes never pay for it).
+        if uvs1.is_some() || !mesh.uvs1.is_empty() {
+            mesh.uvs1.resize(base as usize, Vec2::ZERO);
+            match &uvs1 {
+                Some(us) => mesh.uvs1.extend(us.iter().map(|u| Vec2::from(*u))),
+                None => mesh.uvs1.extend(std::iter::repeat_n(Vec2::ZERO, n)),
+            }
+        }
         let mut f = 0u8;
         if normals.is_some() {
             f |= flags::NORMALS;
@@ -479,6 +498,9 @@ impl Loader {
         }
         if uvs.is_some() {
             f |= flags::UVS;
+        }
+        if uvs1.is_some() {
+            f |= flags::UVS1;
         }
         let first = mesh.triangles.len();
         for t in tris {
@@ -551,7 +573,15 @@ impl Loader {
         let pbr = m.pbr_metallic_roughness();
         let mut tex = |info: Option<gltf::texture::Info>, srgb: bool| -> Result<Option<TextureRef>, SceneError> {
             match info {
-                Some(i) => Ok(Some(self.texture_ref(&i.texture(), i.tex_coord(), srgb, buffers, textures, ids)?)),
+                Some(i) => {
+                    let xf = i.texture_transform().map(|t| TexTransform {
+                        offset: t.offset(),
+                        rotation: t.rotation(),
+                        scale: t.scale(),
+                        tex_coord: t.tex_coord(),
+                    });
+                    Ok(Some(self.texture_ref(&i.texture(), i.tex_coord(), xf, srgb, buffers, textures, ids)?))
+                }
                 None => Ok(None),
             }
         };
@@ -568,7 +598,10 @@ impl Loader {
             None => (1.0, None, Vec3::ONE, None),
         };
         let (normal_texture, normal_scale) = match m.normal_texture() {
-            Some(n) => (Some(self.texture_ref(&n.texture(), n.tex_coord(), false, buffers, textures, ids)?), n.scale()),
+            Some(n) => {
+                let xf = self.raw_transform(n.extensions())?;
+                (Some(self.texture_ref(&n.texture(), n.tex_coord(), xf, false, buffers, textures, ids)?), n.scale())
+            }
             None => (None, 1.0),
         };
         let emissive = Vec3::from(m.emissive_factor()) * m.emissive_strength().unwrap_or(1.0);
@@ -602,7 +635,13 @@ impl Loader {
             transmission: checked(m.transmission().map_or(0.0, |t| t.transmission_factor()), "transmissionFactor")?,
             transmission_texture: match m.transmission().and_then(|t| t.transmission_texture()) {
                 Some(info) => {
-                    Some(self.texture_ref(&info.texture(), info.tex_coord(), false, buffers, textures, ids)?)
+                    let xf = info.texture_transform().map(|t| TexTransform {
+                        offset: t.offset(),
+                        rotation: t.rotation(),
+                        scale: t.scale(),
+                        tex_coord: t.tex_coord(),
+                    });
+                    Some(self.texture_ref(&info.texture(), info.tex_coord(), xf, false, buffers, textures, ids)?)
                 }
                 None => None,
             },
@@ -612,17 +651,90 @@ impl Loader {
         })
     }
 
+    /// Whether the primitive has TEXCOORD_`set`, checked (float, or normalized 8/16-bit; its count
+    /// that of POSITION) before it is read.
+    fn check_tex_coords(&self, prim: &gltf::Primitive, set: u32, n: usize) -> Result<bool, SceneError> {
+        let Some(a) = prim.get(&gltf::Semantic::TexCoords(set)) else { return Ok(false) };
+        let name = format!("TEXCOORD_{set}");
+        self.expect_count(
+            self.check_accessor(&a, &name, &[DataType::F32, DataType::U8, DataType::U16], Dimensions::Vec2)?,
+            n,
+            &name,
+        )?;
+        if a.data_type() != DataType::F32 && !a.normalized() {
+            return Err(self.unsupported(format!("non-normalized integer {name}")));
+        }
+        Ok(true)
+    }
+
+    /// KHR_texture_transform from a texture info's raw extensions (normal and occlusion textures,
+    /// which the gltf crate does not parse it for).
+    fn raw_transform(
+        &self,
+        ext: Option<&serde_json::Map<String, serde_json::Value>>,
+    ) -> Result<Option<TexTransform>, SceneError> {
+        let Some(x) = ext.and_then(|e| e.get("KHR_texture_transform")) else { return Ok(None) };
+        let pair = |k: &str, d: [f32; 2]| -> Result<[f32; 2], SceneError> {
+            match x.get(k) {
+                None => Ok(d),
+                Some(v) => match v.as_array().map(|a| a.iter().map(|c| c.as_f64()).collect::<Vec<_>>()) {
+                    Some(a) if a.len() == 2 && a.iter().all(|c| c.is_some_and(f64::is_finite)) => {
+                        Ok([a[0].unwrap_or(0.0) as f32, a[1].unwrap_or(0.0) as f32])
+                    }
+                    _ => Err(self.invalid(format!("KHR_texture_transform {k} {v} is not two finite numbers"))),
+                },
+            }
+        };
+        let rotation = match x.get("rotation") {
+            None => 0.0,
+            Some(v) => v
+                .as_f64()
+                .filter(|r| r.is_finite())
+                .ok_or_else(|| self.invalid(format!("KHR_texture_transform rotation {v} is not a finite number")))?
+                as f32,
+        };
+        let tex_coord = match x.get("texCoord") {
+            None => None,
+            Some(tc) => Some(
+                tc.as_u64()
+                    .ok_or_else(|| self.invalid(format!("KHR_texture_transform texCoord {tc}")))?
+                    .min(u32::MAX as u64) as u32,
+            ),
+        };
+        Ok(Some(TexTransform {
+            offset: pair("offset", [0.0, 0.0])?,
+            rotation,
+            scale: pair("scale", [1.0, 1.0])?,
+            tex_coord,
+        }))
+    }
+
+    #[allow(clippy::too_many_arguments)] // the texture, how it is addressed, and the tables being filled
     fn texture_ref(
         &self,
         t: &gltf::Texture,
         tex_coord: u32,
+        xf: Option<TexTransform>,
         srgb: bool,
         buffers: &[Vec<u8>],
         textures: &mut Vec<Texture>,
         ids: &mut HashMap<(usize, bool), u32>,
     ) -> Result<TextureRef, SceneError> {
-        if tex_coord != 0 {
-            return Err(self.unsupported(format!("texCoord {tex_coord} (only TEXCOORD_0 is supported)")));
+        // KHR_texture_transform (on any texture slot): offset, rotation, scale, and a texCoord that
+        // overrides the slot's own.
+        let (mut set, mut transform) = (tex_coord, None);
+        if let Some(x) = xf {
+            if !(x.offset.iter().chain(&x.scale).all(|v| v.is_finite()) && x.rotation.is_finite()) {
+                return Err(self.invalid(format!(
+                    "KHR_texture_transform offset {:?} rotation {} scale {:?} is not finite",
+                    x.offset, x.rotation, x.scale
+                )));
+            }
+            transform = Some(crate::texture::texture_transform(x.offset, x.rotation, x.scale));
+            set = x.tex_coord.unwrap_or(set);
+        }
+        if set > 1 {
+            return Err(self.unsupported(format!("texCoord {set} (TEXCOORD_0 and TEXCOORD_1 are supported)")));
         }
         let image = t.source();
         let key = (image.index(), srgb);
@@ -642,7 +754,7 @@ impl Loader {
             gltf::texture::WrappingMode::Repeat => Wrap::Repeat,
         };
         let s = t.sampler();
-        Ok(TextureRef { texture: id, wrap_s: wrap(s.wrap_s()), wrap_t: wrap(s.wrap_t()) })
+        Ok(TextureRef { texture: id, wrap_s: wrap(s.wrap_s()), wrap_t: wrap(s.wrap_t()), set: set as u8, transform })
     }
 
     fn decode_image(&self, image: &gltf::Image, srgb: bool, buffers: &[Vec<u8>]) -> Result<Texture, SceneError> {

@@ -20,10 +20,14 @@ pub const SPP_CHANNEL: &str = "spp";
 /// [`crate::noise`]) and of every tile (`tiles=x0,y0,spp,rel_error;...` over the [`TILE`] grid).
 /// One attribute, because the EXR writer keeps custom attributes in a hash map whose order would
 /// vary.
+/// The EXR attributes of a result: `tessera` (settings, budget outcome, noise), and
+/// `tessera_warnings` when the scene had any (what was rendered without, e.g. an optional
+/// extension), so a file says how it differs from what its scene asked for.
 pub fn standard_attributes(
     s: &crate::RenderSettings,
     image: &PartialSums,
     stop: StopReason,
+    warnings: &[String],
 ) -> Vec<(&'static str, String)> {
     // The map by file name only: a local path and the farm's bundle path name the same file.
     let mut env = s.environment.clone();
@@ -36,7 +40,7 @@ pub fn standard_attributes(
             format!("{},{},{},{:.4e}", t.x0, t.y0, e.spp_max, e.rel_error)
         })
         .collect();
-    vec![(
+    let mut attrs = vec![(
         "tessera",
         format!(
             "version={} width={} height={} spp={} pass_spp={} integrator={:?} mis_heuristic={:?} sampler={:?} seed={} max_depth={} rr_depth={} camera={:?} filter={:?} environment={:?} light_sampler={:?} noise_target={:?} min_spp={} time_budget={:?} stop={} spp_min={} spp_max={} rel_mse={:.4e} rel_error={:.4e} tiles={}",
@@ -65,7 +69,11 @@ pub fn standard_attributes(
             whole.rel_error,
             tiles.join(";")
         ),
-    )]
+    )];
+    if !warnings.is_empty() {
+        attrs.push(("tessera_warnings", warnings.join("; ")));
+    }
+    attrs
 }
 
 /// Reads one `key=value` field of the `tessera` attribute (values hold no spaces, except inside

@@ -81,7 +81,7 @@ crate::named_choices!(LightSamplerKind, "light sampler", { "auto" => Self::Auto,
 /// Radiance leaving an emissive surface point towards direction `w` (pointing away from the
 /// surface). Emission is one-sided along the winding normal `ng` unless the material is double-sided.
 #[inline]
-pub fn emitted(m: &Material, textures: &[Texture], ng: Vec3, uv: Vec2, w: Vec3) -> Vec3 {
+pub fn emitted(m: &Material, textures: &[Texture], ng: Vec3, uv: crate::texture::TexCoords, w: Vec3) -> Vec3 {
     if !m.is_emissive() || (!m.double_sided && ng.dot(w) <= 0.0) {
         return Vec3::ZERO;
     }

@@ -1,9 +1,9 @@
 //! glTF metallic-roughness materials and their resolution to a [`Bsdf`] at a shading point.
 
 use crate::bsdf::Bsdf;
-use crate::math::{Vec2, Vec3, Vec4};
+use crate::math::{Vec3, Vec4};
 use crate::microfacet::Ggx;
-use crate::texture::{Texture, TextureRef};
+use crate::texture::{TexCoords, Texture, TextureRef};
 
 #[derive(Clone, Debug)]
 pub struct Material {
@@ -71,8 +71,8 @@ impl Default for Material {
 }
 
 #[inline]
-fn lookup(textures: &[Texture], r: &Option<TextureRef>, uv: Vec2) -> Option<Vec4> {
-    r.as_ref().map(|r| textures[r.texture as usize].sample(uv, r))
+fn lookup(textures: &[Texture], r: &Option<TextureRef>, uv: TexCoords) -> Option<Vec4> {
+    r.as_ref().map(|r| textures[r.texture as usize].sample(r.coords(&uv), r))
 }
 
 impl Material {
@@ -81,7 +81,7 @@ impl Material {
     }
 
     /// Coverage at `uv` for MASK and BLEND materials (base color alpha × texture alpha), in [0, 1].
-    pub fn alpha(&self, textures: &[Texture], uv: Vec2) -> f32 {
+    pub fn alpha(&self, textures: &[Texture], uv: TexCoords) -> f32 {
         let mut a = self.base_color.w;
         if let Some(t) = lookup(textures, &self.base_color_texture, uv) {
             a *= t.w;
@@ -94,7 +94,7 @@ impl Material {
     }
 
     /// Emitted radiance at `uv` (front face; the caller decides sidedness).
-    pub fn emission(&self, textures: &[Texture], uv: Vec2) -> Vec3 {
+    pub fn emission(&self, textures: &[Texture], uv: TexCoords) -> Vec3 {
         match lookup(textures, &self.emissive_texture, uv) {
             Some(t) => self.emissive * t.truncate(),
             None => self.emissive,
@@ -103,7 +103,7 @@ impl Material {
 
     /// BSDF parameters at `uv`, with every input clamped to its valid range so that no texture or
     /// factor can produce NaN or energy gain.
-    pub fn bsdf(&self, textures: &[Texture], uv: Vec2) -> Bsdf {
+    pub fn bsdf(&self, textures: &[Texture], uv: TexCoords) -> Bsdf {
         let mut base = self.base_color;
         if let Some(t) = lookup(textures, &self.base_color_texture, uv) {
             base *= t;
@@ -150,7 +150,7 @@ impl Material {
     }
 
     /// Tangent-space normal from the normal texture (scaled as the glTF spec defines), or None.
-    pub fn tangent_space_normal(&self, textures: &[Texture], uv: Vec2) -> Option<Vec3> {
+    pub fn tangent_space_normal(&self, textures: &[Texture], uv: TexCoords) -> Option<Vec3> {
         let t = lookup(textures, &self.normal_texture, uv)?;
         let n =
             Vec3::new((2.0 * t.x - 1.0) * self.normal_scale, (2.0 * t.y - 1.0) * self.normal_scale, 2.0 * t.z - 1.0);

@@ -2,12 +2,15 @@
 //! list at load time, so the accelerator and the lights index one array.
 
 use crate::math::{Vec2, Vec3, Vec4};
+use crate::texture::TexCoords;
 
 /// Per-triangle flags: which vertex attributes the source primitive had.
 pub mod flags {
     pub const NORMALS: u8 = 1;
     pub const TANGENTS: u8 = 2;
     pub const UVS: u8 = 4;
+    /// The primitive has TEXCOORD_1 (in `Mesh::uvs1`).
+    pub const UVS1: u8 = 8;
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -24,6 +27,8 @@ pub struct Mesh {
     /// xyz tangent, w bitangent sign (glTF convention).
     pub tangents: Vec<Vec4>,
     pub uvs: Vec<Vec2>,
+    /// TEXCOORD_1, allocated only once some primitive has it (then parallel to `positions`).
+    pub uvs1: Vec<Vec2>,
     pub triangles: Vec<Triangle>,
 }
 
@@ -37,7 +42,8 @@ pub struct SurfacePoint {
     pub ns: Vec3,
     /// Interpolated tangent (w = handedness), if the primitive has tangents.
     pub tangent: Option<Vec4>,
-    pub uv: Vec2,
+    /// TEXCOORD_0 and TEXCOORD_1.
+    pub uv: TexCoords,
     pub triangle: u32,
 }
 
@@ -53,20 +59,26 @@ impl Mesh {
         0.5 * (b - a).cross(c - a).length()
     }
 
-    /// Position, geometric normal and UV at barycentrics (b1, b2): what light sampling needs.
+    /// Position, geometric normal and UVs at barycentrics (b1, b2): what light sampling needs.
     #[inline]
-    pub fn position_normal_uv(&self, tri: u32, b1: f32, b2: f32) -> (Vec3, Vec3, Vec2) {
+    pub fn position_normal_uv(&self, tri: u32, b1: f32, b2: f32) -> (Vec3, Vec3, TexCoords) {
         let t = &self.triangles[tri as usize];
-        let b0 = 1.0 - b1 - b2;
         let [i0, i1, i2] = [t.v[0] as usize, t.v[1] as usize, t.v[2] as usize];
         let (p0, p1, p2) = (self.positions[i0], self.positions[i1], self.positions[i2]);
         let ng = (p1 - p0).cross(p2 - p0).normalize_or_zero();
-        let uv = if t.flags & flags::UVS != 0 {
-            self.uvs[i0] * b0 + self.uvs[i1] * b1 + self.uvs[i2] * b2
-        } else {
-            Vec2::ZERO
-        };
+        let uv = self.tex_coords(t, b1, b2);
         (p0 + (p1 - p0) * b1 + (p2 - p0) * b2, if ng == Vec3::ZERO { Vec3::Z } else { ng }, uv)
+    }
+
+    /// Both texture coordinate sets of triangle `t` at barycentrics (b1, b2).
+    #[inline]
+    fn tex_coords(&self, t: &Triangle, b1: f32, b2: f32) -> TexCoords {
+        let b0 = 1.0 - b1 - b2;
+        let [i0, i1, i2] = [t.v[0] as usize, t.v[1] as usize, t.v[2] as usize];
+        let lerp = |v: &[Vec2]| v[i0] * b0 + v[i1] * b1 + v[i2] * b2;
+        let uv0 = if t.flags & flags::UVS != 0 { lerp(&self.uvs) } else { Vec2::ZERO };
+        let uv1 = if t.flags & flags::UVS1 != 0 { lerp(&self.uvs1) } else { Vec2::ZERO };
+        TexCoords([uv0, uv1])
     }
 
     /// Surface point at barycentrics (b1, b2) of `tri` (b0 = 1 − b1 − b2).
@@ -91,11 +103,7 @@ impl Mesh {
         } else {
             ng
         };
-        let uv = if t.flags & flags::UVS != 0 {
-            self.uvs[i0] * b0 + self.uvs[i1] * b1 + self.uvs[i2] * b2
-        } else {
-            Vec2::ZERO
-        };
+        let uv = self.tex_coords(t, b1, b2);
         let tangent = (t.flags & flags::TANGENTS != 0)
             .then(|| self.tangents[i0] * b0 + self.tangents[i1] * b1 + self.tangents[i2] * b2);
         SurfacePoint { p, ng, ns, tangent, uv, triangle: tri }

@@ -22,6 +22,8 @@ pub struct Scene {
     pub bounds: (Vec3, Vec3),
     /// Some material is MASK or BLEND (computed once: it is asked on every ray).
     transparent: bool,
+    /// What the loader could not honour but rendered without (optional extensions), for the user.
+    pub warnings: Vec<String>,
 }
 
 impl Scene {
@@ -42,7 +44,17 @@ impl Scene {
         let lights = LightSet::build(&mesh, &materials, &textures, Vec::new(), None, (max - min).length() * 0.5);
         tracing::debug!(triangles = mesh.triangles.len(), lights = lights.lights.len(), "scene built");
         let transparent = materials.iter().any(|m| m.alpha_mode != AlphaMode::Opaque);
-        Scene { mesh, materials, textures, cameras, accel, lights, bounds: (min, max), transparent }
+        Scene {
+            mesh,
+            materials,
+            textures,
+            cameras,
+            accel,
+            lights,
+            bounds: (min, max),
+            transparent,
+            warnings: Vec::new(),
+        }
     }
 
     /// Lights the scene with an environment (rebuilds the light set so NEE can select it).

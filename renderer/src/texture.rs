@@ -16,6 +16,34 @@ pub struct TextureRef {
     pub texture: u32,
     pub wrap_s: Wrap,
     pub wrap_t: Wrap,
+    /// Which TEXCOORD_n set the texture reads (0 or 1).
+    pub set: u8,
+    /// KHR_texture_transform as the 2×3 affine map uv' = [a b c; d e f]·(u, v, 1), if any.
+    pub transform: Option<[f32; 6]>,
+}
+
+impl TextureRef {
+    /// The coordinates this texture is sampled at for a point with texture coordinates `uv`.
+    #[inline]
+    pub fn coords(&self, uv: &TexCoords) -> Vec2 {
+        let p = uv.0[(self.set as usize).min(1)];
+        match self.transform {
+            None => p,
+            Some([a, b, c, d, e, f]) => Vec2::new(a * p.x + b * p.y + c, d * p.x + e * p.y + f),
+        }
+    }
+}
+
+/// The texture coordinate sets of a surface point: TEXCOORD_0 and TEXCOORD_1 (zero where the
+/// primitive has none).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TexCoords(pub [Vec2; 2]);
+
+/// KHR_texture_transform's matrix T·R·S (offset, rotation in radians, scale), as the spec's GLSL
+/// writes it: uv' = offset + R(rotation)·(scale ⊙ uv), R's columns (cos, sin) and (−sin, cos).
+pub fn texture_transform(offset: [f32; 2], rotation: f32, scale: [f32; 2]) -> [f32; 6] {
+    let (s, c) = rotation.sin_cos();
+    [c * scale[0], -s * scale[1], offset[0], s * scale[0], c * scale[1], offset[1]]
 }
 
 pub struct Texture {
@@ -112,7 +140,8 @@ mod tests {
     #[test]
     fn bilinear_hits_texel_centres_and_blends_between() {
         let t = checker();
-        let r = TextureRef { texture: 0, wrap_s: Wrap::ClampToEdge, wrap_t: Wrap::ClampToEdge };
+        let r =
+            TextureRef { texture: 0, wrap_s: Wrap::ClampToEdge, wrap_t: Wrap::ClampToEdge, set: 0, transform: None };
         assert_eq!(t.sample(Vec2::new(0.25, 0.25), &r).x, 0.0);
         assert_eq!(t.sample(Vec2::new(0.75, 0.25), &r).x, 1.0);
         assert!((t.sample(Vec2::new(0.5, 0.25), &r).x - 0.5).abs() < 1e-6);
@@ -121,10 +150,23 @@ mod tests {
     #[test]
     fn srgb_decode() {
         let t = Texture { width: 1, height: 1, texels: vec![[188, 0, 255, 255]], srgb: true };
-        let r = TextureRef { texture: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat };
+        let r = TextureRef { texture: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, set: 0, transform: None };
         let v = t.sample(Vec2::splat(0.5), &r);
         assert!((v.x - 0.5029).abs() < 1e-3, "{v:?}");
         assert_eq!(v.y, 0.0);
         assert!((v.z - 1.0).abs() < 1e-6);
+    }
+
+    /// KHR_texture_transform as the spec's GLSL writes it: T·R·S, R with columns (cos, sin) and
+    /// (−sin, cos); and the texCoord set chosen per texture.
+    #[test]
+    fn texture_transform_follows_the_spec() {
+        let m = texture_transform([0.5, 0.0], std::f32::consts::FRAC_PI_2, [2.0, 1.0]);
+        let r = TextureRef { texture: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, set: 1, transform: Some(m) };
+        // (1, 0) on set 1: scaled to (2, 0), rotated to (0, 2), offset to (0.5, 2).
+        let p = r.coords(&TexCoords([Vec2::new(9.0, 9.0), Vec2::new(1.0, 0.0)]));
+        assert!((p - Vec2::new(0.5, 2.0)).length() < 1e-6, "{p:?}");
+        let plain = TextureRef { set: 0, transform: None, ..r };
+        assert_eq!(plain.coords(&TexCoords([Vec2::new(0.25, 0.75), Vec2::ZERO])), Vec2::new(0.25, 0.75));
     }
 }

@@ -103,8 +103,10 @@ fn unsupported_features_are_named() {
         &with(r#""extensionsUsed":["KHR_draco_mesh_compression"],"extensionsRequired":["KHR_draco_mesh_compression"]"#),
         "KHR_draco_mesh_compression",
     );
-    expect_err(&with(r#""extensionsUsed":["KHR_materials_clearcoat"]"#), "KHR_materials_clearcoat");
-    expect_err(&with(r#""extensionsUsed":["KHR_materials_volume"]"#), "KHR_materials_volume");
+    // Refused when the file requires them (used-only ones warn: see optional_extensions_warn_...).
+    let required = |e: &str| with(&format!(r#""extensionsUsed":["{e}"],"extensionsRequired":["{e}"]"#));
+    expect_err(&required("KHR_materials_clearcoat"), "KHR_materials_clearcoat");
+    expect_err(&required("KHR_materials_volume"), "KHR_materials_volume");
 }
 
 #[test]
@@ -210,4 +212,86 @@ fn non_finite_vertices_are_refused_naming_mesh_accessor_and_vertex() {
         .expect("overflowing transform must be refused")
         .to_string();
     assert!(e.contains("not finite once placed"), "{e}");
+}
+
+/// Issue 12's policy: an unmodelled extension the file *requires* is refused by name; one it only
+/// *uses* renders without it and is named in `Scene::warnings` (and from there in the CLI output,
+/// the EXR header and the REST job). KHR_texture_transform is modelled (Blender writes it as
+/// required for any Mapping node).
+#[test]
+fn optional_extensions_warn_required_ones_refuse() {
+    let used =
+        gltf_json(r#"[{"mesh":0}]"#, r#","extensionsUsed":["KHR_materials_clearcoat","KHR_materials_sheen"]"#, true);
+    let scene = load_str(&used).expect("optional extensions render without them");
+    assert_eq!(scene.warnings.len(), 2, "{:?}", scene.warnings);
+    assert!(scene.warnings[0].contains("KHR_materials_clearcoat"), "{:?}", scene.warnings);
+    let required = gltf_json(
+        r#"[{"mesh":0}]"#,
+        r#","extensionsUsed":["KHR_materials_clearcoat"],"extensionsRequired":["KHR_materials_clearcoat"]"#,
+        true,
+    );
+    let e = load_str(&required).err().expect("a required unmodelled extension is refused").to_string();
+    assert!(e.contains("KHR_materials_clearcoat") && e.contains("required"), "{e}");
+    let transform = gltf_json(
+        r#"[{"mesh":0}]"#,
+        r#","extensionsUsed":["KHR_texture_transform"],"extensionsRequired":["KHR_texture_transform"]"#,
+        true,
+    );
+    let scene = load_str(&transform).expect("KHR_texture_transform is modelled");
+    assert!(scene.warnings.is_empty());
+}
+
+/// KHR_texture_transform is applied: a 2×1 texture (red | green) read at u = 0.25 shows red; with
+/// an offset of 0.5 it shows green; with `texCoord: 1` the second UV set (u = 0.75) is read.
+#[test]
+fn texture_transform_and_second_uv_set_are_honoured() {
+    let mut png = Vec::new();
+    let img = image::RgbaImage::from_raw(2, 1, vec![255, 0, 0, 255, 0, 255, 0, 255]).expect("2x1");
+    image::DynamicImage::ImageRgba8(img)
+        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .expect("png");
+    let mut bin = Vec::new();
+    for v in [[0.0f32, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]] {
+        v.iter().for_each(|c| bin.extend_from_slice(&c.to_le_bytes()));
+    }
+    for _ in 0..3 {
+        [0.25f32, 0.5].iter().for_each(|c| bin.extend_from_slice(&c.to_le_bytes()));
+    }
+    for _ in 0..3 {
+        [0.75f32, 0.5].iter().for_each(|c| bin.extend_from_slice(&c.to_le_bytes()));
+    }
+    let b64 = |d: &[u8]| base64::engine::general_purpose::STANDARD.encode(d);
+    let doc = |texinfo: &str| {
+        format!(
+            r#"{{"asset":{{"version":"2.0"}},"extensionsUsed":["KHR_texture_transform"],"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0}}],
+            "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0,"TEXCOORD_0":1,"TEXCOORD_1":2}},"material":0}}]}}],
+            "materials":[{{"emissiveFactor":[1,1,1],"emissiveTexture":{texinfo}}}],
+            "textures":[{{"source":0,"sampler":0}}],"samplers":[{{"magFilter":9729,"wrapS":33071,"wrapT":33071}}],
+            "images":[{{"uri":"data:image/png;base64,{}"}}],
+            "accessors":[{{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}},
+                         {{"bufferView":1,"componentType":5126,"count":3,"type":"VEC2"}},
+                         {{"bufferView":2,"componentType":5126,"count":3,"type":"VEC2"}}],
+            "bufferViews":[{{"buffer":0,"byteOffset":0,"byteLength":36}},{{"buffer":0,"byteOffset":36,"byteLength":24}},{{"buffer":0,"byteOffset":60,"byteLength":24}}],
+            "buffers":[{{"byteLength":84,"uri":"data:application/octet-stream;base64,{}"}}]}}"#,
+            b64(&png),
+            b64(&bin)
+        )
+    };
+    let emission = |texinfo: &str| {
+        let scene = load_str(&doc(texinfo)).expect("loads");
+        let sp = scene.mesh.surface_point(0, 0.3, 0.3);
+        scene.materials[0].emission(&scene.textures, sp.uv)
+    };
+    let red = emission(r#"{"index":0}"#);
+    assert!(red.x > 0.99 && red.y < 0.01, "{red:?}");
+    let green = emission(r#"{"index":0,"extensions":{"KHR_texture_transform":{"offset":[0.5,0]}}}"#);
+    assert!(green.y > 0.99 && green.x < 0.01, "{green:?}");
+    let set1 = emission(r#"{"index":0,"extensions":{"KHR_texture_transform":{"texCoord":1}}}"#);
+    assert!(set1.y > 0.99 && set1.x < 0.01, "{set1:?}");
+    let plain_set1 = emission(r#"{"index":0,"texCoord":1}"#);
+    assert!(plain_set1.y > 0.99, "{plain_set1:?}");
+    let rotated =
+        emission(r#"{"index":0,"extensions":{"KHR_texture_transform":{"rotation":3.14159265,"offset":[1,1]}}}"#);
+    // (0.25, 0.5) rotated by π is (−0.25, −0.5); offset (1, 1) gives (0.75, 0.5): green.
+    assert!(rotated.y > 0.99, "{rotated:?}");
 }

@@ -58,6 +58,14 @@ fn bad_settings_are_refused_by_field_and_cannot_brick_the_farm() {
         assert_eq!(status, 422, "{field}: {msg}");
         assert!(msg.contains(&format!("settings.{field}")), "{field}: {msg}");
     }
+    // Issue 12's policy on the farm: an optional extension the renderer does not model is a warning
+    // on the job (and in its EXR), not a refusal.
+    let gltf = std::fs::read_to_string(repo_root().join("scenes/cornell/cornell.gltf")).expect("cornell.gltf");
+    let gltf = gltf.replacen("\"extensionsUsed\": [", "\"extensionsUsed\": [\"KHR_materials_sheen\", ", 1);
+    assert!(gltf.contains("KHR_materials_sheen"));
+    let (status, body) = post_job(&farm.url, None, &[("c.gltf", gltf.as_bytes())], r#"{"spp": 1, "width": 8}"#);
+    assert_eq!(status, 201, "{body}");
+    assert!(body["warnings"][0].as_str().unwrap_or_default().contains("KHR_materials_sheen"), "{body}");
     // NaN is not JSON: refused as malformed.
     let (status, _) = post_job(&farm.url, None, &[("c.glb", &glb)], r#"{"env_strength": NaN}"#);
     assert_eq!(status, 400);
@@ -69,7 +77,7 @@ fn bad_settings_are_refused_by_field_and_cannot_brick_the_farm() {
     farm.start_coordinator();
     let (code, out, err) = farm.cli(&["list"]);
     assert_eq!(code, 0, "{err}");
-    assert_eq!(out.lines().skip(1).count(), 1, "{out}");
+    assert_eq!(out.lines().skip(1).count(), 2, "{out}");
 }
 
 /// Finding 2: 300 parallel submissions with a queue limit of 100: exactly 100 are accepted, each

@@ -82,6 +82,11 @@ pub struct RenderFlags {
     /// uniform, power, or tree (light BVH: power, distance, orientation).
     #[arg(long)]
     pub light_sampler: Option<renderer::light::LightSamplerKind>,
+    /// How KHR_lights_punctual intensities are read: auto (default: files from Blender's exporter as
+    /// blender, others as gltf), gltf (candela and lux as they are), or blender (÷ 683: the watts
+    /// Blender had, so the image matches Cycles).
+    #[arg(long)]
+    pub light_units: Option<renderer::punctual::LightUnits>,
     /// Importance-sample the environment for NEE: on (default) or off (only BSDF sampling finds it).
     #[arg(long, value_parser = ["on", "off"])]
     pub env_sampling: Option<String>,
@@ -118,6 +123,7 @@ impl RenderFlags {
             env_rotate: self.env_rotate,
             env_sampling: self.env_sampling.as_deref().map(|v| v == "on"),
             light_sampler: self.light_sampler,
+            light_units: self.light_units,
             pass_spp: self.pass_spp,
             time_budget: self.time_budget,
             noise_target: self.noise_target,
@@ -314,6 +320,8 @@ mod tests {
             "-30",
             "--env-sampling",
             "off",
+            "--light-units",
+            "blender",
             "--light-sampler",
             "tree",
             "--pass-spp",
@@ -328,6 +336,7 @@ mod tests {
         .expect("parses");
         let v = serde_json::to_value(all.flags.request()).expect("encodes");
         let given: Vec<&str> = v.as_object().expect("object").keys().map(String::as_str).collect();
+        assert!(given.contains(&"light_units"));
         for f in renderer::settings_request::FIELDS {
             assert!(f.name == "priority" || given.contains(&f.name), "no flag for settings.{}", f.name);
         }

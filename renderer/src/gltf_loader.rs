@@ -71,6 +71,7 @@ pub fn load_from_bytes(path: &Path, bytes: &[u8]) -> Result<Scene, SceneError> {
         tracing::warn!(file = %path.display(), "{w}");
     }
     scene.warnings = warnings;
+    scene.generator = gltf.document.as_json().asset.generator.clone();
     Ok(scene)
 }
 

@@ -43,7 +43,7 @@ pub fn standard_attributes(
     let mut attrs = vec![(
         "tessera",
         format!(
-            "version={} width={} height={} spp={} pass_spp={} integrator={:?} mis_heuristic={:?} sampler={:?} seed={} max_depth={} rr_depth={} camera={:?} filter={:?} environment={:?} light_sampler={:?} noise_target={:?} min_spp={} time_budget={:?} stop={} spp_min={} spp_max={} rel_mse={:.4e} rel_error={:.4e} tiles={}",
+            "version={} width={} height={} spp={} pass_spp={} integrator={:?} mis_heuristic={:?} sampler={:?} seed={} max_depth={} rr_depth={} camera={:?} filter={:?} environment={:?} light_sampler={:?} light_units={:?} noise_target={:?} min_spp={} time_budget={:?} stop={} spp_min={} spp_max={} rel_mse={:.4e} rel_error={:.4e} tiles={}",
             env!("CARGO_PKG_VERSION"),
             s.width,
             s.height,
@@ -59,6 +59,7 @@ pub fn standard_attributes(
             s.filter,
             env,
             s.light_sampler,
+            s.light_units,
             s.noise_target,
             s.min_spp,
             s.time_budget,

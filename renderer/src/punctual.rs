@@ -4,9 +4,58 @@
 //! Units: the extension gives point/spot intensity in candela and directional illuminance in lux.
 //! Tessera's radiance unit is the one of emissive and environment texels (../shared/guide), read as
 //! nits (cd/m²); in those units a point light of I cd gives irradiance I/r² at distance r and a
-//! directional light of E lux gives irradiance E, so the numbers are used as they are.
+//! directional light of E lux gives irradiance E, so the numbers are used as they are (`LightUnits::Gltf`),
+//! except for files from Blender's exporter, whose lights are divided by 683 (`LightUnits::Blender`).
 
 use crate::math::{luminance, Vec3, PI};
+
+/// How punctual intensities relate to emissive strength and environment radiance (`--light-units`).
+///
+/// Tessera's radiance unit is the one of emissive strength and environment texels. Blender's glTF
+/// exporter ("Lighting Mode: Standard", its default) writes a point or spot light of P watts as
+/// P·683/4π cd and a sun of S W/m² as S·683 lux, while Cycles shows emission strength as it is; in
+/// Cycles a P-watt point gives irradiance P/(4π r²) and an S W/m² sun irradiance S. So a Blender
+/// export's candela and lux are 683× the radiometric values Cycles used (issue 12 measured its scene
+/// 184× too bright; `scenes/blender` 669×), and `Blender` divides them by 683 (the luminous efficacy
+/// the exporter multiplied by).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LightUnits {
+    /// `blender` for files whose `asset.generator` is Blender's exporter, else `gltf`.
+    #[default]
+    Auto,
+    /// Candela and lux used as they are (the numbers glTF gives, in Tessera's radiance unit).
+    Gltf,
+    /// Candela and lux ÷ 683: the watts Blender had (matches Cycles).
+    Blender,
+}
+
+crate::named_choices!(LightUnits, "light units", { "auto" => Self::Auto, "gltf" => Self::Gltf, "blender" => Self::Blender });
+
+/// Blender's exporter's luminous efficacy (lm/W): what its photometric values were multiplied by.
+pub const BLENDER_LM_PER_W: f32 = 683.0;
+
+impl LightUnits {
+    /// The units a file is read in: `Auto` decided by its `asset.generator`.
+    pub fn resolve(self, generator: Option<&str>) -> LightUnits {
+        match self {
+            LightUnits::Auto if generator.is_some_and(|g| g.starts_with("Khronos glTF Blender I/O")) => {
+                LightUnits::Blender
+            }
+            LightUnits::Auto => LightUnits::Gltf,
+            u => u,
+        }
+    }
+
+    /// Factor applied to the file's punctual intensities.
+    pub fn scale(self) -> f32 {
+        if self == LightUnits::Blender {
+            1.0 / BLENDER_LM_PER_W
+        } else {
+            1.0
+        }
+    }
+}
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum PunctualKind {

@@ -24,6 +24,10 @@ pub struct Scene {
     transparent: bool,
     /// What the loader could not honour but rendered without (optional extensions), for the user.
     pub warnings: Vec<String>,
+    /// The file's `asset.generator` (decides `--light-units auto`).
+    pub generator: Option<String>,
+    /// The units the punctual lights are in now (set once by `prepare`).
+    light_units: crate::punctual::LightUnits,
 }
 
 impl Scene {
@@ -54,6 +58,8 @@ impl Scene {
             bounds: (min, max),
             transparent,
             warnings: Vec::new(),
+            generator: None,
+            light_units: crate::punctual::LightUnits::Gltf,
         }
     }
 
@@ -89,10 +95,33 @@ impl Scene {
         settings: &crate::RenderSettings,
         base: &std::path::Path,
     ) -> Result<(), crate::RenderError> {
+        self.set_light_units(settings.light_units);
         self.attach_environment(&settings.environment, base)?;
         let view = self.camera(settings.camera).ok().map(|c| (c, settings.width, settings.height));
         self.set_light_sampler_for(settings.light_sampler, view);
         Ok(())
+    }
+
+    /// Reads the punctual lights in `units` (`auto`: by the file's generator); idempotent.
+    pub fn set_light_units(&mut self, units: crate::punctual::LightUnits) {
+        let units = units.resolve(self.generator.as_deref());
+        if units == self.light_units || self.lights.punctual.is_empty() {
+            self.light_units = units;
+            return;
+        }
+        let f = units.scale() / self.light_units.scale();
+        let mut punctual = self.lights.punctual.clone();
+        for p in &mut punctual {
+            p.intensity *= f;
+        }
+        tracing::info!(?units, generator = ?self.generator, "punctual light units");
+        self.light_units = units;
+        self.set_punctual(punctual);
+    }
+
+    /// The units the punctual lights are read in.
+    pub fn light_units(&self) -> crate::punctual::LightUnits {
+        self.light_units
     }
 
     /// Adds KHR_lights_punctual lights (rebuilds the light set).

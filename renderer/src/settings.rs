@@ -75,6 +75,8 @@ pub struct RenderSettings {
     pub min_spp: u32,
     /// Stop at the last pass boundary that fits in this many seconds (`spp` stays the cap).
     pub time_budget: Option<f64>,
+    /// How punctual light intensities are read (`auto`: Blender's exporter's files as Blender).
+    pub light_units: crate::punctual::LightUnits,
 }
 
 impl Default for RenderSettings {
@@ -97,6 +99,7 @@ impl Default for RenderSettings {
             noise_target: None,
             min_spp: 32,
             time_budget: None,
+            light_units: Default::default(),
         }
     }
 }

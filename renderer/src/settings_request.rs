@@ -132,6 +132,9 @@ pub struct SettingsRequest {
     pub env_sampling: Option<bool>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub light_sampler: Option<LightSamplerKind>,
+    /// How punctual intensities are read: auto (Blender's exporter's files as blender), gltf, blender.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub light_units: Option<crate::punctual::LightUnits>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub pass_spp: Option<u64>,
     /// Seconds; with it (or a noise target) `spp` is a cap, by default min(limit, 65536).
@@ -260,6 +263,7 @@ impl SettingsRequest {
                 sampling: self.env_sampling.unwrap_or(env_default.sampling),
             },
             light_sampler: self.light_sampler.unwrap_or(d.light_sampler),
+            light_units: self.light_units.unwrap_or(d.light_units),
             noise_target,
             min_spp: int("min_spp", self.min_spp, None)?.unwrap_or(d.min_spp),
             time_budget,

@@ -12,7 +12,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tessera_tests::*;
-use tessera_tests::{renderer, worker};
+use tessera_tests::worker;
 
 fn pct(v: &mut [f64], p: f64) -> f64 {
     if v.is_empty() {
@@ -94,23 +94,7 @@ fn main() {
                     };
                     lease_ms.lock().unwrap().push(t.elapsed().as_secs_f64() * 1e3);
                     let Some(u) = reply.into_inner().unit else { continue };
-                    let r = u.rect.unwrap();
-                    let rect = renderer::film::Rect { x0: r.x0, y0: r.y0, width: r.width, height: r.height };
-                    let mut sums = renderer::film::PartialSums::new(rect);
-                    for i in 0..rect.pixels() {
-                        for _ in u.sample_start..u.sample_end {
-                            sums.add_sample(i, renderer::math::Vec3::splat(0.5));
-                        }
-                    }
-                    let payload = sums.encode();
-                    let header = ResultHeader {
-                        worker_id: id.clone(),
-                        unit_id: u.unit_id.clone(),
-                        rect: Some(r),
-                        sample_start: u.sample_start,
-                        sample_end: u.sample_end,
-                        payload_size: payload.len() as u64,
-                    };
+                    let (header, payload) = synthetic_result(&id, &u, 0.5);
                     if worker::submit(&mut client, header, payload).await.is_ok_and(|r| r.accepted) {
                         merged.fetch_add(1, Ordering::Relaxed);
                     }

@@ -234,3 +234,26 @@ pub fn post_job(url: &str, token: Option<&str>, files: &[(&str, &[u8])], setting
     let text = resp.body_mut().read_to_string().unwrap_or_default();
     (status, serde_json::from_str(&text).unwrap_or(Value::String(text)))
 }
+
+/// A valid result for `unit` as `worker` would return it: every pixel holds the unit's samples of
+/// radiance `value` (for tests and benchmarks that speak the worker protocol directly).
+pub fn synthetic_result(worker: &str, unit: &proto::v1::WorkUnit, value: f32) -> (proto::v1::ResultHeader, Vec<u8>) {
+    let r = unit.rect.unwrap_or_default();
+    let rect = renderer::film::Rect { x0: r.x0, y0: r.y0, width: r.width, height: r.height };
+    let mut sums = renderer::film::PartialSums::new(rect);
+    for i in 0..rect.pixels() {
+        for _ in unit.sample_start..unit.sample_end {
+            sums.add_sample(i, renderer::math::Vec3::splat(value));
+        }
+    }
+    let payload = sums.encode();
+    let header = proto::v1::ResultHeader {
+        worker_id: worker.into(),
+        unit_id: unit.unit_id.clone(),
+        rect: Some(r),
+        sample_start: unit.sample_start,
+        sample_end: unit.sample_end,
+        payload_size: payload.len() as u64,
+    };
+    (header, payload)
+}

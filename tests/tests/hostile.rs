@@ -142,25 +142,15 @@ fn forged_results_and_foreign_heartbeats_are_refused() {
             .into_inner()
             .unit
             .expect("a unit");
-        let rect = unit.rect.unwrap();
-        let film = renderer::film::Rect { x0: rect.x0, y0: rect.y0, width: rect.width, height: rect.height };
-        let mut sums = renderer::film::PartialSums::new(film);
-        for i in 0..film.pixels() {
-            for _ in unit.sample_start..unit.sample_end {
-                sums.add_sample(i, renderer::math::Vec3::splat(1.0));
-            }
-        }
-        let header = |worker: &str, unit_id: &str| ResultHeader {
-            worker_id: worker.into(),
-            unit_id: unit_id.into(),
-            rect: Some(rect),
-            sample_start: unit.sample_start,
-            sample_end: unit.sample_end,
-            payload_size: sums.encode().len() as u64,
+        // The same valid sums, headed as `worker` returning unit `unit_id`.
+        let result = |worker: &str, unit_id: &str| {
+            let (mut header, payload) = synthetic_result(worker, &unit, 1.0);
+            header.unit_id = unit_id.into();
+            (header, payload)
         };
         // Mallory returns Alice's unit: refused, and Alice keeps her lease.
-        let e =
-            worker::submit(&mut mallory, header(&mallory_id, &unit.unit_id), sums.encode()).await.expect_err("refused");
+        let (h, p) = result(&mallory_id, &unit.unit_id);
+        let e = worker::submit(&mut mallory, h, p).await.expect_err("refused");
         assert_eq!(e.code(), tonic::Code::PermissionDenied, "{e}");
         assert!(e.message().contains(&alice_id), "{}", e.message());
         // Mallory heartbeats it: no lease granted.
@@ -172,7 +162,8 @@ fn forged_results_and_foreign_heartbeats_are_refused() {
         assert!(!hb.keep_going, "a foreign heartbeat must not grant a lease");
         // A unit nobody leased (the last pass of the same tile): refused too.
         let never = format!("{}/{}", unit.job_id, 2 + 1);
-        let e = worker::submit(&mut mallory, header(&mallory_id, &never), sums.encode()).await.expect_err("refused");
+        let (h, p) = result(&mallory_id, &never);
+        let e = worker::submit(&mut mallory, h, p).await.expect_err("refused");
         assert_eq!(e.code(), tonic::Code::PermissionDenied, "{e}");
         let hb = mallory
             .heartbeat(HeartbeatRequest { worker_id: mallory_id.clone(), unit_id: never })
@@ -181,7 +172,8 @@ fn forged_results_and_foreign_heartbeats_are_refused() {
             .into_inner();
         assert!(!hb.keep_going);
         // Alice's honest result is merged.
-        let reply = worker::submit(&mut alice, header(&alice_id, &unit.unit_id), sums.encode()).await.expect("merged");
+        let (h, p) = result(&alice_id, &unit.unit_id);
+        let reply = worker::submit(&mut alice, h, p).await.expect("merged");
         assert!(reply.accepted, "{}", reply.message);
 
         // 500 registrations at once: 500 distinct ids.

@@ -588,9 +588,11 @@ impl Farm {
         }
         if !job.may_return(worker, tile, pass) {
             let holder = job.leases[tile].get(&pass).map(|l| l.worker.clone());
-            return SubmitOutcome::NotLeased(match holder {
-                Some(h) => format!("unit {unit_id} is leased to worker {h}, not to {worker}"),
-                None => format!("unit {unit_id} was never leased to worker {worker}"),
+            let lapsed = job.lapsed[tile].get(&pass).cloned();
+            return SubmitOutcome::NotLeased(match (holder, lapsed) {
+                (Some(h), _) => format!("unit {unit_id} is leased to worker {h}, not to {worker}"),
+                (None, Some(h)) => format!("unit {unit_id} was leased to worker {h} (expired), not to {worker}"),
+                (None, None) => format!("unit {unit_id} was never leased to worker {worker}"),
             });
         }
         let expected = job.spec.settings.pass_range(pass).len() as u32;

@@ -11,8 +11,8 @@ use proto::v1::*;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-use tessera_tests::*;
 use tessera_tests::worker;
+use tessera_tests::*;
 
 fn pct(v: &mut [f64], p: f64) -> f64 {
     if v.is_empty() {

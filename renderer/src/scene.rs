@@ -88,8 +88,24 @@ impl Scene {
         tracing::info!(?chosen, ?scores, emitters = self.lights.emitter_count(&self.mesh), "light sampler auto");
     }
 
-    /// Everything a render with `settings` needs beyond the glTF: the environment (map paths relative
-    /// to `base`) and the light sampler.
+    /// What `prepare` reads from the settings, as a key: a scene prepared for one job may serve
+    /// another only when their keys are equal (workers cache prepared scenes by it). Kept next to
+    /// `prepare` so that an input added there cannot be forgotten here.
+    pub fn prepare_key(settings: &crate::RenderSettings) -> String {
+        format!(
+            "{:?} {:?} {:?} {:?} {}x{}",
+            settings.environment,
+            settings.light_units,
+            settings.light_sampler,
+            settings.camera,
+            settings.width,
+            settings.height
+        )
+    }
+
+    /// Everything a render with `settings` needs beyond the glTF: the light units, the environment
+    /// (map paths relative to `base`) and the light sampler (`auto` measured through the camera at
+    /// the image size). Its inputs are `prepare_key`'s.
     pub fn prepare(
         &mut self,
         settings: &crate::RenderSettings,

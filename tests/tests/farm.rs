@@ -172,6 +172,29 @@ fn an_environment_map_travels_with_the_job() {
     assert!(std::fs::read(&out).unwrap() == local, "the farm's env-lit EXR differs from tessera render's");
 }
 
+/// A worker keeps the scene it prepared between units, but only for jobs that prepare it the same
+/// way: the same Blender export read with two light-unit settings, one after the other on one
+/// worker, gives each job its own local image (the cache key once left the light units out).
+#[test]
+fn a_cached_scene_serves_only_jobs_that_prepare_it_alike() {
+    let mut farm = Farm::start("prepare-key", &[]);
+    farm.start_worker(2);
+    let scene = repo_root().join("scenes/blender/lights.glb");
+    for units in ["blender", "gltf"] {
+        let args = ["--light-units", units, "--spp", "4", "--width", "48", "--height", "36"];
+        let out = farm.tmp.join(format!("farm-{units}.exr"));
+        let mut submit = vec!["submit", scene.to_str().unwrap(), "--wait", "-o", out.to_str().unwrap()];
+        submit.extend_from_slice(&args);
+        let (code, _, err) = farm.cli(&submit);
+        assert_eq!(code, 0, "{err}");
+        let local = local_render(&scene, &args, &farm.tmp.join(format!("local-{units}.exr")));
+        assert!(
+            std::fs::read(&out).unwrap() == local,
+            "light units {units}: the farm's EXR differs from tessera render's"
+        );
+    }
+}
+
 /// Budgets on the farm. A noise target gives the local image bit for bit (each tile's stopping
 /// decision depends on its own sums only), with fewer samples on quiet tiles. A time budget ends
 /// at a whole pass of the image: the pixels equal the fixed-spp render of the sample count reached.

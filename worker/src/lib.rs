@@ -269,8 +269,8 @@ async fn scene_for(
     settings: &RenderSettings,
     loaded: &mut Option<(String, Arc<Scene>)>,
 ) -> Result<Arc<Scene>, String> {
-    // The loaded scene depends on the bundle and on the environment settings.
-    let key = format!("{} {:?} {:?}", unit.scene_hash, settings.environment, settings.light_sampler);
+    // The loaded scene depends on the bundle and on what `prepare` reads from the settings.
+    let key = format!("{} {}", unit.scene_hash, Scene::prepare_key(settings));
     if let Some((k, s)) = loaded {
         if *k == key {
             return Ok(s.clone());

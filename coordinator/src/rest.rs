@@ -386,7 +386,7 @@ async fn preview(State(s): S, Path(id): Path<String>) -> Result<Response, ApiErr
     let image = {
         let farm = lock(&s.farm);
         let job = farm.jobs.get(&id).ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no job '{id}'")))?;
-        (!job.released).then(|| job.image())
+        (!job.state.is_final()).then(|| job.image())
     };
     let shared = s.clone();
     let png = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, ApiError> {

@@ -192,7 +192,7 @@ impl Shared {
         let (image, settings, stop, warnings) = {
             let mut farm = lock(&self.farm);
             let Some(job) = farm.jobs.get_mut(id) else { return };
-            if job.state.is_final() || job.finishing || job.released || !job.is_complete() {
+            if job.state.is_final() || job.finishing || !job.is_complete() {
                 return;
             }
             job.finishing = true;
@@ -228,6 +228,7 @@ impl Shared {
                 job.state = crate::state::JobState::Failed;
                 job.error = Some(e.clone());
                 job.finished_ms = Some(finished_ms);
+                job.release();
                 if let Err(se) = lock(&self.store).update_job_state(job) {
                     tracing::error!(job = %id, error = %se, "cannot save the failed state");
                 }
@@ -241,12 +242,18 @@ impl Shared {
     pub fn cancel_job(&self, id: &str) -> Result<(), ServiceError> {
         let image = {
             let mut farm = lock(&self.farm);
-            let job = farm.cancel(id, now_ms()).ok_or_else(|| ServiceError::NoJob(id.to_string()))?;
-            if job.state != crate::state::JobState::Cancelled || job.released {
+            let job = farm.jobs.get(id).ok_or_else(|| ServiceError::NoJob(id.to_string()))?;
+            if job.state.is_final() {
                 return Ok(());
             }
-            lock(&self.store).update_job_state(job)?;
+            let before = (job.state.clone(), job.finished_ms);
+            farm.cancel(id, now_ms());
             let job = farm.jobs.get_mut(id).ok_or_else(|| ServiceError::NoJob(id.to_string()))?;
+            // The cancellation counts once it is stored (memory never gets ahead of disk).
+            if let Err(e) = lock(&self.store).update_job_state(job) {
+                (job.state, job.finished_ms) = before;
+                return Err(e.into());
+            }
             // A job cancelled before any sample has nothing to preview (and a huge one would
             // otherwise allocate its whole frame just to say so).
             let image = job.has_samples().then(|| job.image());

@@ -120,9 +120,6 @@ pub struct Job {
     pub settings_json: std::sync::Arc<str>,
     /// Size of the scene bundle in bytes (workers are told it with each unit).
     pub scene_size: u64,
-    /// True once a finished job's accumulation has been dropped from memory (its image and
-    /// preview are on disk).
-    pub released: bool,
     /// Set while the finished image is being encoded and stored outside the farm lock.
     pub finishing: bool,
     /// The last storage failure while finishing (retried by the tick; nothing is lost meanwhile).
@@ -152,7 +149,6 @@ impl Job {
             tile_noise: vec![unknown; n],
             settings_json: serde_json::to_string(s).unwrap_or_default().into(),
             scene_size: 0,
-            released: false,
             finishing: false,
             finish_error: None,
             finish_retry_ms: 0,
@@ -286,8 +282,9 @@ impl Job {
         self.tile_sums.iter().any(PartialSums::is_allocated)
     }
 
-    /// Drops the accumulation of a finished job (its image and preview are stored by then, its
-    /// checkpoints are on disk): memory follows work in flight, not jobs ever submitted.
+    /// Drops the accumulation of a job that reached a final state (its image and preview are stored
+    /// by then, its checkpoints are on disk): memory follows work in flight, not jobs ever
+    /// submitted. Every final state is released, so "final" is "released".
     pub fn release(&mut self) {
         for t in &mut self.tile_sums {
             *t = PartialSums::unallocated(t.rect);
@@ -297,7 +294,6 @@ impl Job {
             self.leases[t].clear();
             self.lapsed[t].clear();
         }
-        self.released = true;
     }
 
     /// Closes the job at the passes already started when another pass would not fit in its time
@@ -409,8 +405,7 @@ impl Farm {
     /// first pending unit in pass-major order. A job whose time budget allows no further pass is
     /// closed at its started passes instead (see `finished_jobs`).
     pub fn lease(&mut self, worker: &str, now_ms: i64, lease_ms: i64) -> Option<WorkUnit> {
-        let running: u64 =
-            self.jobs.values().filter(|j| j.state == JobState::Running && !j.released).map(Job::pixels).sum();
+        let running: u64 = self.jobs.values().filter(|j| j.state == JobState::Running).map(Job::pixels).sum();
         let limit = self.max_pixels_in_flight;
         let mut candidates: Vec<&mut Job> = self
             .jobs

@@ -48,6 +48,12 @@ struct TexTransform {
     tex_coord: Option<u32>,
 }
 
+impl From<gltf::texture::TextureTransform<'_>> for TexTransform {
+    fn from(t: gltf::texture::TextureTransform<'_>) -> Self {
+        TexTransform { offset: t.offset(), rotation: t.rotation(), scale: t.scale(), tex_coord: t.tex_coord() }
+    }
+}
+
 /// Loads a scene from a `.glb` or `.gltf` file.
 pub fn load(path: &Path) -> Result<Scene, SceneError> {
     let bytes = read_bounded(path, path, "scene file")?;
@@ -575,12 +581,7 @@ impl Loader {
         let mut tex = |info: Option<gltf::texture::Info>, srgb: bool| -> Result<Option<TextureRef>, SceneError> {
             match info {
                 Some(i) => {
-                    let xf = i.texture_transform().map(|t| TexTransform {
-                        offset: t.offset(),
-                        rotation: t.rotation(),
-                        scale: t.scale(),
-                        tex_coord: t.tex_coord(),
-                    });
+                    let xf = i.texture_transform().map(TexTransform::from);
                     Ok(Some(self.texture_ref(&i.texture(), i.tex_coord(), xf, srgb, buffers, textures, ids)?))
                 }
                 None => Ok(None),
@@ -636,12 +637,7 @@ impl Loader {
             transmission: checked(m.transmission().map_or(0.0, |t| t.transmission_factor()), "transmissionFactor")?,
             transmission_texture: match m.transmission().and_then(|t| t.transmission_texture()) {
                 Some(info) => {
-                    let xf = info.texture_transform().map(|t| TexTransform {
-                        offset: t.offset(),
-                        rotation: t.rotation(),
-                        scale: t.scale(),
-                        tex_coord: t.tex_coord(),
-                    });
+                    let xf = info.texture_transform().map(TexTransform::from);
                     Some(self.texture_ref(&info.texture(), info.tex_coord(), xf, false, buffers, textures, ids)?)
                 }
                 None => None,
@@ -678,21 +674,19 @@ impl Loader {
         let pair = |k: &str, d: [f32; 2]| -> Result<[f32; 2], SceneError> {
             match x.get(k) {
                 None => Ok(d),
-                Some(v) => match v.as_array().map(|a| a.iter().map(|c| c.as_f64()).collect::<Vec<_>>()) {
-                    Some(a) if a.len() == 2 && a.iter().all(|c| c.is_some_and(f64::is_finite)) => {
-                        Ok([a[0].unwrap_or(0.0) as f32, a[1].unwrap_or(0.0) as f32])
-                    }
-                    _ => Err(self.invalid(format!("KHR_texture_transform {k} {v} is not two finite numbers"))),
+                // Finiteness (after the cast to f32) is checked once, in `texture_ref`.
+                Some(v) => match v.as_array().map(|a| a.iter().filter_map(|c| c.as_f64()).collect::<Vec<_>>()) {
+                    Some(a) if a.len() == 2 => Ok([a[0] as f32, a[1] as f32]),
+                    _ => Err(self.invalid(format!("KHR_texture_transform {k} {v} is not two numbers"))),
                 },
             }
         };
         let rotation = match x.get("rotation") {
             None => 0.0,
-            Some(v) => v
-                .as_f64()
-                .filter(|r| r.is_finite())
-                .ok_or_else(|| self.invalid(format!("KHR_texture_transform rotation {v} is not a finite number")))?
-                as f32,
+            Some(v) => {
+                v.as_f64().ok_or_else(|| self.invalid(format!("KHR_texture_transform rotation {v} is not a number")))?
+                    as f32
+            }
         };
         let tex_coord = match x.get("texCoord") {
             None => None,

@@ -236,34 +236,6 @@ impl LightSet {
         }
     }
 
-    /// Number of separate emitters among the area lights: triangles that share a vertex position
-    /// belong to one emitter (a bulb, a panel, a neon tube as modelled), whatever their count. This
-    /// is what `auto` counts, so a 1152-triangle sphere is one light for the decision, not 1152.
-    pub fn emitter_count(&self, mesh: &Mesh) -> usize {
-        let n = self.lights.len();
-        let mut parent: Vec<u32> = (0..n as u32).collect();
-        fn find(parent: &mut [u32], mut i: u32) -> u32 {
-            while parent[i as usize] != i {
-                let up = parent[parent[i as usize] as usize];
-                parent[i as usize] = up;
-                i = up;
-            }
-            i
-        }
-        let mut first_at: std::collections::HashMap<[u32; 3], u32> = std::collections::HashMap::with_capacity(3 * n);
-        for (li, l) in self.lights.iter().enumerate() {
-            for p in mesh.vertices(l.triangle) {
-                let key = [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()];
-                let other = *first_at.entry(key).or_insert(li as u32);
-                let (a, b) = (find(&mut parent, li as u32), find(&mut parent, other));
-                if a != b {
-                    parent[a.max(b) as usize] = a.min(b);
-                }
-            }
-        }
-        (0..n as u32).filter(|&i| find(&mut parent, i) == i).count()
-    }
-
     /// Chooses a light for a shading point: (global index, probability).
     fn select(&self, reference: Vec3, normal: Option<Vec3>, u: f32) -> Option<(usize, f32)> {
         let n = self.count();

@@ -4,9 +4,10 @@
 //! Why a pilot and not a light count: the count says nothing about benefit. Four 1152-triangle
 //! sphere bulbs are 4608 "lights" to a count (the old rule picked the tree, whose walk then made
 //! each sample 2.25–2.7× dearer), yet whether the tree pays for that depends on where the lights
-//! are: on `scenes/veach` (four equal bulbs seen from everywhere) power was 16–62 % better at equal
-//! time; on `scenes/sphere_lights` (four unequal bulbs over a floor) the tree was 1.3× better than
-//! uniform and 2.4× better than power (issue 10's measurements, `tessera bench convergence`).
+//! are: on `scenes/veach` (four equal bulbs seen from everywhere) uniform selection reached 1.6× lower
+//! error than the tree at equal time (docs/speed-vs-accuracy/summary.md); on `scenes/sphere_lights`
+//! (four unequal bulbs over a floor) the tree was 1.3× better than uniform and 2.4× better than power
+//! (issue 10, `tessera bench convergence --switches light_sampler`).
 //!
 //! The pilot: the first surfaces hit by `PILOT_POINTS` camera rays (stratified over the image; for a
 //! scene seen by no camera ray, area-weighted points on its non-emissive surfaces), and at each

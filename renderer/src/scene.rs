@@ -85,7 +85,7 @@ impl Scene {
             return self.lights.set_kind_exact(kind, &self.mesh);
         }
         let (chosen, scores) = crate::light_choice::choose(self, view);
-        tracing::info!(?chosen, ?scores, emitters = self.lights.emitter_count(&self.mesh), "light sampler auto");
+        tracing::info!(?chosen, ?scores, "light sampler auto");
     }
 
     /// What `prepare` reads from the settings, as a key: a scene prepared for one job may serve
@@ -133,11 +133,6 @@ impl Scene {
         tracing::info!(?units, generator = ?self.generator, "punctual light units");
         self.light_units = units;
         self.set_punctual(punctual);
-    }
-
-    /// The units the punctual lights are read in.
-    pub fn light_units(&self) -> crate::punctual::LightUnits {
-        self.light_units
     }
 
     /// Adds KHR_lights_punctual lights (rebuilds the light set).

@@ -183,12 +183,13 @@ impl SettingsRequest {
                 return Err(bad("name", "contains control characters"));
             }
         }
+        let s = spec("priority");
         let priority = match self.priority {
-            Some(p) if !(-1000..=1000).contains(&p) => {
-                return Err(bad("priority", format!("{p} is outside -1000..=1000")))
+            Some(p) if (p as f64) < s.min || (p as f64) > s.max => {
+                return Err(bad(s.name, format!("{p} is outside {}..={}", s.min, s.max)))
             }
             Some(p) => p as i32,
-            None => 0,
+            None => s.default.unwrap_or(0.0) as i32,
         };
         Ok((self.name.clone(), priority))
     }

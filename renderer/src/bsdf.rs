@@ -13,9 +13,11 @@
 //! When alpha is below [`Ggx::DELTA_ALPHA`] the specular lobe is a mirror: it is only reachable by
 //! `sample()` (flagged `delta`), contributes nothing to `eval()`/`pdf()`, and takes no MIS weight.
 
+use crate::clearcoat::Clearcoat;
 use crate::dielectric::Dielectric;
 use crate::math::{cosine_hemisphere_pdf, luminance, reflect, sample_cosine_hemisphere, Vec2, Vec3, INV_PI};
 use crate::microfacet::Ggx;
+use crate::sheen::Sheen;
 
 /// Material parameters resolved at one shading point (after textures).
 #[derive(Clone, Copy, Debug)]
@@ -31,6 +33,10 @@ pub struct Bsdf {
     pub transmission: f32,
     /// Relative index of refraction across the surface for the glass part: n(far side)/n(wo's side).
     pub eta: f32,
+    /// KHR_materials_clearcoat, on top of everything.
+    pub coat: Option<Clearcoat>,
+    /// KHR_materials_sheen, between the coat and the base.
+    pub sheen: Option<Sheen>,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -109,8 +115,81 @@ impl Bsdf {
         Dielectric { eta: self.eta, ggx: self.ggx, tint: self.base_color }
     }
 
+    /// The layers' selection probabilities at `wo` and the factors they scale what is below by:
+    /// (p_coat, p_sheen, p_base, below_coat, below_sheen). The probabilities are the layers' own
+    /// reflectances, so a mirror coat's sample weight is exactly 1.
+    #[inline]
+    fn layers(&self, wo: Vec3) -> (f32, f32, f32, f32, f32) {
+        let rc = self.coat.map_or(0.0, |c| c.reflectance(wo));
+        let ts = self.sheen.map_or(1.0, |s| s.scaling(wo.z));
+        let tc = 1.0 - rc;
+        (rc, tc * (1.0 - ts), tc * ts, tc, ts)
+    }
+
+    #[inline]
+    fn layered(&self) -> bool {
+        self.coat.is_some() || self.sheen.is_some()
+    }
+
     /// f(wo, wi) without delta lobes, in the local frame (`wo.z` > 0; `wi.z` < 0 only through glass).
     pub fn eval(&self, wo: Vec3, wi: Vec3) -> Vec3 {
+        if !self.layered() {
+            return self.eval_base(wo, wi);
+        }
+        let (_, _, _, tc, ts) = self.layers(wo);
+        let coat = self.coat.map_or(0.0, |c| c.eval(wo, wi));
+        let sheen = self.sheen.map_or(Vec3::ZERO, |s| s.eval(wo, wi));
+        Vec3::splat(coat) + tc * (sheen + ts * self.eval_base(wo, wi))
+    }
+
+    /// Solid-angle pdf of `sample()` producing `wi` (non-delta part).
+    pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
+        if !self.layered() {
+            return self.pdf_base(wo, wi);
+        }
+        let (pc, ps, pb, _, _) = self.layers(wo);
+        let mut p = pb * self.pdf_base(wo, wi);
+        if let Some(c) = self.coat {
+            p += pc * c.pdf(wo, wi);
+        }
+        if let Some(s) = self.sheen {
+            p += ps * s.pdf(wo, wi);
+        }
+        p
+    }
+
+    /// Samples wi given wo. `u_lobe` picks the lobe (coat, sheen, base in that order), `u` the
+    /// direction within it.
+    pub fn sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
+        if !self.layered() {
+            return self.sample_base(wo, u_lobe, u);
+        }
+        let (pc, ps, pb, tc, ts) = self.layers(wo);
+        if u_lobe < pc {
+            let c = self.coat?;
+            let wi = c.sample(wo, u)?;
+            if c.is_delta() {
+                return Some(BsdfSample { wi, f: Vec3::splat(c.reflectance(wo)), pdf: pc, delta: true });
+            }
+            return self.finish(wo, wi);
+        }
+        if u_lobe < pc + ps {
+            let wi = self.sheen?.sample(u);
+            return self.finish(wo, wi);
+        }
+        if !(pb > 0.0) {
+            return None;
+        }
+        let mut s = self.sample_base(wo, ((u_lobe - pc - ps) / pb).clamp(0.0, 1.0 - f32::EPSILON), u)?;
+        if s.delta {
+            s.f *= tc * ts;
+            s.pdf *= pb;
+        }
+        Some(s)
+    }
+
+    /// The base material's f (no coat, no sheen).
+    fn eval_base(&self, wo: Vec3, wi: Vec3) -> Vec3 {
         let g = self.glass_weight();
         let mut f = if g > 0.0 { self.glass().eval(wo, wi) * g } else { Vec3::ZERO };
         if g < 1.0 {
@@ -119,8 +198,8 @@ impl Bsdf {
         f
     }
 
-    /// Solid-angle pdf of `sample()` producing `wi` (non-delta part).
-    pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
+    /// The base material's sampling pdf.
+    fn pdf_base(&self, wo: Vec3, wi: Vec3) -> f32 {
         let g = self.glass_weight();
         let mut p = if g > 0.0 { g * self.glass().pdf(wo, wi) } else { 0.0 };
         if g < 1.0 {
@@ -129,8 +208,9 @@ impl Bsdf {
         p
     }
 
-    /// Samples wi given wo. `u_lobe` picks the lobe, `u` the direction within it.
-    pub fn sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
+    /// Samples the base material. Non-delta samples are finished with the whole BSDF's value and
+    /// pdf; a delta sample's `f` and `pdf` are the base's own.
+    fn sample_base(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
         let g = self.glass_weight();
         if u_lobe < g {
             let (wi, f, pdf, delta) = self.glass().sample(wo, u_lobe / g, u)?;
@@ -217,7 +297,10 @@ impl Bsdf {
     /// True when no part of this BSDF can be evaluated for NEE (mirror, smooth glass, or black).
     pub fn is_delta_only(&self) -> bool {
         let opaque_delta = self.ggx.is_delta() && self.diffuse_scale(1.0) * luminance(self.base_color) <= 0.0;
-        opaque_delta && (self.glass_weight() <= 0.0 || self.glass().is_delta())
+        opaque_delta
+            && (self.glass_weight() <= 0.0 || self.glass().is_delta())
+            && self.coat.is_none_or(|c| c.is_delta())
+            && self.sheen.is_none()
     }
 
     /// True when light can pass through (so NEE must look on both sides).
@@ -239,6 +322,8 @@ pub(crate) mod tests {
             f0_dielectric: Vec3::splat(0.04),
             transmission: 0.0,
             eta: 1.5,
+            coat: None,
+            sheen: None,
         }
     }
 
@@ -251,6 +336,8 @@ pub(crate) mod tests {
             f0_dielectric: Vec3::splat(0.04),
             transmission: 0.0,
             eta: 1.5,
+            coat: None,
+            sheen: None,
         }
     }
 
@@ -263,6 +350,8 @@ pub(crate) mod tests {
             f0_dielectric: Bsdf::f0_from_ior(1.5, Vec3::ONE),
             transmission: 0.0,
             eta: 1.5,
+            coat: None,
+            sheen: None,
         }
     }
 

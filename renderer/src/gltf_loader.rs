@@ -35,6 +35,11 @@ const SUPPORTED_EXTENSIONS: &[&str] = &[
     "KHR_lights_punctual",
     "KHR_materials_transmission",
     "KHR_texture_transform",
+    "KHR_materials_clearcoat",
+    "KHR_materials_sheen",
+    "KHR_materials_volume",
+    "KHR_materials_unlit",
+    "KHR_mesh_quantization",
 ];
 /// Extensions that carry only metadata and cannot change the image.
 const HARMLESS_EXTENSIONS: &[&str] = &["KHR_xmp_json_ld", "KHR_xmp"];
@@ -69,8 +74,14 @@ pub fn load_from_bytes(path: &Path, bytes: &[u8]) -> Result<Scene, SceneError> {
     // Extensions first, so that an unsupported one (e.g. Draco compression, whose accessors have no
     // bufferView) is reported by name rather than as the validation errors it causes.
     let warnings = loader.check_extensions(bytes)?;
-    let gltf =
-        gltf::Gltf::from_slice(bytes).map_err(|e| SceneError::Parse { path: path.into(), message: e.to_string() })?;
+    let parse_error = |e: gltf::Error| SceneError::Parse { path: path.into(), message: e.to_string() };
+    let mut gltf = gltf::Gltf::from_slice_without_validation(bytes).map_err(parse_error)?;
+    // The gltf crate's validation refuses every required extension it does not parse itself; the
+    // ones this loader models from the raw JSON (clearcoat, sheen, volume, unlit, quantization)
+    // were accepted by `check_extensions` above, so only the crate's own stay for it to check.
+    let mut root = gltf.document.into_json();
+    root.extensions_required.retain(|e| gltf::json::extensions::ENABLED_EXTENSIONS.contains(&e.as_str()));
+    gltf.document = gltf::Document::from_json(root).map_err(parse_error)?;
     let buffers = loader.load_buffers(&gltf.document, gltf.blob.as_deref())?;
     let mut scene = loader.build(&gltf.document, &buffers)?;
     for w in &warnings {
@@ -286,7 +297,7 @@ impl Loader {
         let mut texture_ids: HashMap<(usize, bool), u32> = HashMap::new();
         let mut materials = Vec::new();
         for m in doc.materials() {
-            materials.push(self.material(&m, buffers, &mut textures, &mut texture_ids)?);
+            materials.push(self.material(doc, &m, buffers, &mut textures, &mut texture_ids)?);
         }
         let default_material = materials.len() as u32;
         materials.push(Material::default());
@@ -384,9 +395,12 @@ impl Loader {
         let get = |b: gltf::Buffer| buffers.get(b.index()).map(Vec::as_slice);
         let reader = prim.reader(get);
         let pos_acc = prim.get(&gltf::Semantic::Positions).ok_or_else(|| self.invalid("primitive without POSITION"))?;
-        let n = self.check_accessor(&pos_acc, "POSITION", &[DataType::F32], Dimensions::Vec3)?;
-        let positions: Vec<[f32; 3]> =
-            reader.read_positions().ok_or_else(|| self.invalid("POSITION data missing"))?.collect();
+        // Float, or the integer types of KHR_mesh_quantization (dequantized here; the node
+        // transform carries the scale and offset).
+        const POSITION_TYPES: &[DataType] = &[DataType::F32, DataType::I8, DataType::U8, DataType::I16, DataType::U16];
+        const UNIT_VECTOR_TYPES: &[DataType] = &[DataType::F32, DataType::I8, DataType::I16];
+        let positions: Vec<[f32; 3]> = self.read_floats(&pos_acc, buffers, "POSITION", POSITION_TYPES, false)?;
+        let n = positions.len();
         // A NaN or infinite vertex would poison the BVH bounds and every ray near it: refuse it,
         // naming where it is (issue 10; the glTF spec requires finite positions).
         if let Some((i, p)) = positions.iter().enumerate().find(|(_, p)| !p.iter().all(|c| c.is_finite())) {
@@ -397,29 +411,41 @@ impl Loader {
         }
         let normals: Option<Vec<[f32; 3]>> = match prim.get(&gltf::Semantic::Normals) {
             Some(a) => {
-                self.expect_count(self.check_accessor(&a, "NORMAL", &[DataType::F32], Dimensions::Vec3)?, n, "NORMAL")?;
-                reader.read_normals().map(Iterator::collect)
+                let v = self.read_floats(&a, buffers, "NORMAL", UNIT_VECTOR_TYPES, true)?;
+                self.expect_count(v.len(), n, "NORMAL")?;
+                Some(v)
             }
             None => None,
         };
         let tangents: Option<Vec<[f32; 4]>> = match prim.get(&gltf::Semantic::Tangents) {
             Some(a) => {
-                self.expect_count(
-                    self.check_accessor(&a, "TANGENT", &[DataType::F32], Dimensions::Vec4)?,
-                    n,
-                    "TANGENT",
-                )?;
-                reader.read_tangents().map(Iterator::collect)
+                let v = self.read_floats(&a, buffers, "TANGENT", UNIT_VECTOR_TYPES, true)?;
+                self.expect_count(v.len(), n, "TANGENT")?;
+                Some(v)
             }
             None => None,
         };
-        let uvs: Option<Vec<[f32; 2]>> = match self.check_tex_coords(prim, 0, n)? {
-            true => reader.read_tex_coords(0).map(|t| t.into_f32().collect()),
-            false => None,
-        };
-        let uvs1: Option<Vec<[f32; 2]>> = match self.check_tex_coords(prim, 1, n)? {
-            true => reader.read_tex_coords(1).map(|t| t.into_f32().collect()),
-            false => None,
+        let uvs = self.read_tex_coords(prim, 0, n, buffers)?;
+        let uvs1 = self.read_tex_coords(prim, 1, n, buffers)?;
+        // COLOR_0: RGB or RGBA, float or normalized 8/16-bit; multiplies the base color.
+        let colors: Option<Vec<[f32; 4]>> = match prim.get(&gltf::Semantic::Colors(0)) {
+            Some(a) => {
+                const COLOR_TYPES: &[DataType] = &[DataType::F32, DataType::U8, DataType::U16];
+                let v: Vec<[f32; 4]> = if a.dimensions() == Dimensions::Vec3 {
+                    self.read_floats::<3>(&a, buffers, "COLOR_0", COLOR_TYPES, true)?
+                        .into_iter()
+                        .map(|c| [c[0], c[1], c[2], 1.0])
+                        .collect()
+                } else {
+                    self.read_floats::<4>(&a, buffers, "COLOR_0", COLOR_TYPES, true)?
+                };
+                self.expect_count(v.len(), n, "COLOR_0")?;
+                if v.iter().flatten().any(|c| !c.is_finite()) {
+                    return Err(self.invalid(format!("{what}: COLOR_0 has a non-finite value")));
+                }
+                Some(v)
+            }
+            None => None,
         };
         let indices: Vec<u32> = match prim.indices() {
             Some(a) => {
@@ -450,7 +476,7 @@ impl Loader {
 
         let material = prim.material().index().map_or(default_material, |i| i as u32);
         let mat = &materials[material as usize];
-        let needs_tangents = mat.normal_texture.is_some();
+        let needs_tangents = mat.normal_texture.is_some() || mat.clearcoat_normal_texture.is_some();
         if needs_tangents && uvs.is_none() {
             return Err(
                 self.invalid(format!("material '{}' has a normal map but the primitive has no TEXCOORD_0", mat.name))
@@ -488,7 +514,15 @@ impl Loader {
             Some(us) => mesh.uvs.extend(us.iter().map(|u| Vec2::from(*u))),
             None => mesh.uvs.extend(std::iter::repeat_n(Vec2::ZERO, n)),
         }
-        // TEXCOORD_1 storage exists only once some primitive has it (most scenes never pay for it).
+        // COLOR_0 and TEXCOORD_1 storage exist only once some primitive has them (most scenes never
+        // pay for them).
+        if colors.is_some() || !mesh.colors.is_empty() {
+            mesh.colors.resize(base as usize, Vec4::ONE);
+            match &colors {
+                Some(cs) => mesh.colors.extend(cs.iter().map(|c| Vec4::from(*c))),
+                None => mesh.colors.extend(std::iter::repeat_n(Vec4::ONE, n)),
+            }
+        }
         if uvs1.is_some() || !mesh.uvs1.is_empty() {
             mesh.uvs1.resize(base as usize, Vec2::ZERO);
             match &uvs1 {
@@ -508,6 +542,9 @@ impl Loader {
         }
         if uvs1.is_some() {
             f |= flags::UVS1;
+        }
+        if colors.is_some() {
+            f |= flags::COLORS;
         }
         let first = mesh.triangles.len();
         for t in tris {
@@ -566,6 +603,7 @@ impl Loader {
 
     fn material(
         &self,
+        doc: &gltf::Document,
         m: &gltf::Material,
         buffers: &[Vec<u8>],
         textures: &mut Vec<Texture>,
@@ -619,7 +657,77 @@ impl Loader {
                 return Err(self.invalid(format!("material '{name}': negative emission")));
             }
         }
+        let raw = m.extensions();
+        let ext = |name: &str| raw.and_then(|r| r.get(name));
+        let mut raw_tex = |x: Option<&serde_json::Value>, key: &str, srgb: bool| {
+            self.raw_texture(doc, x.and_then(|x| x.get(key)), key, srgb, buffers, textures, ids)
+        };
+        let number = |x: Option<&serde_json::Value>, key: &str, default: f32| -> Result<f32, SceneError> {
+            match x.and_then(|x| x.get(key)) {
+                None => Ok(default),
+                Some(v) => v
+                    .as_f64()
+                    .map(|v| v as f32)
+                    .filter(|v| v.is_finite())
+                    .ok_or_else(|| self.invalid(format!("material '{name}': {key} {v} is not a finite number"))),
+            }
+        };
+        let rgb = |x: Option<&serde_json::Value>, key: &str, default: Vec3| -> Result<Vec3, SceneError> {
+            match x.and_then(|x| x.get(key)) {
+                None => Ok(default),
+                Some(v) => match v.as_array().map(|a| a.iter().filter_map(|c| c.as_f64()).collect::<Vec<_>>()) {
+                    Some(a) if a.len() == 3 && a.iter().all(|c| c.is_finite() && *c >= 0.0) => {
+                        Ok(Vec3::new(a[0] as f32, a[1] as f32, a[2] as f32))
+                    }
+                    _ => Err(self.invalid(format!("material '{name}': {key} {v} is not three non-negative numbers"))),
+                },
+            }
+        };
+        // KHR_materials_clearcoat.
+        let cc = ext("KHR_materials_clearcoat");
+        let clearcoat = number(cc, "clearcoatFactor", 0.0)?;
+        let clearcoat_roughness = number(cc, "clearcoatRoughnessFactor", 0.0)?;
+        let clearcoat_texture = raw_tex(cc, "clearcoatTexture", false)?;
+        let clearcoat_roughness_texture = raw_tex(cc, "clearcoatRoughnessTexture", false)?;
+        let clearcoat_normal_texture = raw_tex(cc, "clearcoatNormalTexture", false)?;
+        let clearcoat_normal_scale = number(cc.and_then(|c| c.get("clearcoatNormalTexture")), "scale", 1.0)?;
+        // KHR_materials_sheen.
+        let sh = ext("KHR_materials_sheen");
+        let sheen_color = rgb(sh, "sheenColorFactor", Vec3::ZERO)?;
+        let sheen_roughness = number(sh, "sheenRoughnessFactor", 0.0)?;
+        let sheen_color_texture = raw_tex(sh, "sheenColorTexture", true)?;
+        let sheen_roughness_texture = raw_tex(sh, "sheenRoughnessTexture", false)?;
+        // KHR_materials_volume: only the absorption matters to a path tracer (thickness is a hint
+        // for rasterisers that cannot trace the real path).
+        let vol = ext("KHR_materials_volume");
+        let attenuation_color = rgb(vol, "attenuationColor", Vec3::ONE)?;
+        // Absent: infinite (no absorption); JSON has no infinity, so a present value is finite.
+        let attenuation_distance = number(vol, "attenuationDistance", f32::INFINITY)?;
+        if !(attenuation_distance > 0.0) {
+            return Err(
+                self.invalid(format!("material '{name}': attenuationDistance {attenuation_distance} must be positive"))
+            );
+        }
+        let absorption = if attenuation_distance.is_finite() {
+            let c = attenuation_color.clamp(Vec3::splat(1e-30), Vec3::ONE);
+            Vec3::new(-c.x.ln(), -c.y.ln(), -c.z.ln()) / attenuation_distance
+        } else {
+            Vec3::ZERO
+        };
+        let unlit = ext("KHR_materials_unlit").is_some();
         Ok(Material {
+            clearcoat,
+            clearcoat_texture,
+            clearcoat_roughness,
+            clearcoat_roughness_texture,
+            clearcoat_normal_texture,
+            clearcoat_normal_scale,
+            sheen_color,
+            sheen_color_texture,
+            sheen_roughness,
+            sheen_roughness_texture,
+            absorption,
+            unlit,
             base_color: Vec4::from(pbr.base_color_factor()),
             base_color_texture,
             metallic: checked(pbr.metallic_factor(), "metallicFactor")?,
@@ -648,20 +756,141 @@ impl Loader {
         })
     }
 
-    /// Whether the primitive has TEXCOORD_`set`, checked (float, or normalized 8/16-bit; its count
-    /// that of POSITION) before it is read.
-    fn check_tex_coords(&self, prim: &gltf::Primitive, set: u32, n: usize) -> Result<bool, SceneError> {
-        let Some(a) = prim.get(&gltf::Semantic::TexCoords(set)) else { return Ok(false) };
+    /// A texture reference written as raw JSON (`{"index", "texCoord", "extensions"}`) inside an
+    /// extension the gltf crate does not parse (clearcoat, sheen).
+    #[allow(clippy::too_many_arguments)] // the texture info, where it is, and the tables being filled
+    fn raw_texture(
+        &self,
+        doc: &gltf::Document,
+        info: Option<&serde_json::Value>,
+        what: &str,
+        srgb: bool,
+        buffers: &[Vec<u8>],
+        textures: &mut Vec<Texture>,
+        ids: &mut HashMap<(usize, bool), u32>,
+    ) -> Result<Option<TextureRef>, SceneError> {
+        let Some(info) = info else { return Ok(None) };
+        let index = info
+            .get("index")
+            .and_then(|i| i.as_u64())
+            .ok_or_else(|| self.invalid(format!("{what}: no texture index")))?;
+        let texture = usize::try_from(index)
+            .ok()
+            .and_then(|i| doc.textures().nth(i))
+            .ok_or_else(|| self.invalid(format!("{what}: texture {index} does not exist")))?;
+        let tex_coord = match info.get("texCoord") {
+            None => 0,
+            Some(t) => {
+                t.as_u64().ok_or_else(|| self.invalid(format!("{what}: texCoord {t}")))?.min(u32::MAX as u64) as u32
+            }
+        };
+        let xf = self.raw_transform(info.get("extensions").and_then(|e| e.as_object()))?;
+        Ok(Some(self.texture_ref(&texture, tex_coord, xf, srgb, buffers, textures, ids)?))
+    }
+
+    /// TEXCOORD_`set` if the primitive has it: float, or 8/16-bit integers (normalized, or not
+    /// under KHR_mesh_quantization), its count that of POSITION.
+    fn read_tex_coords(
+        &self,
+        prim: &gltf::Primitive,
+        set: u32,
+        n: usize,
+        buffers: &[Vec<u8>],
+    ) -> Result<Option<Vec<[f32; 2]>>, SceneError> {
+        let Some(a) = prim.get(&gltf::Semantic::TexCoords(set)) else { return Ok(None) };
         let name = format!("TEXCOORD_{set}");
-        self.expect_count(
-            self.check_accessor(&a, &name, &[DataType::F32, DataType::U8, DataType::U16], Dimensions::Vec2)?,
-            n,
-            &name,
-        )?;
-        if a.data_type() != DataType::F32 && !a.normalized() {
-            return Err(self.unsupported(format!("non-normalized integer {name}")));
+        const TYPES: &[DataType] = &[DataType::F32, DataType::I8, DataType::U8, DataType::I16, DataType::U16];
+        let v = self.read_floats::<2>(&a, buffers, &name, TYPES, false)?;
+        self.expect_count(v.len(), n, &name)?;
+        if v.iter().flatten().any(|c| !c.is_finite()) {
+            return Err(self.invalid(format!("{name} has a non-finite value")));
         }
-        Ok(true)
+        Ok(Some(v))
+    }
+
+    /// Reads a vertex attribute of `N` components as f32, after `check_accessor` has bounded it.
+    /// Integer components (glTF core for colors and UVs, KHR_mesh_quantization for the rest) are
+    /// converted as the spec says: normalized ones to [0, 1] or [−1, 1] (signed: max(c / MAX, −1)),
+    /// others to their integer value. `normalized_only` refuses non-normalized integers (normals,
+    /// tangents, colors must be normalized).
+    fn read_floats<const N: usize>(
+        &self,
+        acc: &gltf::Accessor,
+        buffers: &[Vec<u8>],
+        what: &str,
+        types: &[DataType],
+        normalized_only: bool,
+    ) -> Result<Vec<[f32; N]>, SceneError> {
+        let dims = match N {
+            2 => Dimensions::Vec2,
+            3 => Dimensions::Vec3,
+            4 => Dimensions::Vec4,
+            _ => Dimensions::Scalar,
+        };
+        let count = self.check_accessor(acc, what, types, dims)?;
+        let ty = acc.data_type();
+        if ty != DataType::F32 && normalized_only && !acc.normalized() {
+            return Err(self.unsupported(format!("non-normalized integer {what} (accessor {})", acc.index())));
+        }
+        let view = acc.view().ok_or_else(|| self.invalid(format!("{what} has no bufferView")))?;
+        let buf = buffers
+            .get(view.buffer().index())
+            .ok_or_else(|| self.invalid(format!("{what}: buffer {} missing", view.buffer().index())))?;
+        let stride = view.stride().unwrap_or(acc.size());
+        let start = view.offset() + acc.offset();
+        let size = ty.size();
+        let norm = acc.normalized();
+        let decode = |b: &[u8]| -> f32 {
+            match ty {
+                DataType::F32 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+                DataType::I8 => {
+                    let v = b[0] as i8 as f32;
+                    if norm {
+                        (v / 127.0).max(-1.0)
+                    } else {
+                        v
+                    }
+                }
+                DataType::U8 => {
+                    let v = b[0] as f32;
+                    if norm {
+                        v / 255.0
+                    } else {
+                        v
+                    }
+                }
+                DataType::I16 => {
+                    let v = i16::from_le_bytes([b[0], b[1]]) as f32;
+                    if norm {
+                        (v / 32767.0).max(-1.0)
+                    } else {
+                        v
+                    }
+                }
+                DataType::U16 => {
+                    let v = u16::from_le_bytes([b[0], b[1]]) as f32;
+                    if norm {
+                        v / 65535.0
+                    } else {
+                        v
+                    }
+                }
+                DataType::U32 => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f32,
+            }
+        };
+        // `check_accessor` proved start + (count − 1)·stride + N·size ≤ the view's end, and the
+        // views were checked against their buffers in `load_buffers`.
+        let mut out = Vec::with_capacity(count);
+        for i in 0..count {
+            let at = start + i * stride;
+            let mut v = [0.0f32; N];
+            for (c, x) in v.iter_mut().enumerate() {
+                let o = at + c * size;
+                *x = decode(&buf[o..o + size]);
+            }
+            out.push(v);
+        }
+        Ok(out)
     }
 
     /// KHR_texture_transform from a texture info's raw extensions (normal and occlusion textures,

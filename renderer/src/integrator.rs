@@ -36,6 +36,10 @@ pub fn radiance(
     let mut prev: Option<(Vec3, Vec3, f32)> = None;
     let (mesh, materials, textures) = (&scene.mesh, &scene.materials, &scene.textures);
     let mut depth = 0u32;
+    // Absorption coefficient of the medium the path is in (KHR_materials_volume): set when a
+    // transmission enters a mesh through its front face, cleared when one leaves. Meshes are taken
+    // as closed and not nested (a path inside two absorbing meshes at once sees the inner one).
+    let mut medium = Vec3::ZERO;
     loop {
         *rays += 1;
         // Per-bounce random bits for stochastic (BLEND) transparency, only drawn when it can matter.
@@ -45,6 +49,10 @@ pub fn radiance(
             0
         };
         let Some(hit) = scene.intersect_surface(o, d, transparency_seed) else {
+            if medium != Vec3::ZERO {
+                // An absorbing medium that never ends (an open mesh): nothing gets out.
+                beta *= Vec3::select(medium.cmpgt(Vec3::ZERO), Vec3::ZERO, Vec3::ONE);
+            }
             if let Some(env) = &scene.lights.environment {
                 let le = env.eval(d);
                 match (settings.integrator, prev) {
@@ -65,6 +73,17 @@ pub fn radiance(
         };
         let sp = mesh.surface_point(hit.triangle, hit.b1, hit.b2);
         let material = &materials[mesh.triangles[hit.triangle as usize].material as usize];
+        if medium != Vec3::ZERO {
+            // Beer–Lambert over the segment's real length (from the vertex, not `o`, which
+            // transparent layers may have moved).
+            beta *= transmittance(medium, (sp.p - o).length());
+        }
+        if material.unlit {
+            // KHR_materials_unlit: the surface shows its color and scatters nothing. No light
+            // sampler picks it, so every strategy adds it with full weight.
+            l += beta * material.base_color_at(textures, sp.uv, sp.color);
+            break;
+        }
 
         if material.is_emissive() {
             let le = emitted(material, textures, sp.ng, sp.uv, -d);
@@ -124,7 +143,24 @@ pub fn radiance(
                 break;
             }
         }
-        let mut bsdf = material.bsdf(textures, sp.uv);
+        let mut bsdf = material.bsdf(textures, sp.uv, sp.color);
+        if let Some(coat) = bsdf.coat.as_mut() {
+            // The coat's normal: its own normal map on the interpolated vertex normal, or that
+            // normal alone (not the base's mapped one: KHR_materials_clearcoat), in the shading frame.
+            let mut nc = sp.ns;
+            if let (Some(t), Some(n_ts)) = (sp.tangent, material.clearcoat_tangent_space_normal(textures, sp.uv)) {
+                let tan = t.truncate();
+                let mapped = (tan * n_ts.x + sp.ns.cross(tan) * t.w * n_ts.y + sp.ns * n_ts.z).normalize_or_zero();
+                if mapped != Vec3::ZERO && mapped.is_finite() {
+                    nc = mapped;
+                }
+            }
+            if nc.dot(ng) < 0.0 {
+                nc = -nc;
+            }
+            let local = frame.to_local(nc).normalize_or_zero();
+            coat.normal = if local.z > 1e-3 && local.is_finite() { local } else { Vec3::Z };
+        }
         // Glass: entering through the front (winding) face goes from outside (n = 1) into ior;
         // leaving through it from inside, the relative index inverts.
         if sp.ng.dot(wo_world) < 0.0 {
@@ -175,14 +211,20 @@ pub fn radiance(
                                 0.0
                             }
                         };
-                        if visible > 0.0 {
+                        let visible = if medium != Vec3::ZERO {
+                            // Inside an absorbing mesh, the light is too (glass stops shadow rays).
+                            visible * transmittance(medium, ls.dist)
+                        } else {
+                            Vec3::splat(visible)
+                        };
+                        if visible != Vec3::ZERO {
                             let w = match settings.integrator {
                                 IntegratorKind::Mis if !ls.delta => {
                                     mis_weight(settings.mis_heuristic, ls.pdf, bsdf.pdf(wo, wi))
                                 }
                                 _ => 1.0,
                             };
-                            l += beta * f * ls.le * (visible * wi.z.abs() * w / ls.pdf);
+                            l += beta * f * ls.le * visible * (wi.z.abs() * w / ls.pdf);
                         }
                     }
                 }
@@ -203,6 +245,10 @@ pub fn radiance(
         if !beta.is_finite() || beta == Vec3::ZERO {
             break;
         }
+        if transmitted {
+            // Entering through the front (winding) face: into this mesh's medium; else out of it.
+            medium = if sp.ng.dot(wo_world) > 0.0 { material.absorption } else { Vec3::ZERO };
+        }
         prev = if bs.delta { None } else { Some((sp.p, ns, bs.pdf)) };
         o = if transmitted { offset_ray_origin(sp.p, -ng) } else { origin };
         d = wi_world;
@@ -220,4 +266,11 @@ pub fn radiance(
         }
     }
     l
+}
+
+/// Beer–Lambert transmittance exp(−σ·t) per channel (a channel with σ = 0 is 1 even for t = ∞).
+#[inline]
+fn transmittance(sigma: Vec3, t: f32) -> Vec3 {
+    let x = |s: f32| if s > 0.0 { (-s * t).exp() } else { 1.0 };
+    Vec3::new(x(sigma.x), x(sigma.y), x(sigma.z))
 }

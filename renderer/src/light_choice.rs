@@ -69,7 +69,7 @@ fn camera_points(scene: &Scene, view: Option<(Camera, u32, u32)>) -> Vec<PilotPo
             continue;
         }
         let n = if sp.ng.dot(d) < 0.0 { sp.ng } else { -sp.ng };
-        let bsdf = m.bsdf(&scene.textures, sp.uv);
+        let bsdf = m.bsdf(&scene.textures, sp.uv, sp.color);
         if bsdf.is_delta_only() {
             continue;
         }

@@ -1,8 +1,10 @@
 //! glTF metallic-roughness materials and their resolution to a [`Bsdf`] at a shading point.
 
 use crate::bsdf::Bsdf;
+use crate::clearcoat::Clearcoat;
 use crate::math::{Vec3, Vec4};
 use crate::microfacet::Ggx;
+use crate::sheen::Sheen;
 use crate::texture::{TexCoords, Texture, TextureRef};
 
 #[derive(Clone, Debug)]
@@ -29,6 +31,26 @@ pub struct Material {
     /// KHR_materials_transmission factor (and texture, red channel).
     pub transmission: f32,
     pub transmission_texture: Option<TextureRef>,
+    /// KHR_materials_clearcoat: factor (× texture R), roughness (× texture G), its own normal map.
+    pub clearcoat: f32,
+    pub clearcoat_texture: Option<TextureRef>,
+    pub clearcoat_roughness: f32,
+    pub clearcoat_roughness_texture: Option<TextureRef>,
+    pub clearcoat_normal_texture: Option<TextureRef>,
+    pub clearcoat_normal_scale: f32,
+    /// KHR_materials_sheen: color (× texture RGB), roughness (× texture A). Black = no sheen.
+    pub sheen_color: Vec3,
+    pub sheen_color_texture: Option<TextureRef>,
+    pub sheen_roughness: f32,
+    pub sheen_roughness_texture: Option<TextureRef>,
+    /// KHR_materials_volume as an absorption coefficient σa = −ln(attenuationColor) /
+    /// attenuationDistance (per scene unit) inside the mesh; zero = clear. Beer–Lambert along the
+    /// real path length (the extension's `thickness` is a rasteriser's hint and is not used).
+    pub absorption: Vec3,
+    /// KHR_materials_unlit: the surface shows its base color whatever the lighting. In a path
+    /// tracer that is an emitter of radiance baseColor that does not scatter (as Blender's exporter
+    /// writes an Emission/Background shader), seen by every ray but not sampled by NEE.
+    pub unlit: bool,
     /// glTF `doubleSided`: here it decides whether an emissive surface emits from its back face too.
     pub double_sided: bool,
     pub alpha_mode: AlphaMode,
@@ -64,6 +86,18 @@ impl Default for Material {
             ior: 1.5,
             transmission: 0.0,
             transmission_texture: None,
+            clearcoat: 0.0,
+            clearcoat_texture: None,
+            clearcoat_roughness: 0.0,
+            clearcoat_roughness_texture: None,
+            clearcoat_normal_texture: None,
+            clearcoat_normal_scale: 1.0,
+            sheen_color: Vec3::ZERO,
+            sheen_color_texture: None,
+            sheen_roughness: 0.0,
+            sheen_roughness_texture: None,
+            absorption: Vec3::ZERO,
+            unlit: false,
             double_sided: false,
             alpha_mode: AlphaMode::Opaque,
         }
@@ -80,9 +114,10 @@ impl Material {
         self.emissive.max_element() > 0.0
     }
 
-    /// Coverage at `uv` for MASK and BLEND materials (base color alpha × texture alpha), in [0, 1].
-    pub fn alpha(&self, textures: &[Texture], uv: TexCoords) -> f32 {
-        let mut a = self.base_color.w;
+    /// Coverage at `uv` for MASK and BLEND materials (base color alpha × texture alpha × COLOR_0
+    /// alpha), in [0, 1].
+    pub fn alpha(&self, textures: &[Texture], uv: TexCoords, color: Vec4) -> f32 {
+        let mut a = self.base_color.w * color.w;
         if let Some(t) = lookup(textures, &self.base_color_texture, uv) {
             a *= t.w;
         }
@@ -101,13 +136,20 @@ impl Material {
         }
     }
 
-    /// BSDF parameters at `uv`, with every input clamped to its valid range so that no texture or
-    /// factor can produce NaN or energy gain.
-    pub fn bsdf(&self, textures: &[Texture], uv: TexCoords) -> Bsdf {
-        let mut base = self.base_color;
+    /// Base color × texture × vertex color (COLOR_0), RGB clamped to [0, 1].
+    pub fn base_color_at(&self, textures: &[Texture], uv: TexCoords, color: Vec4) -> Vec3 {
+        let mut base = self.base_color * color;
         if let Some(t) = lookup(textures, &self.base_color_texture, uv) {
             base *= t;
         }
+        Vec3::new(sanitize(base.x), sanitize(base.y), sanitize(base.z))
+    }
+
+    /// BSDF parameters at `uv` (with the vertex color `color`), with every input clamped to its
+    /// valid range so that no texture or factor can produce NaN or energy gain. A clearcoat's normal
+    /// is the shading normal here; the integrator replaces it when the coat has its own normal map.
+    pub fn bsdf(&self, textures: &[Texture], uv: TexCoords, color: Vec4) -> Bsdf {
+        let base_color = self.base_color_at(textures, uv, color);
         let (mut metallic, mut roughness) = (self.metallic, self.roughness);
         if let Some(t) = lookup(textures, &self.metallic_roughness_texture, uv) {
             roughness *= t.y;
@@ -121,14 +163,28 @@ impl Material {
         if let Some(t) = lookup(textures, &self.specular_color_texture, uv) {
             specular_color *= t.truncate();
         }
-        let sanitize = |x: f32| {
-            if x.is_finite() {
-                x.clamp(0.0, 1.0)
-            } else {
-                0.0
+        let coat = (self.clearcoat > 0.0).then(|| {
+            let mut c = self.clearcoat;
+            if let Some(t) = lookup(textures, &self.clearcoat_texture, uv) {
+                c *= t.x;
             }
-        };
-        let base_color = Vec3::new(sanitize(base.x), sanitize(base.y), sanitize(base.z));
+            let mut r = self.clearcoat_roughness;
+            if let Some(t) = lookup(textures, &self.clearcoat_roughness_texture, uv) {
+                r *= t.y;
+            }
+            Clearcoat { weight: sanitize(c), ggx: Ggx::from_roughness(sanitize(r)), normal: Vec3::Z }
+        });
+        let sheen = (self.sheen_color.max_element() > 0.0).then(|| {
+            let mut c = self.sheen_color;
+            if let Some(t) = lookup(textures, &self.sheen_color_texture, uv) {
+                c *= t.truncate();
+            }
+            let mut r = self.sheen_roughness;
+            if let Some(t) = lookup(textures, &self.sheen_roughness_texture, uv) {
+                r *= t.w;
+            }
+            Sheen::new(Vec3::new(sanitize(c.x), sanitize(c.y), sanitize(c.z)), sanitize(r))
+        });
         Bsdf {
             base_color,
             metallic: sanitize(metallic),
@@ -146,15 +202,34 @@ impl Material {
                 sanitize(t)
             },
             eta: if self.ior.is_finite() { self.ior.max(1.0) } else { 1.5 },
+            coat: coat.filter(|c| c.weight > 0.0),
+            sheen: sheen.filter(|s| s.color.max_element() > 0.0),
         }
     }
 
     /// Tangent-space normal from the normal texture (scaled as the glTF spec defines), or None.
     pub fn tangent_space_normal(&self, textures: &[Texture], uv: TexCoords) -> Option<Vec3> {
-        let t = lookup(textures, &self.normal_texture, uv)?;
-        let n =
-            Vec3::new((2.0 * t.x - 1.0) * self.normal_scale, (2.0 * t.y - 1.0) * self.normal_scale, 2.0 * t.z - 1.0);
-        let n = n.normalize_or_zero();
-        (n != Vec3::ZERO).then_some(n)
+        decode_normal(lookup(textures, &self.normal_texture, uv)?, self.normal_scale)
+    }
+
+    /// Tangent-space normal of the clearcoat's own normal map, or None (the coat then uses the
+    /// interpolated vertex normal, not the base's mapped one: KHR_materials_clearcoat).
+    pub fn clearcoat_tangent_space_normal(&self, textures: &[Texture], uv: TexCoords) -> Option<Vec3> {
+        decode_normal(lookup(textures, &self.clearcoat_normal_texture, uv)?, self.clearcoat_normal_scale)
+    }
+}
+
+/// A normal-map texel to a unit tangent-space normal (glTF: xy scaled by `scale`).
+fn decode_normal(t: Vec4, scale: f32) -> Option<Vec3> {
+    let n = Vec3::new((2.0 * t.x - 1.0) * scale, (2.0 * t.y - 1.0) * scale, 2.0 * t.z - 1.0).normalize_or_zero();
+    (n != Vec3::ZERO && n.is_finite()).then_some(n)
+}
+
+#[inline]
+fn sanitize(x: f32) -> f32 {
+    if x.is_finite() {
+        x.clamp(0.0, 1.0)
+    } else {
+        0.0
     }
 }

@@ -11,6 +11,8 @@ pub mod flags {
     pub const UVS: u8 = 4;
     /// The primitive has TEXCOORD_1 (in `Mesh::uvs1`).
     pub const UVS1: u8 = 8;
+    /// The primitive has COLOR_0 (in `Mesh::colors`).
+    pub const COLORS: u8 = 16;
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -29,6 +31,8 @@ pub struct Mesh {
     pub uvs: Vec<Vec2>,
     /// TEXCOORD_1, allocated only once some primitive has it (then parallel to `positions`).
     pub uvs1: Vec<Vec2>,
+    /// COLOR_0 (linear RGBA), allocated only once some primitive has it (then parallel to `positions`).
+    pub colors: Vec<Vec4>,
     pub triangles: Vec<Triangle>,
 }
 
@@ -44,6 +48,8 @@ pub struct SurfacePoint {
     pub tangent: Option<Vec4>,
     /// TEXCOORD_0 and TEXCOORD_1.
     pub uv: TexCoords,
+    /// COLOR_0 (white where the primitive has none): multiplies the base color.
+    pub color: Vec4,
     pub triangle: u32,
 }
 
@@ -106,7 +112,12 @@ impl Mesh {
         let uv = self.tex_coords(t, b1, b2);
         let tangent = (t.flags & flags::TANGENTS != 0)
             .then(|| self.tangents[i0] * b0 + self.tangents[i1] * b1 + self.tangents[i2] * b2);
-        SurfacePoint { p, ng, ns, tangent, uv, triangle: tri }
+        let color = if t.flags & flags::COLORS != 0 {
+            self.colors[i0] * b0 + self.colors[i1] * b1 + self.colors[i2] * b2
+        } else {
+            Vec4::ONE
+        };
+        SurfacePoint { p, ng, ns, tangent, uv, color, triangle: tri }
     }
 
     /// Generates per-vertex tangents from UV derivatives for the triangles in `tris` (Lengyel 2001,

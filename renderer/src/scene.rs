@@ -199,8 +199,8 @@ impl Scene {
         if m.alpha_mode == AlphaMode::Opaque {
             return (AlphaMode::Opaque, 1.0);
         }
-        let uv = self.mesh.surface_point(hit.triangle, hit.b1, hit.b2).uv;
-        (m.alpha_mode, m.alpha(&self.textures, uv))
+        let sp = self.mesh.surface_point(hit.triangle, hit.b1, hit.b2);
+        (m.alpha_mode, m.alpha(&self.textures, sp.uv, sp.color))
     }
 
     /// The first surface along the ray that stops it: MASK cut-outs are skipped, BLEND surfaces stop

@@ -105,8 +105,8 @@ fn unsupported_features_are_named() {
     );
     // Refused when the file requires them (used-only ones warn: see optional_extensions_warn_...).
     let required = |e: &str| with(&format!(r#""extensionsUsed":["{e}"],"extensionsRequired":["{e}"]"#));
-    expect_err(&required("KHR_materials_clearcoat"), "KHR_materials_clearcoat");
-    expect_err(&required("KHR_materials_volume"), "KHR_materials_volume");
+    expect_err(&required("KHR_materials_iridescence"), "KHR_materials_iridescence");
+    expect_err(&required("KHR_materials_anisotropy"), "KHR_materials_anisotropy");
 }
 
 #[test]
@@ -220,18 +220,21 @@ fn non_finite_vertices_are_refused_naming_mesh_accessor_and_vertex() {
 /// required for any Mapping node).
 #[test]
 fn optional_extensions_warn_required_ones_refuse() {
-    let used =
-        gltf_json(r#"[{"mesh":0}]"#, r#","extensionsUsed":["KHR_materials_clearcoat","KHR_materials_sheen"]"#, true);
+    let used = gltf_json(
+        r#"[{"mesh":0}]"#,
+        r#","extensionsUsed":["KHR_materials_iridescence","KHR_materials_anisotropy"]"#,
+        true,
+    );
     let scene = load_str(&used).expect("optional extensions render without them");
     assert_eq!(scene.warnings.len(), 2, "{:?}", scene.warnings);
-    assert!(scene.warnings[0].contains("KHR_materials_clearcoat"), "{:?}", scene.warnings);
+    assert!(scene.warnings[0].contains("KHR_materials_iridescence"), "{:?}", scene.warnings);
     let required = gltf_json(
         r#"[{"mesh":0}]"#,
-        r#","extensionsUsed":["KHR_materials_clearcoat"],"extensionsRequired":["KHR_materials_clearcoat"]"#,
+        r#","extensionsUsed":["KHR_materials_anisotropy"],"extensionsRequired":["KHR_materials_anisotropy"]"#,
         true,
     );
     let e = load_str(&required).err().expect("a required unmodelled extension is refused").to_string();
-    assert!(e.contains("KHR_materials_clearcoat") && e.contains("required"), "{e}");
+    assert!(e.contains("KHR_materials_anisotropy") && e.contains("required"), "{e}");
     let transform = gltf_json(
         r#"[{"mesh":0}]"#,
         r#","extensionsUsed":["KHR_texture_transform"],"extensionsRequired":["KHR_texture_transform"]"#,
@@ -294,4 +297,91 @@ fn texture_transform_and_second_uv_set_are_honoured() {
         emission(r#"{"index":0,"extensions":{"KHR_texture_transform":{"rotation":3.14159265,"offset":[1,1]}}}"#);
     // (0.25, 0.5) rotated by π is (−0.25, −0.5); offset (1, 1) gives (0.75, 0.5): green.
     assert!(rotated.y > 0.99, "{rotated:?}");
+}
+
+/// One triangle stored as KHR_mesh_quantization allows (i16 POSITION, not normalized, scaled by its
+/// node; u16 normalized TEXCOORD_0; i8 normalized NORMAL) with u8 normalized RGBA COLOR_0, and the
+/// material extensions clearcoat, sheen, volume and unlit.
+fn quantized_gltf(material_ext: &str, required: &str) -> String {
+    let mut bin = Vec::new();
+    for v in [[0i16, 0, 0], [100, 0, 0], [0, 100, 0]] {
+        for c in v {
+            bin.extend_from_slice(&c.to_le_bytes());
+        }
+        bin.extend_from_slice(&[0, 0]); // padding to the 8-byte stride
+    }
+    for c in [[255u8, 0, 0, 255], [0, 255, 0, 128], [0, 0, 255, 255]] {
+        bin.extend_from_slice(&c);
+    }
+    for uv in [[0u16, 0], [65535, 0], [0, 32768]] {
+        for c in uv {
+            bin.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    for _ in 0..3 {
+        bin.extend_from_slice(&[0u8, 0, 127, 0]); // +z, padded to 4 bytes
+    }
+    let uri =
+        format!("data:application/octet-stream;base64,{}", base64::engine::general_purpose::STANDARD.encode(&bin));
+    format!(
+        r#"{{"asset":{{"version":"2.0"}},"extensionsUsed":["KHR_mesh_quantization","KHR_materials_clearcoat","KHR_materials_sheen","KHR_materials_volume","KHR_materials_unlit"],
+        "extensionsRequired":[{required}],
+        "scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0,"scale":[0.01,0.01,0.01]}}],
+        "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0,"COLOR_0":1,"TEXCOORD_0":2,"NORMAL":3}},"material":0}}]}}],
+        "materials":[{{"extensions":{material_ext}}}],
+        "accessors":[{{"bufferView":0,"componentType":5122,"count":3,"type":"VEC3","min":[0,0,0],"max":[100,100,0]}},
+                     {{"bufferView":1,"componentType":5121,"normalized":true,"count":3,"type":"VEC4"}},
+                     {{"bufferView":2,"componentType":5123,"normalized":true,"count":3,"type":"VEC2"}},
+                     {{"bufferView":3,"componentType":5120,"normalized":true,"count":3,"type":"VEC3"}}],
+        "bufferViews":[{{"buffer":0,"byteOffset":0,"byteLength":24,"byteStride":8}},{{"buffer":0,"byteOffset":24,"byteLength":12}},
+                       {{"buffer":0,"byteOffset":36,"byteLength":12}},{{"buffer":0,"byteOffset":48,"byteLength":12,"byteStride":4}}],
+        "buffers":[{{"byteLength":60,"uri":"{uri}"}}]}}"#
+    )
+}
+
+#[test]
+fn quantized_attributes_vertex_colors_and_material_extensions_load() {
+    let ext = r#"{"KHR_materials_clearcoat":{"clearcoatFactor":0.8,"clearcoatRoughnessFactor":0.2},
+        "KHR_materials_sheen":{"sheenColorFactor":[0.5,0.4,0.3],"sheenRoughnessFactor":0.6},
+        "KHR_materials_volume":{"attenuationColor":[0.5,1.0,0.25],"attenuationDistance":2.0,"thickness":0.1}}"#;
+    let s = load_str(&quantized_gltf(ext, r#""KHR_mesh_quantization""#)).expect("quantized scene");
+    assert!(s.warnings.is_empty(), "every extension here is modelled: {:?}", s.warnings);
+    // i16 positions dequantized by the node's 0.01 scale.
+    let p = &s.mesh.positions;
+    assert!((p[1] - renderer::math::Vec3::new(1.0, 0.0, 0.0)).length() < 1e-6, "{p:?}");
+    assert!((p[2] - renderer::math::Vec3::new(0.0, 1.0, 0.0)).length() < 1e-6, "{p:?}");
+    assert!(s.mesh.triangles[0].flags & flags::COLORS != 0);
+    // COLOR_0 u8 normalized: vertex 1 is (0, 1, 0, 128/255); UVs u16 normalized.
+    let c = s.mesh.colors[1];
+    assert!((c - renderer::math::Vec4::new(0.0, 1.0, 0.0, 128.0 / 255.0)).abs().max_element() < 1e-6, "{c:?}");
+    assert!((s.mesh.uvs[2].y - 32768.0 / 65535.0).abs() < 1e-6);
+    assert!((s.mesh.normals[0] - renderer::math::Vec3::Z).length() < 1e-6);
+    let sp = s.mesh.surface_point(0, 0.5, 0.25);
+    assert!(
+        (sp.color - renderer::math::Vec4::new(0.25, 0.5, 0.25, 0.25 + 0.5 * 128.0 / 255.0 + 0.25)).abs().max_element()
+            < 1e-5
+    );
+    let m = &s.materials[0];
+    assert_eq!((m.clearcoat, m.clearcoat_roughness), (0.8, 0.2));
+    assert_eq!((m.sheen_color, m.sheen_roughness), (renderer::math::Vec3::new(0.5, 0.4, 0.3), 0.6));
+    // σ = −ln(color) / distance.
+    let want = renderer::math::Vec3::new(-(0.5f32.ln()) / 2.0, 0.0, -(0.25f32.ln()) / 2.0);
+    assert!((m.absorption - want).abs().max_element() < 1e-6, "{:?}", m.absorption);
+    assert!(!m.unlit);
+    // The base color the BSDF sees is multiplied by the vertex color.
+    let b = m.bsdf(&s.textures, sp.uv, sp.color);
+    assert!((b.base_color - renderer::math::Vec3::new(0.25, 0.5, 0.25)).abs().max_element() < 1e-5);
+    assert!(b.coat.is_some() && b.sheen.is_some());
+
+    let unlit = load_str(&quantized_gltf(r#"{"KHR_materials_unlit":{}}"#, "")).expect("unlit");
+    assert!(unlit.materials[0].unlit);
+
+    for (ext, needle) in [
+        (r#"{"KHR_materials_volume":{"attenuationDistance":0}}"#, "attenuationDistance 0 must be positive"),
+        (r#"{"KHR_materials_volume":{"attenuationColor":[1,-1,1],"attenuationDistance":1}}"#, "attenuationColor"),
+        (r#"{"KHR_materials_clearcoat":{"clearcoatFactor":"x"}}"#, "clearcoatFactor"),
+        (r#"{"KHR_materials_sheen":{"sheenColorTexture":{"index":7}}}"#, "texture 7 does not exist"),
+    ] {
+        expect_err(&quantized_gltf(ext, ""), needle);
+    }
 }

@@ -3,10 +3,12 @@
 //! pooled, family-wise α = 0.01 with a Šidák correction over every configuration in this file.
 
 use renderer::bsdf::Bsdf;
+use renderer::clearcoat::Clearcoat;
 use renderer::light::LightSamplerKind;
 use renderer::math::{cosine_hemisphere_pdf, sample_cosine_hemisphere, Vec3};
 use renderer::microfacet::Ggx;
 use renderer::sampler::{PixelSample, SamplerKind};
+use renderer::sheen::Sheen;
 use renderer::stats::{chi2_directions, sidak, ChiSquare};
 use renderer::testing::{emitter, SceneBuilder};
 
@@ -25,6 +27,8 @@ fn bsdf(metallic: f32, roughness: f32, specular: f32) -> Bsdf {
         f0_dielectric: Bsdf::f0_from_ior(1.5, Vec3::ONE),
         transmission: 0.0,
         eta: 1.5,
+        coat: None,
+        sheen: None,
     }
 }
 
@@ -80,6 +84,31 @@ fn every_sampler_matches_its_pdf() {
         }
     }
     results.push(("Lambert via Bsdf".into(), bsdf_case(bsdf(0.0, 1.0, 0.0), 0.5, 300)));
+
+    // KHR_materials_clearcoat (rough coat, straight and tilted coat normal) and KHR_materials_sheen
+    // over the glTF mixture, alone and together.
+    let tilted = Vec3::new(0.35, -0.2, 0.9).normalize();
+    for (k, &(coat_r, normal, sheen_r)) in [
+        (Some(0.3f32), Vec3::Z, None),
+        (Some(0.1), tilted, None),
+        (Some(0.6), tilted, None),
+        (None, Vec3::Z, Some(0.3f32)),
+        (None, Vec3::Z, Some(1.0)),
+        (Some(0.2), tilted, Some(0.5)),
+    ]
+    .iter()
+    .enumerate()
+    {
+        for (j, &c) in [0.9f32, 0.35, 0.05].iter().enumerate() {
+            let mut b = bsdf(0.0, 0.5, 1.0);
+            b.coat = coat_r.map(|r| Clearcoat { weight: 0.8, ggx: Ggx::from_roughness(r), normal });
+            b.sheen = sheen_r.map(|r| Sheen::new(Vec3::new(0.9, 0.6, 0.8), r));
+            results.push((
+                format!("layered: coat {coat_r:?} normal {normal:?}, sheen {sheen_r:?}, cosθo {c}"),
+                bsdf_case(b, c, 500 + (k * 10 + j) as u64),
+            ));
+        }
+    }
 
     // Area-light sampling from a point: two triangles of different size, emission and orientation.
     let mut b = SceneBuilder::default();

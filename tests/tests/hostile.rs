@@ -61,11 +61,11 @@ fn bad_settings_are_refused_by_field_and_cannot_brick_the_farm() {
     // Issue 12's policy on the farm: an optional extension the renderer does not model is a warning
     // on the job (and in its EXR), not a refusal.
     let gltf = std::fs::read_to_string(repo_root().join("scenes/cornell/cornell.gltf")).expect("cornell.gltf");
-    let gltf = gltf.replacen("\"extensionsUsed\": [", "\"extensionsUsed\": [\"KHR_materials_sheen\", ", 1);
-    assert!(gltf.contains("KHR_materials_sheen"));
+    let gltf = gltf.replacen("\"extensionsUsed\": [", "\"extensionsUsed\": [\"KHR_materials_iridescence\", ", 1);
+    assert!(gltf.contains("KHR_materials_iridescence"));
     let (status, body) = post_job(&farm.url, None, &[("c.gltf", gltf.as_bytes())], r#"{"spp": 1, "width": 8}"#);
     assert_eq!(status, 201, "{body}");
-    assert!(body["warnings"][0].as_str().unwrap_or_default().contains("KHR_materials_sheen"), "{body}");
+    assert!(body["warnings"][0].as_str().unwrap_or_default().contains("KHR_materials_iridescence"), "{body}");
     // NaN is not JSON: refused as malformed.
     let (status, _) = post_job(&farm.url, None, &[("c.glb", &glb)], r#"{"env_strength": NaN}"#);
     assert_eq!(status, 400);

@@ -40,9 +40,25 @@ const SUPPORTED_EXTENSIONS: &[&str] = &[
     "KHR_materials_volume",
     "KHR_materials_unlit",
     "KHR_mesh_quantization",
+    "KHR_draco_mesh_compression",
 ];
 /// Extensions that carry only metadata and cannot change the image.
 const HARMLESS_EXTENSIONS: &[&str] = &["KHR_xmp_json_ld", "KHR_xmp"];
+
+/// Largest point (and face) count a Draco stream may decode to.
+const MAX_DRACO_POINTS: u64 = 1 << 27;
+
+/// A primitive's vertex attributes (POSITION's count each) and triangle-list indices, from
+/// accessors or from a Draco stream.
+struct VertexData {
+    positions: Vec<[f32; 3]>,
+    normals: Option<Vec<[f32; 3]>>,
+    tangents: Option<Vec<[f32; 4]>>,
+    uvs: Option<Vec<[f32; 2]>>,
+    uvs1: Option<Vec<[f32; 2]>>,
+    colors: Option<Vec<[f32; 4]>>,
+    indices: Vec<u32>,
+}
 
 /// A texture's KHR_texture_transform, as read from the file.
 #[derive(Clone, Copy, Debug)]
@@ -81,7 +97,7 @@ pub fn load_from_bytes(path: &Path, bytes: &[u8]) -> Result<Scene, SceneError> {
     // were accepted by `check_extensions` above, so only the crate's own stay for it to check.
     let mut root = gltf.document.into_json();
     root.extensions_required.retain(|e| gltf::json::extensions::ENABLED_EXTENSIONS.contains(&e.as_str()));
-    gltf.document = gltf::Document::from_json(root).map_err(parse_error)?;
+    gltf.document = validate(root).map_err(parse_error)?;
     let buffers = loader.load_buffers(&gltf.document, gltf.blob.as_deref())?;
     let mut scene = loader.build(&gltf.document, &buffers)?;
     for w in &warnings {
@@ -90,6 +106,39 @@ pub fn load_from_bytes(path: &Path, bytes: &[u8]) -> Result<Scene, SceneError> {
     scene.warnings = warnings;
     scene.generator = gltf.document.as_json().asset.generator.clone();
     Ok(scene)
+}
+
+/// The gltf crate's validation, minus one finding the spec allows: an accessor of a
+/// KHR_draco_mesh_compression primitive has no bufferView (its data is in the Draco stream).
+fn validate(root: gltf::json::Root) -> Result<gltf::Document, gltf::Error> {
+    let draco_accessors: std::collections::HashSet<String> = root
+        .meshes
+        .iter()
+        .flat_map(|m| &m.primitives)
+        .filter(|p| p.extensions.as_ref().is_some_and(|e| e.others.contains_key("KHR_draco_mesh_compression")))
+        .flat_map(|p| p.attributes.values().map(|a| a.value()).chain(p.indices.as_ref().map(|i| i.value())))
+        .map(|i| format!("accessors[{i}].bufferView"))
+        .collect();
+    if draco_accessors.is_empty() {
+        return gltf::Document::from_json(root);
+    }
+    match gltf::Document::from_json(root.clone()) {
+        Ok(document) => Ok(document),
+        Err(gltf::Error::Validation(errors)) => {
+            let rest: Vec<_> = errors
+                .into_iter()
+                .filter(|(path, e)| {
+                    !(matches!(e, gltf::json::validation::Error::Missing) && draco_accessors.contains(path.as_str()))
+                })
+                .collect();
+            if rest.is_empty() {
+                Ok(gltf::Document::from_json_without_validation(root))
+            } else {
+                Err(gltf::Error::Validation(rest))
+            }
+        }
+        Err(e) => Err(e),
+    }
 }
 
 fn read_bounded(path: &Path, scene: &Path, what: &str) -> Result<Vec<u8>, SceneError> {
@@ -361,7 +410,7 @@ impl Loader {
                 };
                 for prim in m.primitives() {
                     let what = format!("{mesh_name} primitive {} (node {})", prim.index(), node.index());
-                    self.primitive(&prim, &what, world, buffers, &mut mesh, &materials, default_material)?;
+                    self.primitive(doc, &prim, &what, world, buffers, &mut mesh, &materials, default_material)?;
                 }
             }
             for child in node.children() {
@@ -378,6 +427,7 @@ impl Loader {
     #[allow(clippy::too_many_arguments)] // the primitive, its name, transform, and the scene being built
     fn primitive(
         &self,
+        doc: &gltf::Document,
         prim: &gltf::Primitive,
         what: &str,
         world: Mat4,
@@ -392,68 +442,12 @@ impl Loader {
             tracing::warn!(?mode, "primitive skipped: points and lines have no area to render");
             return Ok(());
         }
-        let get = |b: gltf::Buffer| buffers.get(b.index()).map(Vec::as_slice);
-        let reader = prim.reader(get);
-        let pos_acc = prim.get(&gltf::Semantic::Positions).ok_or_else(|| self.invalid("primitive without POSITION"))?;
-        // Float, or the integer types of KHR_mesh_quantization (dequantized here; the node
-        // transform carries the scale and offset).
-        const POSITION_TYPES: &[DataType] = &[DataType::F32, DataType::I8, DataType::U8, DataType::I16, DataType::U16];
-        const UNIT_VECTOR_TYPES: &[DataType] = &[DataType::F32, DataType::I8, DataType::I16];
-        let positions: Vec<[f32; 3]> = self.read_floats(&pos_acc, buffers, "POSITION", POSITION_TYPES, false)?;
+        let draco = prim.extensions().and_then(|e| e.get("KHR_draco_mesh_compression"));
+        let VertexData { positions, normals, tangents, uvs, uvs1, colors, indices } = match draco {
+            Some(ext) => self.draco_vertex_data(doc, ext, buffers, what)?,
+            None => self.accessor_vertex_data(prim, buffers, what)?,
+        };
         let n = positions.len();
-        // A NaN or infinite vertex would poison the BVH bounds and every ray near it: refuse it,
-        // naming where it is (issue 10; the glTF spec requires finite positions).
-        if let Some((i, p)) = positions.iter().enumerate().find(|(_, p)| !p.iter().all(|c| c.is_finite())) {
-            return Err(self.invalid(format!(
-                "{what}: POSITION accessor {} vertex {i} is {p:?}, not a finite position",
-                pos_acc.index()
-            )));
-        }
-        let normals: Option<Vec<[f32; 3]>> = match prim.get(&gltf::Semantic::Normals) {
-            Some(a) => {
-                let v = self.read_floats(&a, buffers, "NORMAL", UNIT_VECTOR_TYPES, true)?;
-                self.expect_count(v.len(), n, "NORMAL")?;
-                Some(v)
-            }
-            None => None,
-        };
-        let tangents: Option<Vec<[f32; 4]>> = match prim.get(&gltf::Semantic::Tangents) {
-            Some(a) => {
-                let v = self.read_floats(&a, buffers, "TANGENT", UNIT_VECTOR_TYPES, true)?;
-                self.expect_count(v.len(), n, "TANGENT")?;
-                Some(v)
-            }
-            None => None,
-        };
-        let uvs = self.read_tex_coords(prim, 0, n, buffers)?;
-        let uvs1 = self.read_tex_coords(prim, 1, n, buffers)?;
-        // COLOR_0: RGB or RGBA, float or normalized 8/16-bit; multiplies the base color.
-        let colors: Option<Vec<[f32; 4]>> = match prim.get(&gltf::Semantic::Colors(0)) {
-            Some(a) => {
-                const COLOR_TYPES: &[DataType] = &[DataType::F32, DataType::U8, DataType::U16];
-                let v: Vec<[f32; 4]> = if a.dimensions() == Dimensions::Vec3 {
-                    self.read_floats::<3>(&a, buffers, "COLOR_0", COLOR_TYPES, true)?
-                        .into_iter()
-                        .map(|c| [c[0], c[1], c[2], 1.0])
-                        .collect()
-                } else {
-                    self.read_floats::<4>(&a, buffers, "COLOR_0", COLOR_TYPES, true)?
-                };
-                self.expect_count(v.len(), n, "COLOR_0")?;
-                if v.iter().flatten().any(|c| !c.is_finite()) {
-                    return Err(self.invalid(format!("{what}: COLOR_0 has a non-finite value")));
-                }
-                Some(v)
-            }
-            None => None,
-        };
-        let indices: Vec<u32> = match prim.indices() {
-            Some(a) => {
-                self.check_accessor(&a, "indices", &[DataType::U8, DataType::U16, DataType::U32], Dimensions::Scalar)?;
-                reader.read_indices().ok_or_else(|| self.invalid("index data missing"))?.into_u32().collect()
-            }
-            None => (0..n as u32).collect(),
-        };
         if let Some(bad) = indices.iter().find(|&&i| i as usize >= n) {
             return Err(self.invalid(format!("index {bad} out of range for {n} vertices")));
         }
@@ -560,6 +554,152 @@ impl Loader {
             mesh.generate_tangents(first..mesh.triangles.len());
         }
         Ok(())
+    }
+
+    /// A primitive's vertex attributes and indices read from its accessors.
+    fn accessor_vertex_data(
+        &self,
+        prim: &gltf::Primitive,
+        buffers: &[Vec<u8>],
+        what: &str,
+    ) -> Result<VertexData, SceneError> {
+        let get = |b: gltf::Buffer| buffers.get(b.index()).map(Vec::as_slice);
+        let reader = prim.reader(get);
+        let pos_acc = prim.get(&gltf::Semantic::Positions).ok_or_else(|| self.invalid("primitive without POSITION"))?;
+        // Float, or the integer types of KHR_mesh_quantization (dequantized here; the node
+        // transform carries the scale and offset).
+        const POSITION_TYPES: &[DataType] = &[DataType::F32, DataType::I8, DataType::U8, DataType::I16, DataType::U16];
+        const UNIT_VECTOR_TYPES: &[DataType] = &[DataType::F32, DataType::I8, DataType::I16];
+        let positions: Vec<[f32; 3]> = self.read_floats(&pos_acc, buffers, "POSITION", POSITION_TYPES, false)?;
+        let n = positions.len();
+        // A NaN or infinite vertex would poison the BVH bounds and every ray near it: refuse it,
+        // naming where it is (issue 10; the glTF spec requires finite positions).
+        if let Some((i, p)) = positions.iter().enumerate().find(|(_, p)| !p.iter().all(|c| c.is_finite())) {
+            return Err(self.invalid(format!(
+                "{what}: POSITION accessor {} vertex {i} is {p:?}, not a finite position",
+                pos_acc.index()
+            )));
+        }
+        let normals: Option<Vec<[f32; 3]>> = match prim.get(&gltf::Semantic::Normals) {
+            Some(a) => {
+                let v = self.read_floats(&a, buffers, "NORMAL", UNIT_VECTOR_TYPES, true)?;
+                self.expect_count(v.len(), n, "NORMAL")?;
+                Some(v)
+            }
+            None => None,
+        };
+        let tangents: Option<Vec<[f32; 4]>> = match prim.get(&gltf::Semantic::Tangents) {
+            Some(a) => {
+                let v = self.read_floats(&a, buffers, "TANGENT", UNIT_VECTOR_TYPES, true)?;
+                self.expect_count(v.len(), n, "TANGENT")?;
+                Some(v)
+            }
+            None => None,
+        };
+        let uvs = self.read_tex_coords(prim, 0, n, buffers)?;
+        let uvs1 = self.read_tex_coords(prim, 1, n, buffers)?;
+        // COLOR_0: RGB or RGBA, float or normalized 8/16-bit; multiplies the base color.
+        let colors: Option<Vec<[f32; 4]>> = match prim.get(&gltf::Semantic::Colors(0)) {
+            Some(a) => {
+                const COLOR_TYPES: &[DataType] = &[DataType::F32, DataType::U8, DataType::U16];
+                let v: Vec<[f32; 4]> = if a.dimensions() == Dimensions::Vec3 {
+                    self.read_floats::<3>(&a, buffers, "COLOR_0", COLOR_TYPES, true)?
+                        .into_iter()
+                        .map(|c| [c[0], c[1], c[2], 1.0])
+                        .collect()
+                } else {
+                    self.read_floats::<4>(&a, buffers, "COLOR_0", COLOR_TYPES, true)?
+                };
+                self.expect_count(v.len(), n, "COLOR_0")?;
+                if v.iter().flatten().any(|c| !c.is_finite()) {
+                    return Err(self.invalid(format!("{what}: COLOR_0 has a non-finite value")));
+                }
+                Some(v)
+            }
+            None => None,
+        };
+        let indices: Vec<u32> = match prim.indices() {
+            Some(a) => {
+                self.check_accessor(&a, "indices", &[DataType::U8, DataType::U16, DataType::U32], Dimensions::Scalar)?;
+                reader.read_indices().ok_or_else(|| self.invalid("index data missing"))?.into_u32().collect()
+            }
+            None => (0..n as u32).collect(),
+        };
+        Ok(VertexData { positions, normals, tangents, uvs, uvs1, colors, indices })
+    }
+
+    /// A primitive compressed with KHR_draco_mesh_compression, decoded by `draco-core` (a pure-Rust
+    /// Draco decoder) with its decode limits set from this loader's own bounds, so a hostile stream
+    /// cannot make it allocate more than a file of MAX_FILE_BYTES could describe.
+    fn draco_vertex_data(
+        &self,
+        doc: &gltf::Document,
+        ext: &serde_json::Value,
+        buffers: &[Vec<u8>],
+        what: &str,
+    ) -> Result<VertexData, SceneError> {
+        use draco_core::geometry_indices::PointIndex;
+        let bad = |m: String| self.invalid(format!("{what}: KHR_draco_mesh_compression: {m}"));
+        let view = ext.get("bufferView").and_then(|v| v.as_u64()).ok_or_else(|| bad("no bufferView".into()))?;
+        let v = usize::try_from(view)
+            .ok()
+            .and_then(|i| doc.views().nth(i))
+            .ok_or_else(|| bad(format!("bufferView {view} does not exist")))?;
+        let (buffer, offset, length) = (v.buffer().index(), v.offset(), v.length());
+        let bytes = buffers
+            .get(buffer)
+            .and_then(|b| b.get(offset..offset.checked_add(length)?))
+            .ok_or_else(|| bad(format!("bufferView {view} is outside its buffer")))?;
+        let limits = draco_core::DecodeLimits::default()
+            .with_max_points(MAX_DRACO_POINTS)
+            .with_max_faces(MAX_DRACO_POINTS)
+            .with_max_decoded_bytes(MAX_FILE_BYTES);
+        let mut input = draco_core::DecoderBuffer::new(bytes).with_limits(limits);
+        let mut decoded = draco_core::mesh::Mesh::new();
+        draco_core::mesh_decoder::MeshDecoder::new()
+            .decode(&mut input, &mut decoded)
+            .map_err(|e| bad(format!("cannot decode: {e:?}")))?;
+        let n = decoded.num_points();
+        if n == 0 || decoded.num_faces() == 0 {
+            return Err(bad("the stream holds no triangles".into()));
+        }
+        let attributes =
+            ext.get("attributes").and_then(|a| a.as_object()).ok_or_else(|| bad("no attributes".into()))?;
+        let read = |name: &str, components: usize| -> Result<Option<Vec<f32>>, SceneError> {
+            let Some(id) = attributes.get(name) else { return Ok(None) };
+            let id = id.as_u64().and_then(|i| u32::try_from(i).ok()).ok_or_else(|| bad(format!("{name} id {id}")))?;
+            let att = decoded
+                .attribute_by_unique_id(id)
+                .ok_or_else(|| bad(format!("{name}: the stream has no attribute {id}")))?;
+            if (att.num_components() as usize) < components {
+                return Err(bad(format!("{name} has {} components, {components} needed", att.num_components())));
+            }
+            let v = att.read_f32s(n, components);
+            if v.iter().any(|x| !x.is_finite()) {
+                return Err(bad(format!("{name} has a non-finite value")));
+            }
+            Ok(Some(v))
+        };
+        fn chunks<const N: usize>(v: Option<Vec<f32>>) -> Option<Vec<[f32; N]>> {
+            v.map(|v| v.chunks_exact(N).map(|c| std::array::from_fn(|i| c[i])).collect())
+        }
+        let positions = chunks::<3>(read("POSITION", 3)?).ok_or_else(|| bad("no POSITION".into()))?;
+        let normals = chunks::<3>(read("NORMAL", 3)?);
+        let tangents = chunks::<4>(read("TANGENT", 4)?);
+        let uvs = chunks::<2>(read("TEXCOORD_0", 2)?);
+        let uvs1 = chunks::<2>(read("TEXCOORD_1", 2)?);
+        let colors = match attributes.get("COLOR_0") {
+            None => None,
+            Some(id) => {
+                let id =
+                    id.as_u64().and_then(|i| u32::try_from(i).ok()).ok_or_else(|| bad(format!("COLOR_0 id {id}")))?;
+                let c = decoded.attribute_by_unique_id(id).map_or(4, |a| a.num_components() as usize).clamp(3, 4);
+                let v = read("COLOR_0", c)?.unwrap_or_default();
+                Some(v.chunks_exact(c).map(|x| [x[0], x[1], x[2], if c == 4 { x[3] } else { 1.0 }]).collect())
+            }
+        };
+        let indices = decoded.faces().iter().flat_map(|f| f.iter().map(|p: &PointIndex| p.0)).collect();
+        Ok(VertexData { positions, normals, tangents, uvs, uvs1, colors, indices })
     }
 
     fn punctual_light(

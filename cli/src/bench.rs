@@ -31,6 +31,9 @@ pub struct BenchArgs {
 pub enum BenchKind {
     /// Error against time for every technique switch over a scene suite: CSV, PNG plots, summary.
     Convergence(crate::convergence::ConvergenceArgs),
+    /// Production size: a 10⁴-instance scene of a 10⁵-triangle mesh and 10⁷ unique triangles —
+    /// load, BVH build, memory and a short render.
+    Scale(crate::scale::ScaleArgs),
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -47,8 +50,13 @@ fn median(mut v: Vec<f64>) -> f64 {
 }
 
 pub fn run(args: BenchArgs) -> Result<()> {
-    if let Some(BenchKind::Convergence(a)) = args.what {
-        return crate::convergence::run(a);
+    match args.what {
+        Some(BenchKind::Convergence(a)) => return crate::convergence::run(a),
+        Some(BenchKind::Scale(a)) => {
+            init_threads(args.threads)?;
+            return crate::scale::run(a);
+        }
+        None => {}
     }
     init_threads(args.threads)?;
     let mut scene = load_scene(args.scene.as_deref())?;

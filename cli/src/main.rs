@@ -5,6 +5,7 @@ mod client;
 mod convergence;
 mod farm_cmd;
 mod render_cmd;
+mod scale;
 
 use clap::{Parser, Subcommand};
 

@@ -1,6 +1,12 @@
 //! Ray-triangle intersection over the whole scene: a compressed-wide BVH (CWBVH, 8-wide, SIMD node
 //! tests) built and traversed by `obvhs`, with triangles stored in BVH leaf order and intersected by
 //! our own Möller-Trumbore test (which also reports the barycentrics shading needs).
+//!
+//! Instancing makes it two-level: each prototype (a mesh several nodes place) gets its own BVH over
+//! its object-space triangles, built once; the top level holds the world-space triangles and one
+//! box per instance. A ray reaching an instance's box is carried into object space by the
+//! instance's inverse transform, direction unnormalised, so the hit distance t is the same number
+//! in both spaces and the closest-hit bound carries over unchanged. Memory follows unique geometry.
 
 use crate::math::{Vec3, Vec3A};
 use crate::mesh::Mesh;
@@ -53,6 +59,26 @@ pub struct Hit {
     pub triangle: u32,
     pub b1: f32,
     pub b2: f32,
+    /// The instance hit (index into `Mesh::instances`), or [`NO_INSTANCE`] for world geometry.
+    pub instance: u32,
+}
+
+/// `Hit::instance` of a world-space triangle.
+pub const NO_INSTANCE: u32 = u32::MAX;
+
+/// The top level of a scene with instances.
+/// (Its BVH is `Accel::bvh`.)
+struct TopLevel {
+    /// Top-level leaves in `Accel::bvh.primitive_indices` order.
+    prims: Vec<TopPrim>,
+    /// One BVH per prototype (`Mesh::prototypes`), in object space.
+    blas: Vec<Accel>,
+}
+
+#[derive(Clone, Copy)]
+enum TopPrim {
+    Triangle(RtTriangle),
+    Instance { index: u32, prototype: u32, to_object: glam::Affine3A },
 }
 
 /// Which BVH answers ray queries. Both give the same hits; `Own` is kept to measure `Obvhs` against.
@@ -70,6 +96,8 @@ pub struct Accel {
     /// Triangles in `bvh.primitive_indices` order, so a leaf's primitives are contiguous in memory.
     tris: Vec<RtTriangle>,
     own: Option<crate::bvh::Bvh>,
+    /// Set when the scene has instances (then `bvh`, `tris` and `own` are empty).
+    top: Option<Box<TopLevel>>,
 }
 
 impl Accel {
@@ -78,32 +106,96 @@ impl Accel {
     }
 
     pub fn build_with(mesh: &Mesh, kind: AccelKind) -> Self {
-        if kind == AccelKind::Own {
-            let tris = (0..mesh.triangles.len() as u32).map(|i| RtTriangle::new(mesh.vertices(i), i)).collect();
-            return Accel { bvh: CwBvh::default(), tris: Vec::new(), own: Some(crate::bvh::Bvh::build(tris)) };
+        if !mesh.instances.is_empty() {
+            if kind == AccelKind::Own {
+                tracing::warn!("the own BVH has no instancing: using obvhs for this instanced scene");
+            }
+            return Self::build_two_level(mesh);
         }
-        let prims: Vec<obvhs::triangle::Triangle> = (0..mesh.triangles.len() as u32)
-            .map(|i| {
+        Self::build_triangles(mesh, (0..mesh.triangles.len() as u32).collect(), kind)
+    }
+
+    /// A one-level BVH over the triangles `ids` of `mesh` (as they are stored).
+    fn build_triangles(mesh: &Mesh, ids: Vec<u32>, kind: AccelKind) -> Self {
+        if kind == AccelKind::Own {
+            let tris = ids.iter().map(|&i| RtTriangle::new(mesh.vertices(i), i)).collect();
+            return Accel {
+                bvh: CwBvh::default(),
+                tris: Vec::new(),
+                own: Some(crate::bvh::Bvh::build(tris)),
+                top: None,
+            };
+        }
+        let prims: Vec<obvhs::triangle::Triangle> = ids
+            .iter()
+            .map(|&i| {
                 let [a, b, c] = mesh.vertices(i);
                 obvhs::triangle::Triangle { v0: a.into(), v1: b.into(), v2: c.into() }
             })
             .collect();
         if prims.is_empty() {
-            return Accel { bvh: CwBvh::default(), tris: Vec::new(), own: None };
+            return Accel { bvh: CwBvh::default(), tris: Vec::new(), own: None, top: None };
         }
         let bvh = obvhs::cwbvh::builder::build_cwbvh_from_tris(
             &prims,
             obvhs::BvhBuildParams::medium_build(),
             &mut std::time::Duration::default(),
         );
-        let tris = bvh.primitive_indices.iter().map(|&i| RtTriangle::new(mesh.vertices(i), i)).collect();
-        Accel { bvh, tris, own: None }
+        let tris = bvh
+            .primitive_indices
+            .iter()
+            .map(|&k| RtTriangle::new(mesh.vertices(ids[k as usize]), ids[k as usize]))
+            .collect();
+        Accel { bvh, tris, own: None, top: None }
+    }
+
+    /// Prototype BVHs, then a top level over the world triangles and the instances' world boxes.
+    fn build_two_level(mesh: &Mesh) -> Self {
+        let blas: Vec<Accel> = mesh
+            .prototypes
+            .iter()
+            .map(|r| Self::build_triangles(mesh, r.clone().collect(), AccelKind::Obvhs))
+            .collect();
+        let world: Vec<u32> = (0..mesh.triangles.len() as u32)
+            .filter(|&i| mesh.triangles[i as usize].flags & crate::mesh::flags::OBJECT_SPACE == 0)
+            .collect();
+        let mut boxes: Vec<obvhs::aabb::Aabb> = Vec::with_capacity(world.len() + mesh.instances.len());
+        let mut prims: Vec<TopPrim> = Vec::with_capacity(boxes.capacity());
+        for &i in &world {
+            let [a, b, c] = mesh.vertices(i);
+            let (a, b, c) = (Vec3A::from(a), Vec3A::from(b), Vec3A::from(c));
+            boxes.push(obvhs::aabb::Aabb { min: a.min(b).min(c), max: a.max(b).max(c) });
+            prims.push(TopPrim::Triangle(RtTriangle::new(mesh.vertices(i), i)));
+        }
+        for (k, inst) in mesh.instances.iter().enumerate() {
+            let (lo, hi) = mesh.instance_bounds(inst);
+            boxes.push(obvhs::aabb::Aabb { min: lo.into(), max: hi.into() });
+            prims.push(TopPrim::Instance {
+                index: k as u32,
+                prototype: inst.prototype,
+                to_object: glam::Affine3A::from_mat4(inst.to_object),
+            });
+        }
+        let bvh =
+            obvhs::cwbvh::builder::build_cwbvh(&boxes, obvhs::BvhBuildParams::medium_build(), &mut Default::default());
+        // Leaf order, so a leaf's primitives sit together.
+        let prims = bvh.primitive_indices.iter().map(|&i| prims[i as usize]).collect();
+        Accel { bvh, tris: Vec::new(), own: None, top: Some(Box::new(TopLevel { prims, blas })) }
     }
 
     /// Closest hit along `o + t d`, `0 < t < tmax`.
     pub fn intersect(&self, o: Vec3, d: Vec3, tmax: f32) -> Option<Hit> {
+        if let Some(top) = &self.top {
+            return self.intersect_two_level(top, Vec3A::from(o), Vec3A::from(d), tmax);
+        }
         if let Some(own) = &self.own {
-            return own.intersect(o, d, tmax, false).map(|(t, i, b1, b2)| Hit { t, triangle: own.tris[i].id, b1, b2 });
+            return own.intersect(o, d, tmax, false).map(|(t, i, b1, b2)| Hit {
+                t,
+                triangle: own.tris[i].id,
+                b1,
+                b2,
+                instance: NO_INSTANCE,
+            });
         }
         if self.tris.is_empty() {
             return None;
@@ -116,7 +208,55 @@ impl Accel {
             let tri = &self.tris[id];
             match tri.intersect(oa, da, 0.0, r.tmax) {
                 Some((t, b1, b2)) => {
-                    best = Some(Hit { t, triangle: tri.id, b1, b2 });
+                    best = Some(Hit { t, triangle: tri.id, b1, b2, instance: NO_INSTANCE });
+                    t
+                }
+                None => f32::INFINITY,
+            }
+        });
+        best
+    }
+
+    fn intersect_two_level(&self, top: &TopLevel, oa: Vec3A, da: Vec3A, tmax: f32) -> Option<Hit> {
+        let ray = BvhRay::new(oa, da, 0.0, tmax);
+        let mut hit = RayHit::none();
+        let mut best: Option<Hit> = None;
+        self.bvh.ray_traverse(ray, &mut hit, |r, id| match &top.prims[id] {
+            TopPrim::Triangle(tri) => match tri.intersect(oa, da, 0.0, r.tmax) {
+                Some((t, b1, b2)) => {
+                    best = Some(Hit { t, triangle: tri.id, b1, b2, instance: NO_INSTANCE });
+                    t
+                }
+                None => f32::INFINITY,
+            },
+            TopPrim::Instance { index, prototype, to_object } => {
+                let (oo, dd) = (to_object.transform_point3a(oa), to_object.transform_vector3a(da));
+                match top.blas[*prototype as usize].intersect_object(oo, dd, r.tmax) {
+                    Some(mut h) => {
+                        h.instance = *index;
+                        best = Some(h);
+                        h.t
+                    }
+                    None => f32::INFINITY,
+                }
+            }
+        });
+        best
+    }
+
+    /// Closest hit in a prototype's BVH, the ray already in object space (direction unnormalised).
+    fn intersect_object(&self, oa: Vec3A, da: Vec3A, tmax: f32) -> Option<Hit> {
+        if self.tris.is_empty() || !da.is_finite() || !oa.is_finite() {
+            return None;
+        }
+        let ray = BvhRay::new(oa, da, 0.0, tmax);
+        let mut hit = RayHit::none();
+        let mut best: Option<Hit> = None;
+        self.bvh.ray_traverse(ray, &mut hit, |r, id| {
+            let tri = &self.tris[id];
+            match tri.intersect(oa, da, 0.0, r.tmax) {
+                Some((t, b1, b2)) => {
+                    best = Some(Hit { t, triangle: tri.id, b1, b2, instance: NO_INSTANCE });
                     t
                 }
                 None => f32::INFINITY,
@@ -127,6 +267,28 @@ impl Accel {
 
     /// True when anything lies on `o + t d` for `0 < t < tmax`.
     pub fn occluded(&self, o: Vec3, d: Vec3, tmax: f32) -> bool {
+        if let Some(top) = &self.top {
+            let (oa, da) = (Vec3A::from(o), Vec3A::from(d));
+            let ray = BvhRay::new(oa, da, 0.0, tmax);
+            return !self.bvh.ray_traverse_miss(ray, |_, id| match &top.prims[id] {
+                TopPrim::Triangle(tri) => tri.intersect(oa, da, 0.0, tmax).map_or(f32::INFINITY, |h| h.0),
+                TopPrim::Instance { prototype, to_object, .. } => {
+                    let blas = &top.blas[*prototype as usize];
+                    let (oo, dd) = (to_object.transform_point3a(oa), to_object.transform_vector3a(da));
+                    if blas.tris.is_empty() || !oo.is_finite() || !dd.is_finite() {
+                        return f32::INFINITY;
+                    }
+                    let r = BvhRay::new(oo, dd, 0.0, tmax);
+                    if blas.bvh.ray_traverse_miss(r, |_, j| {
+                        blas.tris[j].intersect(oo, dd, 0.0, tmax).map_or(f32::INFINITY, |h| h.0)
+                    }) {
+                        f32::INFINITY
+                    } else {
+                        0.0
+                    }
+                }
+            });
+        }
         if let Some(own) = &self.own {
             return own.intersect(o, d, tmax, true).is_some();
         }

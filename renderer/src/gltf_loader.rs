@@ -41,9 +41,15 @@ const SUPPORTED_EXTENSIONS: &[&str] = &[
     "KHR_materials_unlit",
     "KHR_mesh_quantization",
     "KHR_draco_mesh_compression",
+    "EXT_mesh_gpu_instancing",
 ];
 /// Extensions that carry only metadata and cannot change the image.
 const HARMLESS_EXTENSIONS: &[&str] = &["KHR_xmp_json_ld", "KHR_xmp"];
+
+/// Most mesh placements (nodes with a mesh, plus EXT_mesh_gpu_instancing instances) in a scene.
+const MAX_PLACEMENTS: usize = 1 << 24;
+/// Most stored triangles (unique geometry: instances do not count).
+const MAX_TRIANGLES: usize = 1 << 28;
 
 /// Largest point (and face) count a Draco stream may decode to.
 const MAX_DRACO_POINTS: u64 = 1 << 27;
@@ -366,6 +372,8 @@ impl Loader {
         let mut stack: Vec<(gltf::Node, Mat4, usize)> =
             roots.into_iter().rev().map(|n| (n, Mat4::IDENTITY, 0)).collect();
         let mut visits = 0usize;
+        // (mesh, node, world transform, from EXT_mesh_gpu_instancing) in traversal order.
+        let mut placements: Vec<(usize, usize, Mat4, bool)> = Vec::new();
         while let Some((node, parent, depth)) = stack.pop() {
             visits += 1;
             if depth > MAX_NODE_DEPTH || visits > doc.nodes().len() * 64 + 1024 {
@@ -404,18 +412,82 @@ impl Loader {
                 if weights.iter().any(|&w| w != 0.0) {
                     return Err(self.unsupported(format!("morph target weights on mesh {}", m.index())));
                 }
-                let mesh_name = match m.name() {
-                    Some(n) => format!("mesh {} '{}'", m.index(), n.chars().take(64).collect::<String>()),
-                    None => format!("mesh {}", m.index()),
-                };
-                for prim in m.primitives() {
-                    let what = format!("{mesh_name} primitive {} (node {})", prim.index(), node.index());
-                    self.primitive(doc, &prim, &what, world, buffers, &mut mesh, &materials, default_material)?;
+                match node.extensions().and_then(|e| e.get("EXT_mesh_gpu_instancing")) {
+                    Some(ext) => {
+                        for local in self.gpu_instances(doc, ext, buffers, node.index())? {
+                            placements.push((m.index(), node.index(), world * local, true));
+                        }
+                    }
+                    None => placements.push((m.index(), node.index(), world, false)),
+                }
+                if placements.len() > MAX_PLACEMENTS {
+                    return Err(self.invalid(format!("more than {MAX_PLACEMENTS} mesh placements")));
                 }
             }
             for child in node.children() {
                 stack.push((child, world, depth + 1));
             }
+        }
+        // A mesh placed more than once (by several nodes, or by EXT_mesh_gpu_instancing) is stored
+        // once in object space and instanced, unless it emits: emitters stay flattened, because
+        // every emitting triangle is a light NEE samples in world space.
+        let mut uses: HashMap<usize, usize> = HashMap::new();
+        for &(m, _, _, gpu) in &placements {
+            *uses.entry(m).or_default() += if gpu { 2 } else { 1 };
+        }
+        let emits = |m: &gltf::Mesh| {
+            m.primitives().any(|p| {
+                let i = p.material().index().map_or(default_material as usize, |i| i);
+                materials.get(i).is_some_and(Material::is_emissive)
+            })
+        };
+        let mut prototype_of: HashMap<usize, u32> = HashMap::new();
+        for &(mi, node_index, world, _) in &placements {
+            let Some(m) = doc.meshes().nth(mi) else { continue };
+            let mesh_name = match m.name() {
+                Some(n) => format!("mesh {} '{}'", m.index(), n.chars().take(64).collect::<String>()),
+                None => format!("mesh {}", m.index()),
+            };
+            if uses.get(&mi).copied().unwrap_or(0) > 1 && !emits(&m) {
+                let proto = match prototype_of.get(&mi) {
+                    Some(&p) => p,
+                    None => {
+                        let first = mesh.triangles.len();
+                        for prim in m.primitives() {
+                            let what = format!("{mesh_name} primitive {} (instanced)", prim.index());
+                            self.primitive(
+                                doc,
+                                &prim,
+                                &what,
+                                Mat4::IDENTITY,
+                                buffers,
+                                &mut mesh,
+                                &materials,
+                                default_material,
+                            )?;
+                        }
+                        for t in &mut mesh.triangles[first..] {
+                            t.flags |= flags::OBJECT_SPACE;
+                        }
+                        mesh.prototypes.push(first as u32..mesh.triangles.len() as u32);
+                        let p = mesh.prototypes.len() as u32 - 1;
+                        prototype_of.insert(mi, p);
+                        p
+                    }
+                };
+                match crate::mesh::Instance::new(proto, world) {
+                    Some(inst) => mesh.instances.push(inst),
+                    None => tracing::warn!(node = node_index, "instance skipped: its transform is singular"),
+                }
+                continue;
+            }
+            for prim in m.primitives() {
+                let what = format!("{mesh_name} primitive {} (node {node_index})", prim.index());
+                self.primitive(doc, &prim, &what, world, buffers, &mut mesh, &materials, default_material)?;
+            }
+        }
+        if mesh.triangles.len() > MAX_TRIANGLES {
+            return Err(self.invalid(format!("{} triangles (the limit is {MAX_TRIANGLES})", mesh.triangles.len())));
         }
         let mut scene = Scene::new(mesh, materials, textures, cameras);
         if !punctual.is_empty() {
@@ -700,6 +772,71 @@ impl Loader {
         };
         let indices = decoded.faces().iter().flat_map(|f| f.iter().map(|p: &PointIndex| p.0)).collect();
         Ok(VertexData { positions, normals, tangents, uvs, uvs1, colors, indices })
+    }
+
+    /// EXT_mesh_gpu_instancing: one local transform T·R·S per instance, from the TRANSLATION,
+    /// ROTATION (unit quaternion, float or normalized integers) and SCALE accessors.
+    fn gpu_instances(
+        &self,
+        doc: &gltf::Document,
+        ext: &serde_json::Value,
+        buffers: &[Vec<u8>],
+        node: usize,
+    ) -> Result<Vec<Mat4>, SceneError> {
+        let what = format!("node {node} EXT_mesh_gpu_instancing");
+        let attrs = ext
+            .get("attributes")
+            .and_then(|a| a.as_object())
+            .ok_or_else(|| self.invalid(format!("{what}: no attributes")))?;
+        let accessor = |name: &str| -> Result<Option<gltf::Accessor>, SceneError> {
+            match attrs.get(name) {
+                None => Ok(None),
+                Some(v) => {
+                    let i = v.as_u64().ok_or_else(|| self.invalid(format!("{what}: {name} {v}")))?;
+                    let a = usize::try_from(i).ok().and_then(|i| doc.accessors().nth(i));
+                    a.map(Some).ok_or_else(|| self.invalid(format!("{what}: accessor {i} does not exist")))
+                }
+            }
+        };
+        let name = |n: &str| format!("{what} {n}");
+        let t: Option<Vec<[f32; 3]>> = match accessor("TRANSLATION")? {
+            Some(a) => Some(self.read_floats(&a, buffers, &name("TRANSLATION"), &[DataType::F32], false)?),
+            None => None,
+        };
+        let r: Option<Vec<[f32; 4]>> = match accessor("ROTATION")? {
+            Some(a) => Some(self.read_floats(
+                &a,
+                buffers,
+                &name("ROTATION"),
+                &[DataType::F32, DataType::I8, DataType::I16],
+                true,
+            )?),
+            None => None,
+        };
+        let sc: Option<Vec<[f32; 3]>> = match accessor("SCALE")? {
+            Some(a) => Some(self.read_floats(&a, buffers, &name("SCALE"), &[DataType::F32], false)?),
+            None => None,
+        };
+        let counts: Vec<usize> = [t.as_ref().map(Vec::len), r.as_ref().map(Vec::len), sc.as_ref().map(Vec::len)]
+            .into_iter()
+            .flatten()
+            .collect();
+        let Some(&n) = counts.first() else { return Err(self.invalid(format!("{what}: no attributes"))) };
+        if counts.iter().any(|&c| c != n) {
+            return Err(self.invalid(format!("{what}: attribute counts differ ({counts:?})")));
+        }
+        let mut out = Vec::with_capacity(n);
+        for i in 0..n {
+            let tr = t.as_ref().map_or(Vec3::ZERO, |v| Vec3::from(v[i]));
+            let q = r.as_ref().map_or(glam::Quat::IDENTITY, |v| glam::Quat::from_array(v[i]).normalize());
+            let s = sc.as_ref().map_or(Vec3::ONE, |v| Vec3::from(v[i]));
+            let m = Mat4::from_scale_rotation_translation(s, q, tr);
+            if !m.is_finite() {
+                return Err(self.invalid(format!("{what}: instance {i} has a non-finite transform")));
+            }
+            out.push(m);
+        }
+        Ok(out)
     }
 
     fn punctual_light(

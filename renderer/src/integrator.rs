@@ -71,7 +71,7 @@ pub fn radiance(
             }
             break;
         };
-        let sp = mesh.surface_point(hit.triangle, hit.b1, hit.b2);
+        let sp = scene.surface_point(&hit);
         let material = &materials[mesh.triangles[hit.triangle as usize].material as usize];
         if medium != Vec3::ZERO {
             // Beer–Lambert over the segment's real length (from the vertex, not `o`, which

@@ -118,7 +118,8 @@ impl LightSet {
         let mut triangle_light = vec![u32::MAX; mesh.triangles.len()];
         for (i, t) in mesh.triangles.iter().enumerate() {
             let m = &materials[t.material as usize];
-            if !m.is_emissive() {
+            // Instanced prototypes never hold emitters (the loader flattens emissive meshes).
+            if !m.is_emissive() || t.flags & crate::mesh::flags::OBJECT_SPACE != 0 {
                 continue;
             }
             let area = mesh.area(i as u32);

@@ -63,7 +63,7 @@ fn camera_points(scene: &Scene, view: Option<(Camera, u32, u32)>) -> Vec<PilotPo
         );
         let d = camera.ray_direction(film, w, h);
         let Some(hit) = scene.intersect(camera.origin, d, f32::INFINITY) else { continue };
-        let sp = scene.mesh.surface_point(hit.triangle, hit.b1, hit.b2);
+        let sp = scene.surface_point(&hit);
         let m = &scene.materials[scene.mesh.triangles[hit.triangle as usize].material as usize];
         if m.is_emissive() {
             continue;
@@ -78,13 +78,16 @@ fn camera_points(scene: &Scene, view: Option<(Camera, u32, u32)>) -> Vec<PilotPo
     out
 }
 
-/// Deterministic area-weighted points on non-emissive triangles, either side.
+/// Deterministic area-weighted points on non-emissive world triangles, either side (instances'
+/// object-space triangles are left out: the camera's view points cover them).
 fn surface_points(mesh: &Mesh, materials: &[Material]) -> Vec<PilotPoint> {
     let mut cdf = Vec::new();
     let mut tris = Vec::new();
     let mut total = 0.0f64;
     for (i, t) in mesh.triangles.iter().enumerate() {
-        if materials.get(t.material as usize).is_none_or(|m| m.is_emissive()) {
+        if t.flags & crate::mesh::flags::OBJECT_SPACE != 0
+            || materials.get(t.material as usize).is_none_or(|m| m.is_emissive())
+        {
             continue;
         }
         let a = mesh.area(i as u32) as f64;

@@ -1,8 +1,10 @@
-//! World-space triangle soup: every glTF primitive instance is flattened into one vertex/triangle
-//! list at load time, so the accelerator and the lights index one array.
+//! The scene's triangles: world-space triangle soup for geometry placed once (flattened at load
+//! time, so the accelerator and the lights index one array), plus prototypes — meshes several
+//! nodes place — stored once in object space and put in the world by their [`Instance`]s.
 
-use crate::math::{Vec2, Vec3, Vec4};
+use crate::math::{Mat4, Vec2, Vec3, Vec4};
 use crate::texture::TexCoords;
+use glam::Mat3;
 
 /// Per-triangle flags: which vertex attributes the source primitive had.
 pub mod flags {
@@ -13,6 +15,37 @@ pub mod flags {
     pub const UVS1: u8 = 8;
     /// The primitive has COLOR_0 (in `Mesh::colors`).
     pub const COLORS: u8 = 16;
+    /// The triangle belongs to a prototype: its vertices are in object space.
+    pub const OBJECT_SPACE: u8 = 32;
+}
+
+/// One placement of a prototype (`Mesh::prototypes[prototype]`).
+#[derive(Clone, Copy, Debug)]
+pub struct Instance {
+    pub prototype: u32,
+    pub to_world: Mat4,
+    pub to_object: Mat4,
+    /// Inverse transpose of `to_world`'s linear part: object normals to world normals.
+    pub normal_matrix: Mat3,
+}
+
+impl Instance {
+    /// None when `to_world` is singular or not finite (nothing of it can be rendered).
+    pub fn new(prototype: u32, to_world: Mat4) -> Option<Self> {
+        let linear = Mat3::from_mat4(to_world);
+        let det = linear.determinant();
+        if !(det != 0.0 && det.is_finite() && to_world.is_finite()) {
+            return None;
+        }
+        let to_object = to_world.inverse();
+        let normal_matrix = linear.inverse().transpose();
+        (to_object.is_finite() && normal_matrix.is_finite()).then_some(Instance {
+            prototype,
+            to_world,
+            to_object,
+            normal_matrix,
+        })
+    }
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -34,6 +67,9 @@ pub struct Mesh {
     /// COLOR_0 (linear RGBA), allocated only once some primitive has it (then parallel to `positions`).
     pub colors: Vec<Vec4>,
     pub triangles: Vec<Triangle>,
+    /// Prototype triangle ranges (their triangles flagged OBJECT_SPACE) and their placements.
+    pub prototypes: Vec<std::ops::Range<u32>>,
+    pub instances: Vec<Instance>,
 }
 
 /// Geometry at a ray hit, before the material is applied.
@@ -118,6 +154,88 @@ impl Mesh {
             Vec4::ONE
         };
         SurfacePoint { p, ng, ns, tangent, uv, color, triangle: tri }
+    }
+
+    /// World-space bounds of an instance (its prototype's object-space box, transformed).
+    pub fn instance_bounds(&self, inst: &Instance) -> (Vec3, Vec3) {
+        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        if let Some(r) = self.prototypes.get(inst.prototype as usize) {
+            for t in r.clone() {
+                for p in self.vertices(t) {
+                    let w = inst.to_world.transform_point3(p);
+                    lo = lo.min(w);
+                    hi = hi.max(w);
+                }
+            }
+        }
+        (lo, hi)
+    }
+
+    /// World-space bounds of everything: world triangles and every instance.
+    pub fn world_bounds(&self) -> Option<(Vec3, Vec3)> {
+        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        for (i, t) in self.triangles.iter().enumerate() {
+            if t.flags & flags::OBJECT_SPACE == 0 {
+                for p in self.vertices(i as u32) {
+                    lo = lo.min(p);
+                    hi = hi.max(p);
+                }
+            }
+        }
+        // Each prototype's object box once, then its 8 corners per instance (not every vertex).
+        let boxes: Vec<(Vec3, Vec3)> = self
+            .prototypes
+            .iter()
+            .map(|r| {
+                let (mut a, mut b) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+                for t in r.clone() {
+                    for p in self.vertices(t) {
+                        a = a.min(p);
+                        b = b.max(p);
+                    }
+                }
+                (a, b)
+            })
+            .collect();
+        for inst in &self.instances {
+            let Some(&(a, b)) = boxes.get(inst.prototype as usize) else { continue };
+            if a.x > b.x {
+                continue;
+            }
+            for k in 0..8 {
+                let c = Vec3::new(
+                    if k & 1 != 0 { b.x } else { a.x },
+                    if k & 2 != 0 { b.y } else { a.y },
+                    if k & 4 != 0 { b.z } else { a.z },
+                );
+                let w = inst.to_world.transform_point3(c);
+                lo = lo.min(w);
+                hi = hi.max(w);
+            }
+        }
+        (lo.x <= hi.x).then_some((lo, hi))
+    }
+
+    /// A surface point of an instance: the prototype's object-space point carried to the world
+    /// (positions by the transform, normals by its inverse transpose, tangents by its linear part).
+    pub fn instance_surface_point(&self, inst: &Instance, tri: u32, b1: f32, b2: f32) -> SurfacePoint {
+        let mut sp = self.surface_point(tri, b1, b2);
+        sp.p = inst.to_world.transform_point3(sp.p);
+        let n = |v: Vec3, fallback: Vec3| {
+            let w = (inst.normal_matrix * v).normalize_or_zero();
+            if w == Vec3::ZERO || !w.is_finite() {
+                fallback
+            } else {
+                w
+            }
+        };
+        sp.ng = n(sp.ng, Vec3::Z);
+        sp.ns = n(sp.ns, sp.ng);
+        if let Some(t) = sp.tangent {
+            let w = inst.to_world.transform_vector3(t.truncate()).normalize_or_zero();
+            sp.tangent = Some(w.extend(t.w));
+        }
+        sp
     }
 
     /// Generates per-vertex tangents from UV derivatives for the triangles in `tris` (Lengyel 2001,

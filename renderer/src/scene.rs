@@ -34,16 +34,7 @@ impl Scene {
     /// Builds the acceleration structure and light set. Lights are built only from emissive
     /// triangles; a scene without emitters gets an empty set and renders black.
     pub fn new(mesh: Mesh, materials: Vec<Material>, textures: Vec<Texture>, cameras: Vec<Camera>) -> Self {
-        let mut min = Vec3::splat(f32::INFINITY);
-        let mut max = Vec3::splat(f32::NEG_INFINITY);
-        for p in &mesh.positions {
-            min = min.min(*p);
-            max = max.max(*p);
-        }
-        if mesh.positions.is_empty() {
-            min = Vec3::splat(-1.0);
-            max = Vec3::splat(1.0);
-        }
+        let (min, max) = mesh.world_bounds().unwrap_or((Vec3::splat(-1.0), Vec3::splat(1.0)));
         let accel = Accel::build(&mesh);
         let lights = LightSet::build(&mesh, &materials, &textures, Vec::new(), None, (max - min).length() * 0.5);
         tracing::debug!(triangles = mesh.triangles.len(), lights = lights.lights.len(), "scene built");
@@ -199,8 +190,17 @@ impl Scene {
         if m.alpha_mode == AlphaMode::Opaque {
             return (AlphaMode::Opaque, 1.0);
         }
-        let sp = self.mesh.surface_point(hit.triangle, hit.b1, hit.b2);
+        let sp = self.surface_point(hit);
         (m.alpha_mode, m.alpha(&self.textures, sp.uv, sp.color))
+    }
+
+    /// The world-space surface point of a hit (on world geometry or on an instance).
+    #[inline]
+    pub fn surface_point(&self, hit: &Hit) -> crate::mesh::SurfacePoint {
+        match self.mesh.instances.get(hit.instance as usize) {
+            Some(inst) => self.mesh.instance_surface_point(inst, hit.triangle, hit.b1, hit.b2),
+            None => self.mesh.surface_point(hit.triangle, hit.b1, hit.b2),
+        }
     }
 
     /// The first surface along the ray that stops it: MASK cut-outs are skipped, BLEND surfaces stop
@@ -259,7 +259,7 @@ impl Scene {
 
     /// The origin for continuing a ray past a transparent hit.
     fn pass_through(&self, hit: &Hit, d: Vec3) -> Vec3 {
-        let sp = self.mesh.surface_point(hit.triangle, hit.b1, hit.b2);
+        let sp = self.surface_point(hit);
         let n = if sp.ng.dot(d) > 0.0 { sp.ng } else { -sp.ng };
         crate::math::offset_ray_origin(sp.p, n)
     }

@@ -81,6 +81,21 @@ enum TopPrim {
     Instance { index: u32, prototype: u32, to_object: glam::Affine3A },
 }
 
+/// obvhs's build quality for `n` triangles: "medium" (the best trace speed per build second at
+/// ordinary sizes) up to LARGE_BUILD triangles, "fast" above, where the medium build's longer
+/// PLOC search and reinsertion passes cost more seconds than the renders they speed up
+/// (`tessera bench scale`, figures in ARCHITECTURE.md).
+fn build_params(n: usize) -> obvhs::BvhBuildParams {
+    if n > LARGE_BUILD {
+        obvhs::BvhBuildParams::fast_build()
+    } else {
+        obvhs::BvhBuildParams::medium_build()
+    }
+}
+
+/// See [`build_params`].
+pub const LARGE_BUILD: usize = 4_000_000;
+
 /// Which BVH answers ray queries. Both give the same hits; `Own` is kept to measure `Obvhs` against.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum AccelKind {
@@ -138,7 +153,7 @@ impl Accel {
         }
         let bvh = obvhs::cwbvh::builder::build_cwbvh_from_tris(
             &prims,
-            obvhs::BvhBuildParams::medium_build(),
+            build_params(prims.len()),
             &mut std::time::Duration::default(),
         );
         let tris = bvh
@@ -167,8 +182,10 @@ impl Accel {
             boxes.push(obvhs::aabb::Aabb { min: a.min(b).min(c), max: a.max(b).max(c) });
             prims.push(TopPrim::Triangle(RtTriangle::new(mesh.vertices(i), i)));
         }
+        let proto_boxes = mesh.prototype_bounds();
         for (k, inst) in mesh.instances.iter().enumerate() {
-            let (lo, hi) = mesh.instance_bounds(inst);
+            let Some(&bx) = proto_boxes.get(inst.prototype as usize) else { continue };
+            let (lo, hi) = Mesh::instance_box(inst, bx);
             boxes.push(obvhs::aabb::Aabb { min: lo.into(), max: hi.into() });
             prims.push(TopPrim::Instance {
                 index: k as u32,

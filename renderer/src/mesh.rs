@@ -58,8 +58,10 @@ pub struct Triangle {
 #[derive(Default)]
 pub struct Mesh {
     pub positions: Vec<Vec3>,
+    /// NORMAL, TANGENT (xyz, w the bitangent sign: glTF convention) and TEXCOORD_0: each empty
+    /// until some primitive has it, then parallel to `positions` (read only where the triangle's
+    /// flags say its primitive had it).
     pub normals: Vec<Vec3>,
-    /// xyz tangent, w bitangent sign (glTF convention).
     pub tangents: Vec<Vec4>,
     pub uvs: Vec<Vec2>,
     /// TEXCOORD_1, allocated only once some primitive has it (then parallel to `positions`).
@@ -156,17 +158,39 @@ impl Mesh {
         SurfacePoint { p, ng, ns, tangent, uv, color, triangle: tri }
     }
 
-    /// World-space bounds of an instance (its prototype's object-space box, transformed).
-    pub fn instance_bounds(&self, inst: &Instance) -> (Vec3, Vec3) {
-        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-        if let Some(r) = self.prototypes.get(inst.prototype as usize) {
-            for t in r.clone() {
-                for p in self.vertices(t) {
-                    let w = inst.to_world.transform_point3(p);
-                    lo = lo.min(w);
-                    hi = hi.max(w);
+    /// Object-space bounds of each prototype.
+    pub fn prototype_bounds(&self) -> Vec<(Vec3, Vec3)> {
+        self.prototypes
+            .iter()
+            .map(|r| {
+                let (mut a, mut b) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+                for t in r.clone() {
+                    for p in self.vertices(t) {
+                        a = a.min(p);
+                        b = b.max(p);
+                    }
                 }
-            }
+                (a, b)
+            })
+            .collect()
+    }
+
+    /// World-space box of an instance whose prototype's object box is `(a, b)`: the box around
+    /// its 8 transformed corners (conservative, and 8 transforms instead of one per vertex).
+    pub fn instance_box(inst: &Instance, (a, b): (Vec3, Vec3)) -> (Vec3, Vec3) {
+        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        if a.x > b.x {
+            return (lo, hi);
+        }
+        for k in 0..8 {
+            let c = Vec3::new(
+                if k & 1 != 0 { b.x } else { a.x },
+                if k & 2 != 0 { b.y } else { a.y },
+                if k & 4 != 0 { b.z } else { a.z },
+            );
+            let w = inst.to_world.transform_point3(c);
+            lo = lo.min(w);
+            hi = hi.max(w);
         }
         (lo, hi)
     }
@@ -183,35 +207,12 @@ impl Mesh {
             }
         }
         // Each prototype's object box once, then its 8 corners per instance (not every vertex).
-        let boxes: Vec<(Vec3, Vec3)> = self
-            .prototypes
-            .iter()
-            .map(|r| {
-                let (mut a, mut b) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-                for t in r.clone() {
-                    for p in self.vertices(t) {
-                        a = a.min(p);
-                        b = b.max(p);
-                    }
-                }
-                (a, b)
-            })
-            .collect();
+        let boxes = self.prototype_bounds();
         for inst in &self.instances {
-            let Some(&(a, b)) = boxes.get(inst.prototype as usize) else { continue };
-            if a.x > b.x {
-                continue;
-            }
-            for k in 0..8 {
-                let c = Vec3::new(
-                    if k & 1 != 0 { b.x } else { a.x },
-                    if k & 2 != 0 { b.y } else { a.y },
-                    if k & 4 != 0 { b.z } else { a.z },
-                );
-                let w = inst.to_world.transform_point3(c);
-                lo = lo.min(w);
-                hi = hi.max(w);
-            }
+            let Some(&bx) = boxes.get(inst.prototype as usize) else { continue };
+            let (a, b) = Self::instance_box(inst, bx);
+            lo = lo.min(a);
+            hi = hi.max(b);
         }
         (lo.x <= hi.x).then_some((lo, hi))
     }
@@ -242,6 +243,10 @@ impl Mesh {
     /// "Computing Tangent Space Basis Vectors for an Arbitrary Mesh"), used when a primitive has a
     /// normal map but no TANGENT attribute.
     pub fn generate_tangents(&mut self, tris: std::ops::Range<usize>) {
+        // Tangent storage is allocated lazily (see the loader): make room for these vertices.
+        if self.tangents.len() < self.positions.len() {
+            self.tangents.resize(self.positions.len(), Vec4::ZERO);
+        }
         let mut tan = std::collections::HashMap::<u32, (Vec3, Vec3)>::new();
         for t in &self.triangles[tris.clone()] {
             let [i0, i1, i2] = t.v;

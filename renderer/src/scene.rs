@@ -35,7 +35,9 @@ impl Scene {
     /// triangles; a scene without emitters gets an empty set and renders black.
     pub fn new(mesh: Mesh, materials: Vec<Material>, textures: Vec<Texture>, cameras: Vec<Camera>) -> Self {
         let (min, max) = mesh.world_bounds().unwrap_or((Vec3::splat(-1.0), Vec3::splat(1.0)));
+        let t = std::time::Instant::now();
         let accel = Accel::build(&mesh);
+        tracing::debug!(triangles = mesh.triangles.len(), seconds = t.elapsed().as_secs_f64(), "BVH built");
         let lights = LightSet::build(&mesh, &materials, &textures, Vec::new(), None, (max - min).length() * 0.5);
         tracing::debug!(triangles = mesh.triangles.len(), lights = lights.lights.len(), "scene built");
         let transparent = materials.iter().any(|m| m.alpha_mode != AlphaMode::Opaque);

@@ -136,8 +136,12 @@ fn instances_hit_what_flattened_copies_hit() {
         for k in 0..4000u32 {
             let a = k as f32 * 0.618_034;
             let b = k as f32 * 0.414_213_5;
-            let d = Vec3::new((a * 6.283).cos() * (b.fract() * 0.9 + 0.1), -(a.fract() * 0.8 + 0.1), (a * 6.283).sin())
-                .normalize();
+            let d = Vec3::new(
+                (a * std::f32::consts::TAU).cos() * (b.fract() * 0.9 + 0.1),
+                -(a.fract() * 0.8 + 0.1),
+                (a * std::f32::consts::TAU).sin(),
+            )
+            .normalize();
             let o = Vec3::new((k % 7) as f32 * 0.5 - 1.5, 3.0, (k % 5) as f32 * 0.6 - 1.2);
             let (h1, h2) = (flat.intersect(o, d, f32::INFINITY), inst.intersect(o, d, f32::INFINITY));
             checked += 1;

@@ -42,6 +42,7 @@ const SUPPORTED_EXTENSIONS: &[&str] = &[
     "KHR_mesh_quantization",
     "KHR_draco_mesh_compression",
     "EXT_mesh_gpu_instancing",
+    "EXT_meshopt_compression",
 ];
 /// Extensions that carry only metadata and cannot change the image.
 const HARMLESS_EXTENSIONS: &[&str] = &["KHR_xmp_json_ld", "KHR_xmp"];
@@ -292,6 +293,19 @@ impl Loader {
     fn load_buffers(&self, doc: &gltf::Document, blob: Option<&[u8]>) -> Result<Vec<Vec<u8>>, SceneError> {
         let mut out = Vec::new();
         for buffer in doc.buffers() {
+            if crate::meshopt_views::is_fallback(&buffer) {
+                // Filled by the compressed views that decode into it (below); bounded like a file.
+                if buffer.length() as u64 > MAX_FILE_BYTES {
+                    return Err(SceneError::TooLarge {
+                        path: self.path.clone(),
+                        what: format!("EXT_meshopt_compression fallback buffer {}", buffer.index()),
+                        size: buffer.length() as u64,
+                        limit: MAX_FILE_BYTES,
+                    });
+                }
+                out.push(vec![0u8; buffer.length()]);
+                continue;
+            }
             let data = match buffer.source() {
                 gltf::buffer::Source::Bin => blob
                     .ok_or_else(|| {
@@ -326,6 +340,7 @@ impl Loader {
                 )));
             }
         }
+        crate::meshopt_views::decode_views(&self.path, doc, &mut out)?;
         Ok(out)
     }
 

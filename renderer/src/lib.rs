@@ -46,6 +46,7 @@ pub mod light_tree;
 pub mod material;
 pub mod math;
 pub mod mesh;
+pub mod meshopt_views;
 pub mod microfacet;
 pub mod noise;
 pub mod punctual;

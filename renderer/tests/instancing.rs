@@ -192,3 +192,22 @@ fn instanced_and_flattened_scenes_render_the_same_image() {
         assert!((sum_a / sum_b - 1.0).abs() < 0.01, "{mode}: image sums {sum_a} vs {sum_b}");
     }
 }
+
+#[test]
+fn bad_gpu_instancing_is_an_error_naming_it() {
+    let gpu = scene_json("gpu");
+    for (from, to, needle) in [
+        (r#""SCALE":5"#, r#""SCALE":9"#, "accessor 9 does not exist"),
+        (r#""TRANSLATION":3"#, r#""TRANSLATION":0"#, "attribute counts differ"),
+        (r#""attributes":{"TRANSLATION":3,"ROTATION":4,"SCALE":5}"#, r#""attributes":{}"#, "no attributes"),
+    ] {
+        let json = gpu.replacen(from, to, 1);
+        assert_ne!(json, gpu, "{from} not found");
+        match load_from_bytes(Path::new("instancing.gltf"), json.as_bytes()) {
+            Ok(_) => panic!("{to}: loaded"),
+            Err(e) => {
+                assert!(e.to_string().contains(needle) && e.to_string().contains("EXT_mesh_gpu_instancing"), "{e}")
+            }
+        }
+    }
+}

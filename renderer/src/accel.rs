@@ -164,6 +164,15 @@ impl Accel {
         Accel { bvh, tris, own: None, top: None }
     }
 
+    /// After an animation moved instances or world vertices: a new top level over the prototype
+    /// BVHs already built (they do not change), or a whole new BVH for a scene without instances.
+    pub fn rebuild_top(&mut self, mesh: &Mesh) {
+        match self.top.take() {
+            Some(top) => *self = Self::top_level(mesh, top.blas),
+            None => *self = Self::build(mesh),
+        }
+    }
+
     /// Prototype BVHs, then a top level over the world triangles and the instances' world boxes.
     fn build_two_level(mesh: &Mesh) -> Self {
         let blas: Vec<Accel> = mesh
@@ -171,6 +180,10 @@ impl Accel {
             .iter()
             .map(|r| Self::build_triangles(mesh, r.clone().collect(), AccelKind::Obvhs))
             .collect();
+        Self::top_level(mesh, blas)
+    }
+
+    fn top_level(mesh: &Mesh, blas: Vec<Accel>) -> Self {
         let world: Vec<u32> = (0..mesh.triangles.len() as u32)
             .filter(|&i| mesh.triangles[i as usize].flags & crate::mesh::flags::OBJECT_SPACE == 0)
             .collect();
@@ -184,6 +197,9 @@ impl Accel {
         }
         let proto_boxes = mesh.prototype_bounds();
         for (k, inst) in mesh.instances.iter().enumerate() {
+            if !inst.visible {
+                continue;
+            }
             let Some(&bx) = proto_boxes.get(inst.prototype as usize) else { continue };
             let (lo, hi) = Mesh::instance_box(inst, bx);
             boxes.push(obvhs::aabb::Aabb { min: lo.into(), max: hi.into() });
@@ -192,6 +208,14 @@ impl Accel {
                 prototype: inst.prototype,
                 to_object: glam::Affine3A::from_mat4(inst.to_object),
             });
+        }
+        if boxes.is_empty() {
+            return Accel {
+                bvh: CwBvh::default(),
+                tris: Vec::new(),
+                own: None,
+                top: Some(Box::new(TopLevel { prims, blas })),
+            };
         }
         let bvh =
             obvhs::cwbvh::builder::build_cwbvh(&boxes, obvhs::BvhBuildParams::medium_build(), &mut Default::default());
@@ -235,6 +259,9 @@ impl Accel {
     }
 
     fn intersect_two_level(&self, top: &TopLevel, oa: Vec3A, da: Vec3A, tmax: f32) -> Option<Hit> {
+        if top.prims.is_empty() {
+            return None;
+        }
         let ray = BvhRay::new(oa, da, 0.0, tmax);
         let mut hit = RayHit::none();
         let mut best: Option<Hit> = None;
@@ -285,6 +312,9 @@ impl Accel {
     /// True when anything lies on `o + t d` for `0 < t < tmax`.
     pub fn occluded(&self, o: Vec3, d: Vec3, tmax: f32) -> bool {
         if let Some(top) = &self.top {
+            if top.prims.is_empty() {
+                return false;
+            }
             let (oa, da) = (Vec3A::from(o), Vec3A::from(d));
             let ray = BvhRay::new(oa, da, 0.0, tmax);
             return !self.bvh.ray_traverse_miss(ray, |_, id| match &top.prims[id] {

@@ -406,8 +406,18 @@ impl Loader {
         let mut stack: Vec<(gltf::Node, Mat4, usize)> =
             roots.into_iter().rev().map(|n| (n, Mat4::IDENTITY, 0)).collect();
         let mut visits = 0usize;
-        // (mesh, node, world transform, from EXT_mesh_gpu_instancing) in traversal order.
-        let mut placements: Vec<(usize, usize, Mat4, bool)> = Vec::new();
+        // (mesh, node, world transform, local transform under the node, from
+        // EXT_mesh_gpu_instancing) in traversal order.
+        let mut placements: Vec<(usize, usize, Mat4, Mat4, bool)> = Vec::new();
+        // Animated mode: the file animates, skins or morphs. Then every mesh that neither deforms
+        // nor emits is instanced (its BVH built once), and the rest is re-posed per frame.
+        let animated = doc.animations().next().is_some()
+            || doc.skins().next().is_some()
+            || doc.meshes().any(|m| m.primitives().any(|p| p.morph_targets().next().is_some()));
+        let mut anim = crate::animation::Animator::default();
+        if animated {
+            anim.graph = self.node_graph(doc)?;
+        }
         while let Some((node, parent, depth)) = stack.pop() {
             visits += 1;
             if depth > MAX_NODE_DEPTH || visits > doc.nodes().len() * 64 + 1024 {
@@ -418,11 +428,14 @@ impl Loader {
             if !world.is_finite() {
                 return Err(self.invalid(format!("node {} has a non-finite transform", node.index())));
             }
-            if node.skin().is_some() {
-                return Err(self.unsupported(format!("skin on node {} (skeletal animation)", node.index())));
+            if animated {
+                anim.graph.order.push(node.index());
             }
             if let Some(light) = node.light() {
                 punctual.push(self.punctual_light(&light, world)?);
+                if animated {
+                    anim.lights.push((node.index(), self.punctual_light(&light, Mat4::IDENTITY)?));
+                }
             }
             if let Some(cam) = node.camera() {
                 match cam.projection() {
@@ -435,6 +448,9 @@ impl Loader {
                             ))
                         })?;
                         cameras.push(c);
+                        if animated {
+                            anim.cameras.push((node.index(), p.yfov(), p.aspect_ratio()));
+                        }
                     }
                     gltf::camera::Projection::Orthographic(_) => {
                         tracing::warn!(node = node.index(), "orthographic camera skipped (not supported)");
@@ -442,17 +458,13 @@ impl Loader {
                 }
             }
             if let Some(m) = node.mesh() {
-                let weights = node.weights().or(m.weights()).unwrap_or(&[]);
-                if weights.iter().any(|&w| w != 0.0) {
-                    return Err(self.unsupported(format!("morph target weights on mesh {}", m.index())));
-                }
                 match node.extensions().and_then(|e| e.get("EXT_mesh_gpu_instancing")) {
                     Some(ext) => {
                         for local in self.gpu_instances(doc, ext, buffers, node.index())? {
-                            placements.push((m.index(), node.index(), world * local, true));
+                            placements.push((m.index(), node.index(), world * local, local, true));
                         }
                     }
-                    None => placements.push((m.index(), node.index(), world, false)),
+                    None => placements.push((m.index(), node.index(), world, Mat4::IDENTITY, false)),
                 }
                 if placements.len() > MAX_PLACEMENTS {
                     return Err(self.invalid(format!("more than {MAX_PLACEMENTS} mesh placements")));
@@ -466,7 +478,7 @@ impl Loader {
         // once in object space and instanced, unless it emits: emitters stay flattened, because
         // every emitting triangle is a light NEE samples in world space.
         let mut uses: HashMap<usize, usize> = HashMap::new();
-        for &(m, _, _, gpu) in &placements {
+        for &(m, _, _, _, gpu) in &placements {
             *uses.entry(m).or_default() += if gpu { 2 } else { 1 };
         }
         let emits = |m: &gltf::Mesh| {
@@ -476,13 +488,48 @@ impl Loader {
             })
         };
         let mut prototype_of: HashMap<usize, u32> = HashMap::new();
-        for &(mi, node_index, world, _) in &placements {
+        for &(mi, node_index, world, local, _) in &placements {
             let Some(m) = doc.meshes().nth(mi) else { continue };
             let mesh_name = match m.name() {
                 Some(n) => format!("mesh {} '{}'", m.index(), n.chars().take(64).collect::<String>()),
                 None => format!("mesh {}", m.index()),
             };
-            if uses.get(&mi).copied().unwrap_or(0) > 1 && !emits(&m) {
+            let node = doc.nodes().nth(node_index);
+            let deforms = node.as_ref().is_some_and(|n| n.skin().is_some())
+                || m.primitives().any(|p| p.morph_targets().next().is_some());
+            if animated && (deforms || emits(&m)) {
+                // Re-posed every frame: loaded at rest (object space), its rest data kept.
+                for prim in m.primitives() {
+                    let what = format!("{mesh_name} primitive {} (node {node_index})", prim.index());
+                    let first = mesh.positions.len();
+                    self.primitive(
+                        doc,
+                        &prim,
+                        &what,
+                        Mat4::IDENTITY,
+                        buffers,
+                        &mut mesh,
+                        &materials,
+                        default_material,
+                    )?;
+                    if mesh.positions.len() > first {
+                        let skin = node.as_ref().and_then(|n| n.skin());
+                        anim.posed.push(self.posed_primitive(
+                            doc,
+                            &prim,
+                            &what,
+                            node_index,
+                            first,
+                            &mesh,
+                            skin.as_ref(),
+                            &mut anim.skins,
+                            buffers,
+                        )?);
+                    }
+                }
+                continue;
+            }
+            if (animated || uses.get(&mi).copied().unwrap_or(0) > 1) && !emits(&m) {
                 let proto = match prototype_of.get(&mi) {
                     Some(&p) => p,
                     None => {
@@ -510,7 +557,12 @@ impl Loader {
                     }
                 };
                 match crate::mesh::Instance::new(proto, world) {
-                    Some(inst) => mesh.instances.push(inst),
+                    Some(inst) => {
+                        mesh.instances.push(inst);
+                        if animated {
+                            anim.instance_nodes.push((node_index, local));
+                        }
+                    }
                     None => tracing::warn!(node = node_index, "instance skipped: its transform is singular"),
                 }
                 continue;
@@ -523,9 +575,18 @@ impl Loader {
         if mesh.triangles.len() > MAX_TRIANGLES {
             return Err(self.invalid(format!("{} triangles (the limit is {MAX_TRIANGLES})", mesh.triangles.len())));
         }
+        if animated {
+            anim.clips = self.clips(doc, buffers)?;
+            anim.select(None).map_err(|e| self.invalid(e.0))?;
+            // The rest pose is not a frame: pose frame 0 before anything is built from the geometry.
+            punctual = anim.apply(0.0, &mut mesh, &mut cameras);
+        }
         let mut scene = Scene::new(mesh, materials, textures, cameras);
         if !punctual.is_empty() {
             scene.set_punctual(punctual);
+        }
+        if animated {
+            scene.set_animator(anim);
         }
         Ok(scene)
     }
@@ -822,6 +883,227 @@ impl Loader {
         };
         let indices = decoded.faces().iter().flat_map(|f| f.iter().map(|p: &PointIndex| p.0)).collect();
         Ok(VertexData { positions, normals, tangents, uvs, uvs1, colors, indices })
+    }
+
+    /// The node hierarchy with rest transforms and default morph weights (animated scenes).
+    fn node_graph(&self, doc: &gltf::Document) -> Result<crate::animation::NodeGraph, SceneError> {
+        use crate::animation::{NodeGraph, RestTransform};
+        let n = doc.nodes().len();
+        let mut g = NodeGraph {
+            parent: vec![None; n],
+            rest: Vec::with_capacity(n),
+            weights: Vec::with_capacity(n),
+            order: Vec::new(),
+        };
+        for node in doc.nodes() {
+            for c in node.children() {
+                g.parent[c.index()] = Some(node.index());
+            }
+            g.rest.push(match node.transform() {
+                gltf::scene::Transform::Matrix { matrix } => RestTransform::Matrix(Mat4::from_cols_array_2d(&matrix)),
+                gltf::scene::Transform::Decomposed { translation, rotation, scale } => RestTransform::Trs {
+                    translation: Vec3::from(translation),
+                    rotation: glam::Quat::from_array(rotation).normalize(),
+                    scale: Vec3::from(scale),
+                },
+            });
+            let targets =
+                node.mesh().map_or(0, |m| m.primitives().map(|p| p.morph_targets().count()).max().unwrap_or(0));
+            let mut w: Vec<f32> = node.weights().or(node.mesh().and_then(|m| m.weights())).unwrap_or(&[]).to_vec();
+            w.resize(targets, 0.0);
+            if w.iter().any(|x| !x.is_finite()) {
+                return Err(self.invalid(format!("node {}: morph weights are not finite", node.index())));
+            }
+            g.weights.push(w);
+        }
+        Ok(g)
+    }
+
+    /// A primitive loaded at rest that a pose rewrites: its rest attributes (copied back from the
+    /// mesh storage it was just loaded into), morph targets and skin influences.
+    #[allow(clippy::too_many_arguments)] // the primitive, where it is, and the skin table being filled
+    fn posed_primitive(
+        &self,
+        doc: &gltf::Document,
+        prim: &gltf::Primitive,
+        what: &str,
+        node: usize,
+        first: usize,
+        mesh: &Mesh,
+        skin: Option<&gltf::Skin>,
+        skins: &mut Vec<crate::animation::Skin>,
+        buffers: &[Vec<u8>],
+    ) -> Result<crate::animation::Posed, SceneError> {
+        use crate::animation::{MorphTarget, Posed, Skin};
+        let n = mesh.positions.len() - first;
+        let slice = |v: &[Vec3]| if v.len() >= first + n { v[first..first + n].to_vec() } else { Vec::new() };
+        let positions = mesh.positions[first..].to_vec();
+        let normals = slice(&mesh.normals);
+        let tangents =
+            if mesh.tangents.len() >= first + n { mesh.tangents[first..first + n].to_vec() } else { Vec::new() };
+        let mut targets = Vec::new();
+        for (k, t) in prim.morph_targets().enumerate() {
+            let read = |a: Option<gltf::Accessor>, name: &str| -> Result<Vec<Vec3>, SceneError> {
+                match a {
+                    None => Ok(Vec::new()),
+                    Some(a) => {
+                        let label = format!("{what} morph target {k} {name}");
+                        let v: Vec<[f32; 3]> = self.read_floats(
+                            &a,
+                            buffers,
+                            &label,
+                            &[DataType::F32, DataType::I8, DataType::I16, DataType::U8, DataType::U16],
+                            false,
+                        )?;
+                        self.expect_count(v.len(), n, &label)?;
+                        if v.iter().flatten().any(|c| !c.is_finite()) {
+                            return Err(self.invalid(format!("{label} is not finite")));
+                        }
+                        Ok(v.into_iter().map(Vec3::from).collect())
+                    }
+                }
+            };
+            targets.push(MorphTarget {
+                positions: read(t.positions(), "POSITION")?,
+                normals: if normals.is_empty() { Vec::new() } else { read(t.normals(), "NORMAL")? },
+                tangents: if tangents.is_empty() { Vec::new() } else { read(t.tangents(), "TANGENT")? },
+            });
+        }
+        let mut influences = Vec::new();
+        let skin_index = match skin {
+            None => None,
+            Some(sk) => {
+                let joints: Vec<usize> = sk.joints().map(|j| j.index()).collect();
+                let inverse_bind: Vec<Mat4> = match sk.inverse_bind_matrices() {
+                    Some(a) => {
+                        let m: Vec<[f32; 16]> = self.read_floats(
+                            &a,
+                            buffers,
+                            &format!("skin {} inverseBindMatrices", sk.index()),
+                            &[DataType::F32],
+                            false,
+                        )?;
+                        self.expect_count(m.len(), joints.len(), "inverseBindMatrices")?;
+                        m.iter().map(Mat4::from_cols_array).collect()
+                    }
+                    None => vec![Mat4::IDENTITY; joints.len()],
+                };
+                if inverse_bind.iter().any(|m| !m.is_finite()) {
+                    return Err(self.invalid(format!("skin {}: an inverse bind matrix is not finite", sk.index())));
+                }
+                influences = vec![[(0u16, 0.0f32); 8]; n];
+                for set in 0..2u32 {
+                    let (Some(ja), Some(wa)) =
+                        (prim.get(&gltf::Semantic::Joints(set)), prim.get(&gltf::Semantic::Weights(set)))
+                    else {
+                        if set == 0 {
+                            return Err(self.invalid(format!("{what}: skinned but without JOINTS_0/WEIGHTS_0")));
+                        }
+                        continue;
+                    };
+                    let j: Vec<[f32; 4]> = self.read_floats(
+                        &ja,
+                        buffers,
+                        &format!("{what} JOINTS_{set}"),
+                        &[DataType::U8, DataType::U16],
+                        false,
+                    )?;
+                    let w: Vec<[f32; 4]> = self.read_floats(
+                        &wa,
+                        buffers,
+                        &format!("{what} WEIGHTS_{set}"),
+                        &[DataType::F32, DataType::U8, DataType::U16],
+                        true,
+                    )?;
+                    self.expect_count(j.len(), n, "JOINTS")?;
+                    self.expect_count(w.len(), n, "WEIGHTS")?;
+                    for i in 0..n {
+                        for c in 0..4 {
+                            let joint = j[i][c] as usize;
+                            if w[i][c] != 0.0 && joint >= joints.len() {
+                                return Err(self.invalid(format!(
+                                    "{what}: vertex {i} names joint {joint} of a {}-joint skin",
+                                    joints.len()
+                                )));
+                            }
+                            if !w[i][c].is_finite() || w[i][c] < 0.0 {
+                                return Err(self.invalid(format!("{what}: vertex {i} has weight {}", w[i][c])));
+                            }
+                            influences[i][set as usize * 4 + c] = (joint as u16, w[i][c]);
+                        }
+                    }
+                }
+                // One Skin entry per glTF skin (looked up by its joints and matrices).
+                skins.push(Skin { joints, inverse_bind });
+                Some(skins.len() - 1)
+            }
+        };
+        let _ = doc;
+        Ok(Posed { node, first, positions, normals, tangents, targets, skin: skin_index, influences })
+    }
+
+    /// The file's animations as clips (channels whose target node has no TRS, or whose path we do
+    /// not know, are skipped with a warning).
+    fn clips(&self, doc: &gltf::Document, buffers: &[Vec<u8>]) -> Result<Vec<crate::animation::Clip>, SceneError> {
+        use crate::animation::{Channel, Clip, Interpolation, Property};
+        use gltf::animation::{Interpolation as I, Property as P};
+        let mut clips = Vec::new();
+        for a in doc.animations() {
+            let mut channels = Vec::new();
+            for ch in a.channels() {
+                let what = format!("animation {} channel {}", a.index(), ch.index());
+                let sampler = ch.sampler();
+                let times: Vec<[f32; 1]> =
+                    self.read_floats(&sampler.input(), buffers, &format!("{what} input"), &[DataType::F32], false)?;
+                let times: Vec<f32> = times.into_iter().map(|t| t[0]).collect();
+                if times.iter().any(|t| !t.is_finite()) || times.windows(2).any(|w| w[1] <= w[0]) {
+                    return Err(self.invalid(format!("{what}: key times must be finite and increasing")));
+                }
+                let interpolation = match sampler.interpolation() {
+                    I::Linear => Interpolation::Linear,
+                    I::Step => Interpolation::Step,
+                    I::CubicSpline => Interpolation::CubicSpline,
+                };
+                let per_key = if interpolation == Interpolation::CubicSpline { 3 } else { 1 };
+                let out = sampler.output();
+                const INTS: &[DataType] = &[DataType::F32, DataType::I8, DataType::U8, DataType::I16, DataType::U16];
+                let (property, values, width): (Property, Vec<f32>, usize) = match ch.target().property() {
+                    P::Translation => (
+                        Property::Translation,
+                        self.read_floats::<3>(&out, buffers, &what, &[DataType::F32], false)?.concat(),
+                        3,
+                    ),
+                    P::Scale => (
+                        Property::Scale,
+                        self.read_floats::<3>(&out, buffers, &what, &[DataType::F32], false)?.concat(),
+                        3,
+                    ),
+                    P::Rotation => {
+                        (Property::Rotation, self.read_floats::<4>(&out, buffers, &what, INTS, true)?.concat(), 4)
+                    }
+                    P::MorphTargetWeights => {
+                        let v: Vec<f32> = self.read_floats::<1>(&out, buffers, &what, INTS, true)?.concat();
+                        let keys = times.len() * per_key;
+                        if keys == 0 || v.len() % keys != 0 {
+                            return Err(self.invalid(format!("{what}: {} weights for {} keys", v.len(), times.len())));
+                        }
+                        let width = v.len() / keys;
+                        (Property::Weights, v, width)
+                    }
+                };
+                if values.len() != times.len() * per_key * width || values.iter().any(|v| !v.is_finite()) {
+                    return Err(self.invalid(format!(
+                        "{what}: {} output values for {} keys of {width}",
+                        values.len(),
+                        times.len()
+                    )));
+                }
+                let node = ch.target().node().index();
+                channels.push(Channel { node, property, interpolation, times, values, width });
+            }
+            clips.push(Clip { name: a.name().map(str::to_owned), channels });
+        }
+        Ok(clips)
     }
 
     /// EXT_mesh_gpu_instancing: one local transform T·R·S per instance, from the TRANSLATION,
@@ -1152,6 +1434,7 @@ impl Loader {
             2 => Dimensions::Vec2,
             3 => Dimensions::Vec3,
             4 => Dimensions::Vec4,
+            16 => Dimensions::Mat4,
             _ => Dimensions::Scalar,
         };
         let count = self.check_accessor(acc, what, types, dims)?;

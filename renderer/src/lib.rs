@@ -26,6 +26,7 @@ macro_rules! named_choices {
 
 pub mod accel;
 pub mod alias;
+pub mod animation;
 pub mod bsdf;
 pub mod budget;
 pub mod bundle;
@@ -37,6 +38,7 @@ pub mod distribution;
 pub mod environment;
 pub mod error;
 pub mod film;
+pub mod frames;
 pub mod gltf_loader;
 pub mod image_io;
 pub mod integrator;

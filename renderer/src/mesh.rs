@@ -27,6 +27,8 @@ pub struct Instance {
     pub to_object: Mat4,
     /// Inverse transpose of `to_world`'s linear part: object normals to world normals.
     pub normal_matrix: Mat3,
+    /// False while an animation gives it a singular transform (scaled to nothing): not traced.
+    pub visible: bool,
 }
 
 impl Instance {
@@ -44,6 +46,7 @@ impl Instance {
             to_world,
             to_object,
             normal_matrix,
+            visible: true,
         })
     }
 }
@@ -208,7 +211,7 @@ impl Mesh {
         }
         // Each prototype's object box once, then its 8 corners per instance (not every vertex).
         let boxes = self.prototype_bounds();
-        for inst in &self.instances {
+        for inst in self.instances.iter().filter(|i| i.visible) {
             let Some(&bx) = boxes.get(inst.prototype as usize) else { continue };
             let (a, b) = Self::instance_box(inst, bx);
             lo = lo.min(a);

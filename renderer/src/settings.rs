@@ -77,6 +77,10 @@ pub struct RenderSettings {
     pub time_budget: Option<f64>,
     /// How punctual light intensities are read (`auto`: Blender's exporter's files as Blender).
     pub light_units: crate::punctual::LightUnits,
+    /// Frame rate of an animated scene: frame N is at time N / fps (Blender's convention).
+    pub fps: f32,
+    /// Which glTF animation plays (name or index); None: all of them together.
+    pub animation: Option<String>,
 }
 
 impl Default for RenderSettings {
@@ -98,6 +102,8 @@ impl Default for RenderSettings {
             light_sampler: Default::default(),
             noise_target: None,
             min_spp: 32,
+            fps: crate::animation::DEFAULT_FPS,
+            animation: None,
             time_budget: None,
             light_units: Default::default(),
         }

@@ -53,6 +53,7 @@ pub const FIELDS: &[FieldSpec] = &[
     field("time_budget", 0.01, MAX_TIME_BUDGET_S, None),
     field("noise_target", 1e-6, 10.0, None),
     field("min_spp", 2.0, MAX_SPP as f64, Some(32.0)),
+    field("fps", 0.001, 1000.0, Some(crate::animation::DEFAULT_FPS as f64)),
 ];
 
 fn spec(name: &str) -> FieldSpec {
@@ -145,6 +146,15 @@ pub struct SettingsRequest {
     pub noise_target: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub min_spp: Option<u64>,
+    /// Frames to render: `N`, `A-B` or `A-B:step` (animated scenes; default: frame 0 only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub frames: Option<String>,
+    /// Frame rate: frame N is at time N / fps.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fps: Option<f64>,
+    /// The glTF animation that plays (name or index); default: all of them together.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub animation: Option<String>,
 }
 
 /// An integer field within its bounds (and `cap`, a limit of this farm).
@@ -172,6 +182,14 @@ fn real(name: &'static str, v: Option<f64>) -> Result<Option<f64>, SettingsError
 }
 
 impl SettingsRequest {
+    /// The frames asked for (default: the single frame 0), checked.
+    pub fn frame_range(&self) -> Result<crate::frames::FrameRange, SettingsError> {
+        match &self.frames {
+            None => Ok(crate::frames::FrameRange::single(0)),
+            Some(f) => crate::frames::FrameRange::parse(f).map_err(|m| bad("frames", m)),
+        }
+    }
+
     /// The job name and priority (farm-level fields), checked.
     pub fn job_fields(&self) -> Result<(Option<String>, i32), SettingsError> {
         if let Some(n) = &self.name {
@@ -203,6 +221,12 @@ impl SettingsRequest {
         limits: SettingsLimits,
     ) -> Result<RenderSettings, SettingsError> {
         self.job_fields()?;
+        self.frame_range()?;
+        if let Some(a) = &self.animation {
+            if a.chars().count() > MAX_NAME_CHARS || a.chars().any(char::is_control) {
+                return Err(bad("animation", "a name of at most 256 printable characters, or an index"));
+            }
+        }
         let d = RenderSettings::default();
         let camera = int("camera", self.camera, None)?.map(|c| c as usize);
         if let Some(c) = camera {
@@ -268,6 +292,8 @@ impl SettingsRequest {
             noise_target,
             min_spp: int("min_spp", self.min_spp, None)?.unwrap_or(d.min_spp),
             time_budget,
+            fps: real("fps", self.fps)?.map_or(d.fps, |v| v as f32),
+            animation: self.animation.clone(),
         };
         s.validate().map_err(|m| bad("settings", m))?;
         Ok(s)
@@ -305,6 +331,7 @@ mod tests {
                     "env_rotate" => d.environment.rotate_deg as f64,
                     "pass_spp" => d.pass_spp as f64,
                     "min_spp" => d.min_spp as f64,
+                    "fps" => d.fps as f64,
                     other => panic!("no default check for {other}"),
                 };
                 assert_eq!(v, expect, "{}", f.name);

@@ -90,6 +90,19 @@ pub struct RenderFlags {
     /// Importance-sample the environment for NEE: on (default) or off (only BSDF sampling finds it).
     #[arg(long, value_parser = ["on", "off"])]
     pub env_sampling: Option<String>,
+    /// Frames of an animated scene: A-B or A-B:STEP (output names: see -o); frame N is at N/fps s.
+    #[arg(long, value_name = "A-B[:STEP]", conflicts_with = "frame")]
+    pub frames: Option<String>,
+    /// One frame of an animated scene (default 0).
+    #[arg(long, value_name = "N")]
+    pub frame: Option<u64>,
+    /// Frames per second of the animation (default 24, Blender's: its frame f is Tessera's frame f).
+    #[arg(long)]
+    pub fps: Option<f64>,
+    /// The glTF animation that plays, by name or index (default: all of them together, as
+    /// Blender's exporter writes one animation per object).
+    #[arg(long, value_name = "NAME|INDEX")]
+    pub animation: Option<String>,
 }
 
 fn parse_rgb(s: &str) -> Result<[f64; 3], String> {
@@ -128,6 +141,9 @@ impl RenderFlags {
             time_budget: self.time_budget,
             noise_target: self.noise_target,
             min_spp: self.min_spp,
+            frames: self.frames.clone().or(self.frame.map(|f| f.to_string())),
+            fps: self.fps,
+            animation: self.animation.clone(),
             ..SettingsRequest::default()
         }
     }
@@ -146,7 +162,8 @@ impl RenderFlags {
 pub struct RenderArgs {
     /// Scene file (.glb or .gltf). Without it, the built-in Cornell box is rendered.
     pub scene: Option<PathBuf>,
-    /// Output OpenEXR file.
+    /// Output OpenEXR file. For several frames, a pattern: its run of # is the zero-padded frame
+    /// number (shot.####.exr); without #, .NNNN goes before the extension.
     #[arg(short, long, default_value = "render.exr")]
     pub output: PathBuf,
     #[command(flatten)]
@@ -191,14 +208,52 @@ pub fn init_threads(threads: Option<usize>) -> Result<()> {
 pub fn run(args: RenderArgs) -> Result<()> {
     init_threads(args.threads)?;
     let t0 = Instant::now();
-    let scene = load_scene(args.scene.as_deref())?;
-    let mut scene = scene;
+    let mut scene = load_scene(args.scene.as_deref())?;
     for w in &scene.warnings {
         eprintln!("warning: {w}");
     }
     let settings = args.flags.settings(&scene)?;
+    let frames = args.flags.request().frame_range()?;
     scene.prepare(&settings, Path::new("."))?;
     let load_time = t0.elapsed();
+    let pattern = args.output.to_string_lossy().into_owned();
+    // One frame keeps the name as given (unless it is a pattern); a sequence numbers every frame.
+    let numbered = frames.count() > 1 || pattern.contains('#');
+    if frames.count() > 1 && !scene.is_animated() {
+        eprintln!("warning: the scene has no animation: every frame is the same image");
+    }
+    for frame in frames.iter() {
+        scene.set_frame(&settings, frame)?;
+        let output = if numbered { PathBuf::from(renderer::frames::frame_path(&pattern, frame)) } else { args.output.clone() };
+        let preview = args.preview.as_ref().map(|p| {
+            if numbered {
+                PathBuf::from(renderer::frames::frame_path(&p.to_string_lossy(), frame))
+            } else {
+                p.clone()
+            }
+        });
+        if numbered {
+            eprintln!("frame {frame}:");
+        }
+        // A sequence's folder (shots/shot.####.exr) is made if it does not exist.
+        if let Some(dir) = output.parent().filter(|d| !d.as_os_str().is_empty() && !d.exists()) {
+            std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        }
+        render_frame(&scene, &settings, frame, &output, preview.as_deref(), args.exposure, load_time.as_secs_f64())?;
+    }
+    Ok(())
+}
+
+/// Renders the scene as posed, writes the EXR (and preview), reports time and noise.
+fn render_frame(
+    scene: &Scene,
+    settings: &RenderSettings,
+    frame: u32,
+    output: &Path,
+    preview: Option<&Path>,
+    exposure: f32,
+    load_time: f64,
+) -> Result<()> {
     let counters = Counters::default();
     let pixels = settings.width as u64 * settings.height as u64;
     // A time budget shows progress in time; a noise target cannot know its total in advance.
@@ -231,7 +286,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
                 std::thread::sleep(Duration::from_millis(100));
             }
         });
-        let result = renderer::render(&scene, &settings, &counters);
+        let result = renderer::render(scene, settings, &counters);
         let elapsed = start.elapsed().as_secs_f64();
         done.store(true, Ordering::Relaxed);
         (result, elapsed)
@@ -239,10 +294,10 @@ pub fn run(args: RenderArgs) -> Result<()> {
     bar.finish_and_clear();
     let image = &result.image;
     let final_image = FinalImage::from_sums(image);
-    let attrs = renderer::image_io::standard_attributes(&settings, image, result.stop, &scene.warnings);
-    final_image.write_exr(&args.output, &attrs)?;
-    if let Some(p) = &args.preview {
-        final_image.write_png(p, args.exposure)?;
+    let attrs = renderer::image_io::standard_attributes(settings, image, result.stop, &scene.warnings, frame);
+    final_image.write_exr(output, &attrs)?;
+    if let Some(p) = preview {
+        final_image.write_png(p, exposure)?;
     }
     let samples = counters.samples.load(Ordering::Relaxed);
     let rays = counters.rays.load(Ordering::Relaxed) as f64;
@@ -254,10 +309,10 @@ pub fn run(args: RenderArgs) -> Result<()> {
         settings.height,
         spp_text(noise.spp_min, noise.spp_max, samples as f64 / pixels.max(1) as f64),
         elapsed,
-        load_time.as_secs_f64(),
+        load_time,
         samples as f64 / elapsed / 1e6,
         rays / elapsed / 1e6,
-        args.output.display()
+        output.display()
     );
     let worst = renderer::noise::worst(result.tiles.iter().map(|(t, _)| t));
     eprintln!(
@@ -332,6 +387,12 @@ mod tests {
             "0.1",
             "--min-spp",
             "4",
+            "--frames",
+            "1-3",
+            "--fps",
+            "30",
+            "--animation",
+            "walk",
         ])
         .expect("parses");
         let v = serde_json::to_value(all.flags.request()).expect("encodes");

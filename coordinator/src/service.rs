@@ -199,7 +199,7 @@ impl Shared {
             (job.image(), job.spec.settings.clone(), job.stop_reason(), job.spec.warnings.clone())
         };
         let encoded = renderer::image_io::FinalImage::from_sums(&image);
-        let exr = encoded.exr_bytes(&renderer::image_io::standard_attributes(&settings, &image, stop, &warnings));
+        let exr = encoded.exr_bytes(&renderer::image_io::standard_attributes(&settings, &image, stop, &warnings, 0));
         let png = encoded.png_bytes(0.0).unwrap_or_default();
         drop(image);
         let finished_ms = now_ms();

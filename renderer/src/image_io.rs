@@ -28,6 +28,7 @@ pub fn standard_attributes(
     image: &PartialSums,
     stop: StopReason,
     warnings: &[String],
+    frame: u32,
 ) -> Vec<(&'static str, String)> {
     // The map by file name only: a local path and the farm's bundle path name the same file.
     let mut env = s.environment.clone();
@@ -71,6 +72,8 @@ pub fn standard_attributes(
             tiles.join(";")
         ),
     )];
+    // The frame of a sequence, and how frames map to time (fps, which animation plays).
+    attrs.push(("tessera_frame", format!("frame={frame} fps={} animation={:?}", s.fps, s.animation)));
     if !warnings.is_empty() {
         attrs.push(("tessera_warnings", warnings.join("; ")));
     }

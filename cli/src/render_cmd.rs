@@ -224,7 +224,8 @@ pub fn run(args: RenderArgs) -> Result<()> {
     }
     for frame in frames.iter() {
         scene.set_frame(&settings, frame)?;
-        let output = if numbered { PathBuf::from(renderer::frames::frame_path(&pattern, frame)) } else { args.output.clone() };
+        let output =
+            if numbered { PathBuf::from(renderer::frames::frame_path(&pattern, frame)) } else { args.output.clone() };
         let preview = args.preview.as_ref().map(|p| {
             if numbered {
                 PathBuf::from(renderer::frames::frame_path(&p.to_string_lossy(), frame))

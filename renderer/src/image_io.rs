@@ -111,7 +111,9 @@ impl FinalImage {
     pub fn exr_bytes(&self, attributes: &[(&str, String)]) -> std::result::Result<Vec<u8>, String> {
         let mut buf = std::io::Cursor::new(Vec::new());
         self.exr_image(attributes).write().to_buffered(&mut buf).map_err(|e| e.to_string())?;
-        Ok(buf.into_inner())
+        let mut bytes = buf.into_inner();
+        canonical_header(&mut bytes)?;
+        Ok(bytes)
     }
 
     /// Writes the EXR (ZIP-compressed, lossless). `attributes` become string header attributes.
@@ -201,4 +203,46 @@ pub fn read_exr(path: &Path) -> std::result::Result<ExrChannels, RenderError> {
         .map(|c| (c.name.to_string(), c.sample_data.values_as_f32().collect::<Vec<f32>>()))
         .collect();
     Ok(ExrChannels { width: w as u32, height: h as u32, channels, tessera })
+}
+
+/// Sorts the header attributes of a single-part EXR by name, in place. The `exr` crate keeps
+/// custom attributes in a `HashMap` and writes them in its per-process random order, so two
+/// processes writing the same image would write different bytes; the determinism rule promises
+/// byte-identical files (a local frame and the farm's). The header keeps its length, so the offset
+/// table after it stays valid. (OpenEXR 2, "Header": name\0 type\0 size:i32 value, ending in \0.)
+fn canonical_header(bytes: &mut [u8]) -> std::result::Result<(), String> {
+    const MULTIPART_OR_DEEP: u32 = 0x1000 | 0x800;
+    if bytes.len() < 8 || bytes[0..4] != [0x76, 0x2f, 0x31, 0x01] {
+        return Err("not an EXR".into());
+    }
+    let flags = u32::from_le_bytes([bytes[4], bytes[5], bytes[6], bytes[7]]);
+    if flags & MULTIPART_OR_DEEP != 0 {
+        return Ok(());
+    }
+    let mut attrs: Vec<(Vec<u8>, Vec<u8>)> = Vec::new();
+    let mut at = 8;
+    loop {
+        let name_end = bytes[at..].iter().position(|&b| b == 0).ok_or("unterminated header")? + at;
+        if name_end == at {
+            break;
+        }
+        let type_end = bytes[name_end + 1..].iter().position(|&b| b == 0).ok_or("bad attribute")? + name_end + 1;
+        let size_at = type_end + 1;
+        let size = bytes.get(size_at..size_at + 4).ok_or("bad attribute size")?;
+        let size = i32::from_le_bytes([size[0], size[1], size[2], size[3]]);
+        let end = size_at + 4 + usize::try_from(size).map_err(|_| "negative attribute size")?;
+        if end > bytes.len() {
+            return Err("attribute runs past the file".into());
+        }
+        attrs.push((bytes[at..name_end].to_vec(), bytes[at..end].to_vec()));
+        at = end;
+    }
+    attrs.sort();
+    let mut out = 8;
+    for (_, raw) in &attrs {
+        bytes[out..out + raw.len()].copy_from_slice(raw);
+        out += raw.len();
+    }
+    debug_assert_eq!(out, at);
+    Ok(())
 }

@@ -93,3 +93,32 @@ fn bench_convergence_writes_csv_plots_and_summary() {
     let (ok, _, err) = tessera(&["bench", "convergence", "--suite", "nowhere", "-o", "out2"], &tmp);
     assert!(!ok && err.contains("not in the suite"), "{err}");
 }
+
+/// A sequence is frames × the still: each frame of `--frames 0-3` is byte-identical to the same
+/// frame rendered alone with `--frame N`, and frames differ where the scene moves.
+#[test]
+fn render_frames_writes_a_sequence_identical_to_single_frames() {
+    let tmp = temp_dir("cli-frames");
+    let scene = repo_root().join("scenes/animation/moving_light.gltf");
+    let scene = scene.to_string_lossy().into_owned();
+    let common = ["--width", "32", "--height", "32", "--spp", "8", "--max-depth", "2"];
+    let mut args = vec!["render", scene.as_str(), "--frames", "0-3", "-o", "seq/shot.####.exr"];
+    args.extend_from_slice(&common);
+    let (ok, _, err) = tessera(&args, &tmp);
+    assert!(ok, "{err}");
+    let mut previous: Option<Vec<u8>> = None;
+    for f in 0..4 {
+        let seq = std::fs::read(tmp.join(format!("seq/shot.{f:04}.exr"))).expect("frame written");
+        let out = format!("single{f}.exr");
+        let n = f.to_string();
+        let mut args = vec!["render", scene.as_str(), "--frame", n.as_str(), "-o", out.as_str()];
+        args.extend_from_slice(&common);
+        let (ok, _, err) = tessera(&args, &tmp);
+        assert!(ok, "{err}");
+        assert!(seq == std::fs::read(tmp.join(&out)).expect("single frame"), "frame {f} differs from --frame {f}");
+        assert!(previous.as_ref() != Some(&seq), "frame {f} equals the frame before it: nothing moved");
+        previous = Some(seq);
+    }
+    let (ok, _, err) = tessera(&["render", scene.as_str(), "--frames", "5-1", "-o", "x.exr"], &tmp);
+    assert!(!ok && err.contains("settings.frames"), "{err}");
+}

@@ -223,13 +223,23 @@ pub fn submit(a: SubmitArgs) -> anyhow::Result<()> {
         let j = api.get_json(&format!("/jobs/{id}"))?;
         let frac = j["progress"]["fraction"].as_f64().unwrap_or(0.0);
         bar.set_position((frac * 1000.0) as u64);
-        bar.set_message(format!(
-            "{} units {}/{} | rel. error {}",
-            j["state"].as_str().unwrap_or("?"),
-            j["progress"]["units_done"],
-            j["progress"]["units_total"],
-            j["noise"]["estimated_rel_error"].as_f64().map_or("-".into(), |e| format!("{e:.2e}"))
-        ));
+        if j["kind"] == "shot" {
+            bar.set_message(format!(
+                "{} frames {}/{} | worst frame rel. error {}",
+                j["state"].as_str().unwrap_or("?"),
+                j["frames"]["done"],
+                j["frames"]["count"],
+                j["noise"]["worst_frame_rel_error"].as_f64().map_or("-".into(), |e| format!("{e:.2e}"))
+            ));
+        } else {
+            bar.set_message(format!(
+                "{} units {}/{} | rel. error {}",
+                j["state"].as_str().unwrap_or("?"),
+                j["progress"]["units_done"],
+                j["progress"]["units_total"],
+                j["noise"]["estimated_rel_error"].as_f64().map_or("-".into(), |e| format!("{e:.2e}"))
+            ));
+        }
         match j["state"].as_str() {
             Some("done") => break,
             Some("failed") | Some("cancelled") => {
@@ -243,11 +253,41 @@ pub fn submit(a: SubmitArgs) -> anyhow::Result<()> {
         }
     }
     bar.finish_and_clear();
-    let exr = api.get_bytes(&format!("/jobs/{id}/image.exr"))?;
-    std::fs::write(&a.output, exr).map_err(|e| fail(1, format!("{}: {e}", a.output.display())))?;
-    eprintln!("job {id} done -> {}", a.output.display());
+    let written = fetch_images(&api, &id, &a.output)?;
+    eprintln!("job {id} done -> {}", written.join(", "));
     println!("{id}");
     Ok(())
+}
+
+/// Downloads a job's image to `output`, or every finished frame of a shot to `output` as a frame
+/// pattern (`shot.####.exr`; without #, .NNNN before the extension). Returns the files written.
+fn fetch_images(api: &Api, id: &str, output: &std::path::Path) -> anyhow::Result<Vec<String>> {
+    let j = api.get_json(&format!("/jobs/{id}"))?;
+    let write = |path: &std::path::Path, bytes: Vec<u8>| -> anyhow::Result<()> {
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty() && !d.exists()) {
+            std::fs::create_dir_all(dir).map_err(|e| fail(1, format!("{}: {e}", dir.display())))?;
+        }
+        std::fs::write(path, bytes).map_err(|e| fail(1, format!("{}: {e}", path.display())))
+    };
+    if j["kind"] != "shot" {
+        let exr = api.get_bytes(&format!("/jobs/{id}/image.exr"))?;
+        write(output, exr)?;
+        return Ok(vec![output.display().to_string()]);
+    }
+    let pattern = output.to_string_lossy().into_owned();
+    let mut written = Vec::new();
+    for f in j["frame_jobs"].as_array().cloned().unwrap_or_default() {
+        let Some(n) = f["frame"].as_u64() else { continue };
+        if f["state"] != "done" {
+            eprintln!("frame {n}: {} (not downloaded)", f["state"].as_str().unwrap_or("?"));
+            continue;
+        }
+        let exr = api.get_bytes(&format!("/jobs/{id}/frames/{n}.exr"))?;
+        let path = std::path::PathBuf::from(renderer::frames::frame_path(&pattern, n as u32));
+        write(&path, exr)?;
+        written.push(path.display().to_string());
+    }
+    Ok(written)
 }
 
 #[derive(Args, Debug)]
@@ -260,6 +300,19 @@ pub struct JobArgs {
 pub fn status(a: JobArgs) -> anyhow::Result<()> {
     let j = Api::new(&a.conn)?.get_json(&format!("/jobs/{}", a.job))?;
     println!("{}", serde_json::to_string_pretty(&j).unwrap_or_default());
+    if j["kind"] == "shot" {
+        eprintln!(
+            "{} {}: {:.0}% | frames {}/{} done, {} running | worst frame estimated relative error {}",
+            a.job,
+            j["state"].as_str().unwrap_or("?"),
+            100.0 * j["progress"]["fraction"].as_f64().unwrap_or(0.0),
+            j["frames"]["done"],
+            j["frames"]["count"],
+            j["frames"]["running"],
+            j["noise"]["worst_frame_rel_error"].as_f64().map_or("-".to_string(), |e| format!("{e:.3e}"))
+        );
+        return Ok(());
+    }
     // The headline on stderr, so that scripts reading the JSON on stdout are unaffected.
     let num = |v: &Value| v.as_f64().map_or("-".to_string(), |e| format!("{e:.3e}"));
     eprintln!(
@@ -285,6 +338,7 @@ pub fn cancel(a: JobArgs) -> anyhow::Result<()> {
 #[derive(Args, Debug)]
 pub struct DownloadArgs {
     pub job: String,
+    /// Output EXR; for a shot, a frame pattern (shot.####.exr) every finished frame is written to.
     #[arg(short, long)]
     pub output: PathBuf,
     #[command(flatten)]
@@ -292,8 +346,10 @@ pub struct DownloadArgs {
 }
 
 pub fn download(a: DownloadArgs) -> anyhow::Result<()> {
-    let exr = Api::new(&a.conn)?.get_bytes(&format!("/jobs/{}/image.exr", a.job))?;
-    std::fs::write(&a.output, exr).map_err(|e| fail(1, format!("{}: {e}", a.output.display())))?;
+    let api = Api::new(&a.conn)?;
+    for f in fetch_images(&api, &a.job, &a.output)? {
+        eprintln!("{f}");
+    }
     Ok(())
 }
 

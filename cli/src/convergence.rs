@@ -219,7 +219,7 @@ fn subjects(a: &ConvergenceArgs) -> Result<Vec<Subject>> {
             let r = renderer::render(&scene, &settings, &Counters::default());
             let img = FinalImage::from_sums(&r.image);
             let file = a.out.join(format!("{name}-reference.exr"));
-            img.write_exr(&file, &renderer::image_io::standard_attributes(&settings, &r.image, r.stop, &[], 0))?;
+            img.write_exr(&file, &renderer::image_io::standard_attributes(&settings, &r.image, r.stop, &[]))?;
             let own = renderer::noise::estimate(&r.image).rel_mse;
             (a.width, a.height, img.rgb, format!("Tessera mis {} spp", a.reference_spp), own)
         };

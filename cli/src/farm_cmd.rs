@@ -47,6 +47,10 @@ pub struct CoordinatorArgs {
     /// default 2^28 (268 Mpx, e.g. four 8192² frames) bounds that at 9.7 GB. 0: no limit.
     #[arg(long, default_value_t = 1 << 28, env = "TESSERA_MAX_PIXELS_IN_FLIGHT")]
     pub max_pixels_in_flight: u64,
+    /// Most frames of one shot rendering at once (frames are handed out in order; finished frames
+    /// are on disk, so a 240-frame shot holds at most this many accumulations). 0: no limit.
+    #[arg(long, default_value_t = 4, env = "TESSERA_MAX_FRAMES_IN_FLIGHT")]
+    pub max_frames_in_flight: usize,
     /// Seconds a client has to send a request's headers (HTTP/1).
     #[arg(long, default_value_t = 10.0, env = "TESSERA_HEADER_TIMEOUT_SECONDS")]
     pub header_timeout_seconds: f64,
@@ -79,6 +83,7 @@ pub fn coordinator(a: CoordinatorArgs) -> Result<()> {
         },
         max_db_bytes: a.max_db_mb.map(|m| m << 20),
         max_pixels_in_flight: a.max_pixels_in_flight,
+        max_frames_in_flight: a.max_frames_in_flight,
     };
     let rt = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
     rt.block_on(async move {

@@ -223,6 +223,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         eprintln!("warning: the scene has no animation: every frame is the same image");
     }
     for frame in frames.iter() {
+        let settings = RenderSettings { frame, ..settings.clone() };
         scene.set_frame(&settings, frame)?;
         let output =
             if numbered { PathBuf::from(renderer::frames::frame_path(&pattern, frame)) } else { args.output.clone() };
@@ -240,7 +241,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         if let Some(dir) = output.parent().filter(|d| !d.as_os_str().is_empty() && !d.exists()) {
             std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
         }
-        render_frame(&scene, &settings, frame, &output, preview.as_deref(), args.exposure, load_time.as_secs_f64())?;
+        render_frame(&scene, &settings, &output, preview.as_deref(), args.exposure, load_time.as_secs_f64())?;
     }
     Ok(())
 }
@@ -249,7 +250,6 @@ pub fn run(args: RenderArgs) -> Result<()> {
 fn render_frame(
     scene: &Scene,
     settings: &RenderSettings,
-    frame: u32,
     output: &Path,
     preview: Option<&Path>,
     exposure: f32,
@@ -295,7 +295,7 @@ fn render_frame(
     bar.finish_and_clear();
     let image = &result.image;
     let final_image = FinalImage::from_sums(image);
-    let attrs = renderer::image_io::standard_attributes(settings, image, result.stop, &scene.warnings, frame);
+    let attrs = renderer::image_io::standard_attributes(settings, image, result.stop, &scene.warnings);
     final_image.write_exr(output, &attrs)?;
     if let Some(p) = preview {
         final_image.write_png(p, exposure)?;

@@ -56,6 +56,8 @@ pub struct Config {
     pub max_db_bytes: Option<u64>,
     /// Most pixels of running jobs at once (`TESSERA_MAX_PIXELS_IN_FLIGHT`; 0: no limit).
     pub max_pixels_in_flight: u64,
+    /// Most frames of one shot running at once (`TESSERA_MAX_FRAMES_IN_FLIGHT`; 0: no limit).
+    pub max_frames_in_flight: usize,
 }
 
 #[derive(Clone, Debug, serde::Serialize)]
@@ -142,6 +144,7 @@ impl Shared {
         let store = Store::open(&config.data_dir, config.max_db_bytes)?;
         let mut farm = Farm::default();
         farm.max_pixels_in_flight = config.max_pixels_in_flight;
+        farm.max_frames_in_flight = config.max_frames_in_flight;
         for job in store.load_jobs()? {
             if !job.state.is_final() {
                 tracing::info!(job = %job.id, done = job.units_done(), total = job.unit_count(), "resuming job from checkpoint");

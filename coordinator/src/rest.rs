@@ -18,6 +18,10 @@ use std::sync::Arc;
 
 pub const OPENAPI: &str = include_str!("openapi.json");
 
+/// Most tiles of all a shot's frames together: every frame job is planned when the shot is
+/// submitted (about 250 bytes a tile before it starts), so this bounds a shot's bookkeeping.
+pub const MAX_SHOT_TILES: u64 = 4_000_000;
+
 type S = State<Arc<Shared>>;
 
 /// An API error: a status and a message naming what is wrong.
@@ -41,6 +45,8 @@ pub fn router(shared: Arc<Shared>) -> Router {
         .route("/jobs/{id}/cancel", post(cancel_job))
         .route("/jobs/{id}/image.exr", get(download))
         .route("/jobs/{id}/preview.png", get(preview))
+        .route("/jobs/{id}/frames/{frame}", get(frame_image))
+        .route("/jobs/{id}/frames.tar", get(frames_archive))
         .route("/workers", get(list_workers))
         .layer(axum::middleware::from_fn_with_state(shared.clone(), auth))
         .layer(axum::middleware::from_fn_with_state(shared.clone(), upload_guard))
@@ -207,13 +213,33 @@ async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Va
         settings: rs,
         priority,
         warnings,
+        shot: None,
     };
+    // `frames` makes a shot: one frame job per frame (even for a single frame, so that the
+    // frame's EXR is at /frames/N.exr like every other).
+    let frames = match &settings.frames {
+        Some(_) => Some(settings.frame_range().map_err(|e| err(StatusCode::UNPROCESSABLE_ENTITY, e.to_string()))?),
+        None => None,
+    };
+    if let Some(f) = frames {
+        let tiles =
+            renderer::film::Rect::tiles(spec.settings.width, spec.settings.height, renderer::budget::TILE).len();
+        if f.count() as u64 * tiles as u64 > MAX_SHOT_TILES {
+            return Err(err(
+                StatusCode::UNPROCESSABLE_ENTITY,
+                format!("settings.frames: {} frames of {tiles} tiles is over this farm's {MAX_SHOT_TILES} tiles a shot: split the shot", f.count()),
+            ));
+        }
+    }
     let shared = s.clone();
-    let id = tokio::task::spawn_blocking(move || shared.submit_job(spec, &encoded))
-        .await
-        .map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
-        .map_err(service_err)?;
-    let body = lock(&s.farm).jobs.get(&id).map(job_json).unwrap_or(Value::Null);
+    let id = tokio::task::spawn_blocking(move || match frames {
+        Some(f) => shared.submit_shot(spec, f, &encoded),
+        None => shared.submit_job(spec, &encoded),
+    })
+    .await
+    .map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
+    .map_err(service_err)?;
+    let body = entity_json(&lock(&s.farm), &id, false).unwrap_or(Value::Null);
     Ok((StatusCode::CREATED, Json(body)))
 }
 
@@ -315,42 +341,205 @@ fn tiles_json(j: &Job) -> Value {
     Value::Array(tiles)
 }
 
+/// A shot: its frames' states, progress and noise, aggregated, and a line per frame.
+fn shot_json(id: &str, frames: &[&Job]) -> Value {
+    let Some(first) = frames.first() else { return Value::Null };
+    let per: Vec<Value> = frames.iter().map(|j| job_json(j)).collect();
+    let count = |st: JobState| frames.iter().filter(|j| j.state == st).count();
+    let (done, failed, cancelled, running) =
+        (count(JobState::Done), count(JobState::Failed), count(JobState::Cancelled), count(JobState::Running));
+    let state = if done == frames.len() {
+        "done"
+    } else if failed > 0 && running == 0 {
+        "failed"
+    } else if cancelled > 0 && running == 0 && cancelled + done + failed == frames.len() {
+        "cancelled"
+    } else if running > 0 || done > 0 {
+        "running"
+    } else {
+        "queued"
+    };
+    let fraction =
+        per.iter().map(|v| v["progress"]["fraction"].as_f64().unwrap_or(0.0)).sum::<f64>() / per.len() as f64;
+    let started = frames.iter().filter_map(|j| j.started_ms).min();
+    let finished = (state == "done").then(|| frames.iter().filter_map(|j| j.finished_ms).max()).flatten();
+    let elapsed_ms = started.map(|s| finished.unwrap_or(now_ms()) - s);
+    let eta_s = match elapsed_ms {
+        Some(e) if fraction > 0.0 && state == "running" => Some(e as f64 / 1000.0 * (1.0 - fraction) / fraction),
+        _ => None,
+    };
+    let worst = per
+        .iter()
+        .filter_map(|v| v["noise"]["estimated_rel_error"].as_f64())
+        .fold(None, |m: Option<f64>, x| Some(m.map_or(x, |m| m.max(x))));
+    let s = &first.spec.settings;
+    json!({
+        "id": id,
+        "kind": "shot",
+        "name": first.spec.name.rsplit_once(" frame ").map_or(first.spec.name.as_str(), |(n, _)| n),
+        "state": state,
+        "warnings": first.spec.warnings,
+        "priority": first.spec.priority,
+        "scene_hash": first.spec.scene_hash,
+        "submitted_ms": first.submitted_ms,
+        "started_ms": started,
+        "finished_ms": finished,
+        "elapsed_s": elapsed_ms.map(|e| e as f64 / 1000.0),
+        "eta_s": eta_s,
+        "frames": {
+            "first": frames.first().map(|j| j.spec.settings.frame), "last": frames.last().map(|j| j.spec.settings.frame),
+            "count": frames.len(), "done": done, "running": running, "failed": failed, "cancelled": cancelled,
+        },
+        "progress": { "fraction": fraction, "frames_done": done, "frames_total": frames.len() },
+        "noise": { "worst_frame_rel_error": worst },
+        "settings": s,
+        "frame_jobs": per.iter().zip(frames).map(|(v, j)| json!({
+            "frame": j.spec.settings.frame, "id": j.id, "state": v["state"], "progress": v["progress"]["fraction"],
+            "elapsed_s": v["elapsed_s"], "estimated_rel_error": v["noise"]["estimated_rel_error"],
+            "spp_mean": v["progress"]["spp_mean"], "stop": v["budget"]["stop"],
+        })).collect::<Vec<_>>(),
+    })
+}
+
+/// A job or a shot by id (with per-tile noise for a single job when `detail`).
+fn entity_json(farm: &crate::state::Farm, id: &str, detail: bool) -> Option<Value> {
+    if let Some(job) = farm.jobs.get(id) {
+        let mut body = job_json(job);
+        body["kind"] = json!("job");
+        if detail {
+            body["noise"]["tiles"] = tiles_json(job);
+        }
+        return Some(body);
+    }
+    let frames = farm.shot_frames(id);
+    (!frames.is_empty()).then(|| shot_json(id, &frames))
+}
+
 async fn list_jobs(State(s): S) -> Json<Value> {
     let farm = lock(&s.farm);
-    Json(json!({ "jobs": farm.jobs.values().map(job_json).collect::<Vec<_>>() }))
+    // Single jobs, and each shot once (its frames are listed inside it).
+    let mut out = Vec::new();
+    let mut shots = std::collections::BTreeSet::new();
+    for j in farm.jobs.values() {
+        match &j.spec.shot {
+            None => {
+                let mut v = job_json(j);
+                v["kind"] = json!("job");
+                out.push(v);
+            }
+            Some(shot) => {
+                if shots.insert(shot.clone()) {
+                    out.push(shot_json(shot, &farm.shot_frames(shot)));
+                }
+            }
+        }
+    }
+    Json(json!({ "jobs": out }))
 }
 
 async fn get_job(State(s): S, Path(id): Path<String>) -> Result<Json<Value>, ApiError> {
     let farm = lock(&s.farm);
-    let job = farm.jobs.get(&id).ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no job '{id}'")))?;
-    let mut body = job_json(job);
-    body["noise"]["tiles"] = tiles_json(job);
-    Ok(Json(body))
+    entity_json(&farm, &id, true).map(Json).ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no job '{id}'")))
+}
+
+/// `GET /jobs/{id}/frames/{n}.exr`: one finished frame of a shot (frame 0 of a single job too).
+async fn frame_image(State(s): S, Path((id, file)): Path<(String, String)>) -> Result<Response, ApiError> {
+    let n: u32 = file
+        .strip_suffix(".exr")
+        .and_then(|n| n.parse().ok())
+        .ok_or_else(|| err(StatusCode::NOT_FOUND, format!("'{file}': frames are at frames/<number>.exr")))?;
+    let job_id = {
+        let farm = lock(&s.farm);
+        let job = match farm.jobs.get(&id) {
+            Some(j) if j.spec.settings.frame == n => Some(j),
+            Some(_) => None,
+            None => farm.shot_frames(&id).into_iter().find(|j| j.spec.settings.frame == n),
+        };
+        job.map(|j| j.id.clone()).ok_or_else(|| err(StatusCode::NOT_FOUND, format!("'{id}' has no frame {n}")))?
+    };
+    download(State(s), Path(job_id)).await
+}
+
+/// `GET /jobs/{id}/frames.tar`: every finished frame of a shot as `frame.NNNN.exr` in one tar,
+/// streamed a frame at a time (a long shot never sits in memory whole).
+async fn frames_archive(State(s): S, Path(id): Path<String>) -> Result<Response, ApiError> {
+    let frames: Vec<(u32, String)> = {
+        let farm = lock(&s.farm);
+        let list = farm.shot_frames(&id);
+        if list.is_empty() {
+            return Err(err(StatusCode::NOT_FOUND, format!("no shot '{id}'")));
+        }
+        list.iter().filter(|j| j.state == JobState::Done).map(|j| (j.spec.settings.frame, j.id.clone())).collect()
+    };
+    let (tx, rx) = tokio::sync::mpsc::channel::<Result<Bytes, std::io::Error>>(2);
+    let shared = s.clone();
+    tokio::task::spawn_blocking(move || {
+        for (frame, job) in frames {
+            let exr = match lock(&shared.store).image(&job) {
+                Ok(Some(b)) => b,
+                Ok(None) => continue,
+                Err(e) => {
+                    let _ = tx.blocking_send(Err(std::io::Error::other(e.to_string())));
+                    return;
+                }
+            };
+            let mut h = tar::Header::new_ustar();
+            if h.set_path(format!("frame.{frame:04}.exr")).is_err() {
+                continue;
+            }
+            h.set_size(exr.len() as u64);
+            h.set_mode(0o644);
+            h.set_cksum();
+            let pad = (512 - exr.len() % 512) % 512;
+            let mut chunk = Vec::with_capacity(512 + exr.len() + pad);
+            chunk.extend_from_slice(h.as_bytes());
+            chunk.extend_from_slice(&exr);
+            chunk.resize(chunk.len() + pad, 0);
+            if tx.blocking_send(Ok(Bytes::from(chunk))).is_err() {
+                return;
+            }
+        }
+        let _ = tx.blocking_send(Ok(Bytes::from(vec![0u8; 1024])));
+    });
+    let body = axum::body::Body::from_stream(tokio_stream::wrappers::ReceiverStream::new(rx));
+    Ok((
+        [
+            (header::CONTENT_TYPE, "application/x-tar"),
+            (header::CONTENT_DISPOSITION, "attachment; filename=\"frames.tar\""),
+        ],
+        body,
+    )
+        .into_response())
 }
 
 async fn cancel_job(State(s): S, Path(id): Path<String>) -> Result<Json<Value>, ApiError> {
+    let ids = s.jobs_named(&id);
+    if ids.is_empty() {
+        return Err(err(StatusCode::NOT_FOUND, format!("no job '{id}'")));
+    }
     let shared = s.clone();
-    let i = id.clone();
-    tokio::task::spawn_blocking(move || shared.cancel_job(&i))
+    tokio::task::spawn_blocking(move || ids.iter().try_for_each(|i| shared.cancel_job(i)))
         .await
         .map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
         .map_err(service_err)?;
     s.work_available.notify_waiters();
-    let body = lock(&s.farm)
-        .jobs
-        .get(&id)
-        .map(job_json)
-        .ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no job '{id}'")))?;
+    let body =
+        entity_json(&lock(&s.farm), &id, false).ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no job '{id}'")))?;
     Ok(Json(body))
 }
 
 /// `DELETE /jobs/{id}`: removes the job and its data (cancelling it first if it still runs).
 async fn delete_job(State(s): S, Path(id): Path<String>) -> Result<Json<Value>, ApiError> {
+    let ids = s.jobs_named(&id);
+    if ids.is_empty() {
+        return Err(err(StatusCode::NOT_FOUND, format!("no job '{id}'")));
+    }
     let shared = s.clone();
-    let i = id.clone();
     tokio::task::spawn_blocking(move || {
-        shared.cancel_job(&i)?;
-        shared.delete_job(&i)
+        ids.iter().try_for_each(|i| {
+            shared.cancel_job(i)?;
+            shared.delete_job(i)
+        })
     })
     .await
     .map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
@@ -359,11 +548,19 @@ async fn delete_job(State(s): S, Path(id): Path<String>) -> Result<Json<Value>, 
 }
 
 async fn download(State(s): S, Path(id): Path<String>) -> Result<Response, ApiError> {
-    let state = lock(&s.farm)
-        .jobs
-        .get(&id)
-        .map(|j| j.state.clone())
-        .ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no job '{id}'")))?;
+    let state = {
+        let farm = lock(&s.farm);
+        if farm.jobs.get(&id).is_none() && !farm.shot_frames(&id).is_empty() {
+            return Err(err(
+                StatusCode::CONFLICT,
+                format!("'{id}' is a shot: its frames are at /frames/<n>.exr, all of them at /frames.tar"),
+            ));
+        }
+        farm.jobs
+            .get(&id)
+            .map(|j| j.state.clone())
+            .ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no job '{id}'")))?
+    };
     if state != JobState::Done {
         return Err(err(
             StatusCode::CONFLICT,

@@ -69,6 +69,66 @@ impl Shared {
         Ok(id)
     }
 
+    /// Submits a shot: one frame job per frame of `frames` (ids `<shot>-f<frame>`), each the job
+    /// `tessera render --frame N` would be. All are stored before any is scheduled; if storing one
+    /// fails, the ones stored are removed again.
+    pub fn submit_shot(
+        &self,
+        spec: JobSpec,
+        frames: renderer::frames::FrameRange,
+        scene: &[u8],
+    ) -> Result<String, ServiceError> {
+        lock(&self.store).put_scene(&spec.scene_hash, scene)?;
+        let mut farm = lock(&self.farm);
+        let max = self.config.limits.max_queued_jobs;
+        if farm.queued_jobs() >= max {
+            return Err(ServiceError::QueueFull(max));
+        }
+        let shot = loop {
+            let id = crate::new_id("s");
+            if !farm.jobs.keys().any(|k| k.starts_with(&id)) {
+                break id;
+            }
+        };
+        let mut jobs = Vec::with_capacity(frames.count() as usize);
+        for frame in frames.iter() {
+            let mut settings = spec.settings.clone();
+            settings.frame = frame;
+            let child = JobSpec {
+                name: format!("{} frame {frame}", spec.name),
+                settings,
+                shot: Some(shot.clone()),
+                ..spec.clone()
+            };
+            let mut job = Job::new(format!("{shot}-f{frame}"), child, now_ms());
+            job.scene_size = scene.len() as u64;
+            if let Err(e) = lock(&self.store).insert_job(&job) {
+                for j in &jobs {
+                    let j: &Job = j;
+                    let _ = lock(&self.store).delete_job(&j.id, None);
+                }
+                return Err(e.into());
+            }
+            jobs.push(job);
+        }
+        tracing::info!(shot = %shot, name = %spec.name, frames = %frames, "shot submitted");
+        for job in jobs {
+            farm.add_job(job);
+        }
+        drop(farm);
+        self.work_available.notify_waiters();
+        Ok(shot)
+    }
+
+    /// The jobs an id names: the job itself, or every frame job of a shot.
+    pub fn jobs_named(&self, id: &str) -> Vec<String> {
+        let farm = lock(&self.farm);
+        if farm.jobs.contains_key(id) {
+            return vec![id.to_string()];
+        }
+        farm.shot_frames(id).iter().map(|j| j.id.clone()).collect()
+    }
+
     /// Removes a job and everything stored for it (scene blobs stay while another job uses them).
     pub fn delete_job(&self, id: &str) -> Result<(), ServiceError> {
         let mut farm = lock(&self.farm);
@@ -199,7 +259,7 @@ impl Shared {
             (job.image(), job.spec.settings.clone(), job.stop_reason(), job.spec.warnings.clone())
         };
         let encoded = renderer::image_io::FinalImage::from_sums(&image);
-        let exr = encoded.exr_bytes(&renderer::image_io::standard_attributes(&settings, &image, stop, &warnings, 0));
+        let exr = encoded.exr_bytes(&renderer::image_io::standard_attributes(&settings, &image, stop, &warnings));
         let png = encoded.png_bytes(0.0).unwrap_or_default();
         drop(image);
         let finished_ms = now_ms();

@@ -61,6 +61,11 @@ pub struct JobSpec {
     /// What the scene is rendered without (optional extensions), as `tessera render` reports it.
     #[serde(default)]
     pub warnings: Vec<String>,
+    /// The shot (a job of several frames) this job is one frame of (`settings.frame`); None for a
+    /// single image. A shot is its frame jobs: each has its own tiles, passes, budgets, noise and
+    /// EXR, exactly as `tessera render --frame N` would make it.
+    #[serde(default)]
+    pub shot: Option<String>,
 }
 
 /// A unit handed to a worker and not yet returned.
@@ -393,6 +398,12 @@ pub struct Farm {
     /// job starts only while it fits beside the running ones (or when nothing runs), so the
     /// coordinator's accumulation memory (36 bytes a pixel) is bounded by this, not by the queue.
     pub max_pixels_in_flight: u64,
+    /// Most frames of one shot running at once (`TESSERA_MAX_FRAMES_IN_FLIGHT`; 0: no limit).
+    /// With frames scheduled in order this bounds a shot's memory to a few accumulations, whatever
+    /// its length; finished frames are on disk.
+    pub max_frames_in_flight: usize,
+    /// The job each worker was last given: a worker stays on the frame whose posed scene it holds.
+    worker_job: HashMap<String, String>,
 }
 
 impl Farm {
@@ -407,17 +418,49 @@ impl Farm {
     pub fn lease(&mut self, worker: &str, now_ms: i64, lease_ms: i64) -> Option<WorkUnit> {
         let running: u64 = self.jobs.values().filter(|j| j.state == JobState::Running).map(Job::pixels).sum();
         let limit = self.max_pixels_in_flight;
+        // Frames of a shot: how many run, and when the shot was last served (round-robin is
+        // between shots and single jobs, not between one shot's frames).
+        let mut shot_running: HashMap<String, usize> = HashMap::new();
+        let mut shot_served: HashMap<String, u64> = HashMap::new();
+        for j in self.jobs.values() {
+            if let Some(shot) = &j.spec.shot {
+                if j.state == JobState::Running {
+                    *shot_running.entry(shot.clone()).or_default() += 1;
+                }
+                let e = shot_served.entry(shot.clone()).or_default();
+                *e = (*e).max(j.last_served);
+            }
+        }
+        let frames_limit = self.max_frames_in_flight;
+        let current = self.worker_job.get(worker).cloned();
         let mut candidates: Vec<&mut Job> = self
             .jobs
             .values_mut()
             .filter(|j| !j.state.is_final() && !j.bad_workers.contains(worker) && j.next_pending().is_some())
             .filter(|j| j.state != JobState::Queued || limit == 0 || running == 0 || running + j.pixels() <= limit)
+            .filter(|j| {
+                j.state != JobState::Queued
+                    || frames_limit == 0
+                    || j.spec.shot.as_ref().is_none_or(|s| shot_running.get(s).copied().unwrap_or(0) < frames_limit)
+            })
             .collect();
+        let served = |j: &Job| j.spec.shot.as_ref().and_then(|s| shot_served.get(s).copied()).unwrap_or(j.last_served);
+        // Priority; then the job or shot served longest ago; within a shot, the frame this worker
+        // holds first (its posed scene is loaded), then frames in order (a sequence can be
+        // reviewed while the rest renders); then submission order.
         candidates.sort_by(|a, b| {
             b.spec
                 .priority
                 .cmp(&a.spec.priority)
-                .then(a.last_served.cmp(&b.last_served))
+                .then(served(a).cmp(&served(b)))
+                .then_with(|| {
+                    let same_shot = a.spec.shot.is_some() && a.spec.shot == b.spec.shot;
+                    if !same_shot {
+                        return std::cmp::Ordering::Equal;
+                    }
+                    let mine = |j: &Job| current.as_deref() != Some(j.id.as_str());
+                    mine(a).cmp(&mine(b)).then(a.spec.settings.frame.cmp(&b.spec.settings.frame))
+                })
                 .then(a.submitted_ms.cmp(&b.submitted_ms))
                 .then(a.id.cmp(&b.id))
         });
@@ -435,6 +478,9 @@ impl Farm {
             if job.state == JobState::Queued {
                 job.state = JobState::Running;
                 job.started_ms = Some(now_ms);
+            }
+            if job.spec.shot.is_some() {
+                self.worker_job.insert(worker.to_string(), job.id.clone());
             }
             return Some(WorkUnit {
                 unit_id: job.unit_id(pass, tile),
@@ -646,8 +692,21 @@ impl Farm {
         Some(job)
     }
 
+    /// Unfinished jobs, a shot counting once.
     pub fn queued_jobs(&self) -> usize {
-        self.jobs.values().filter(|j| !j.state.is_final()).count()
+        let mut shots = HashSet::new();
+        self.jobs
+            .values()
+            .filter(|j| !j.state.is_final())
+            .filter(|j| j.spec.shot.as_ref().is_none_or(|s| shots.insert(s.clone())))
+            .count()
+    }
+
+    /// The frame jobs of shot `id`, in frame order.
+    pub fn shot_frames(&self, id: &str) -> Vec<&Job> {
+        let mut v: Vec<&Job> = self.jobs.values().filter(|j| j.spec.shot.as_deref() == Some(id)).collect();
+        v.sort_by_key(|j| j.spec.settings.frame);
+        v
     }
 }
 
@@ -660,7 +719,7 @@ mod tests {
         let settings = RenderSettings { width: 40, height: 20, spp: 8, pass_spp: 4, ..RenderSettings::default() };
         Job::new(
             id.into(),
-            JobSpec { name: id.into(), scene_hash: "h".into(), settings, priority, warnings: Vec::new() },
+            JobSpec { name: id.into(), scene_hash: "h".into(), settings, priority, warnings: Vec::new(), shot: None },
             t,
         )
     }
@@ -673,6 +732,44 @@ mod tests {
             }
         }
         p
+    }
+
+    /// Frame `frame` of shot `shot`: a 40×20 image (2 tiles of 32 px) × 2 passes = 4 units.
+    fn frame_job(shot: &str, frame: u32) -> Job {
+        let mut j = job(&format!("{shot}-f{frame}"), 0, 0);
+        j.spec.shot = Some(shot.into());
+        j.spec.settings.frame = frame;
+        j
+    }
+
+    #[test]
+    fn a_shot_runs_frames_in_order_keeps_workers_on_their_frame_and_bounds_frames_in_flight() {
+        let mut f = Farm { max_frames_in_flight: 2, ..Farm::default() };
+        // Added out of order: order comes from the frame number, not from insertion.
+        for frame in [3, 0, 2, 1] {
+            f.add_job(frame_job("s", frame));
+        }
+        let frame_of = |u: &WorkUnit| u.job_id.rsplit("-f").next().and_then(|n| n.parse::<u32>().ok());
+        // Worker a takes frame 0's four units, then b is sent to frame 1 (frame 0 has none left).
+        let a: Vec<_> = (0..4).map(|_| f.lease("a", 0, 1000).and_then(|u| frame_of(&u))).collect();
+        assert_eq!(a, vec![Some(0); 4]);
+        assert_eq!(f.lease("b", 0, 1000).and_then(|u| frame_of(&u)), Some(1));
+        // Two frames run: frame 2 may not start until one finishes, whoever asks.
+        for w in ["b", "b", "b"] {
+            assert_eq!(f.lease(w, 0, 1000).and_then(|u| frame_of(&u)), Some(1));
+        }
+        assert!(f.lease("c", 0, 1000).is_none(), "a third frame in flight");
+        // A worker on a frame stays on it while it has units: after frame 2 and 3 open up, a worker
+        // that last had frame 3 keeps getting frame 3 before frame 2.
+        f.jobs.get_mut("s-f0").unwrap().state = JobState::Done;
+        f.jobs.get_mut("s-f1").unwrap().state = JobState::Done;
+        assert_eq!(f.lease("d", 0, 1000).and_then(|u| frame_of(&u)), Some(2));
+        f.worker_job.insert("e".into(), "s-f3".into());
+        f.jobs.get_mut("s-f3").unwrap().state = JobState::Running;
+        assert_eq!(f.lease("e", 0, 1000).and_then(|u| frame_of(&u)), Some(3));
+        assert_eq!(f.lease("d", 0, 1000).and_then(|u| frame_of(&u)), Some(2));
+        // A shot counts as one queued job.
+        assert_eq!(f.queued_jobs(), 1);
     }
 
     #[test]
@@ -811,7 +908,14 @@ mod tests {
         };
         Job::new(
             id.into(),
-            JobSpec { name: id.into(), scene_hash: "h".into(), settings, priority: 0, warnings: Vec::new() },
+            JobSpec {
+                name: id.into(),
+                scene_hash: "h".into(),
+                settings,
+                priority: 0,
+                warnings: Vec::new(),
+                shot: None,
+            },
             0,
         )
     }

@@ -283,5 +283,6 @@ fn quarantine_spec(spec: &str) -> JobSpec {
         settings: renderer::RenderSettings { width: 1, height: 1, ..Default::default() },
         priority: 0,
         warnings: Vec::new(),
+        shot: None,
     })
 }

@@ -28,7 +28,6 @@ pub fn standard_attributes(
     image: &PartialSums,
     stop: StopReason,
     warnings: &[String],
-    frame: u32,
 ) -> Vec<(&'static str, String)> {
     // The map by file name only: a local path and the farm's bundle path name the same file.
     let mut env = s.environment.clone();
@@ -73,7 +72,7 @@ pub fn standard_attributes(
         ),
     )];
     // The frame of a sequence, and how frames map to time (fps, which animation plays).
-    attrs.push(("tessera_frame", format!("frame={frame} fps={} animation={:?}", s.fps, s.animation)));
+    attrs.push(("tessera_frame", format!("frame={} fps={} animation={:?}", s.frame, s.fps, s.animation)));
     if !warnings.is_empty() {
         attrs.push(("tessera_warnings", warnings.join("; ")));
     }

@@ -32,6 +32,8 @@ pub struct Scene {
     animator: Option<crate::animation::Animator>,
     /// The time the scene is posed at, in seconds.
     time: f32,
+    /// What `set_frame` last posed: (frame, fps bits, animation).
+    pose_key: Option<(u32, u32, Option<String>)>,
 }
 
 impl Scene {
@@ -57,6 +59,7 @@ impl Scene {
             warnings: Vec::new(),
             animator: None,
             time: 0.0,
+            pose_key: None,
             generator: None,
             light_units: crate::punctual::LightUnits::Gltf,
         }
@@ -154,6 +157,7 @@ impl Scene {
         }
         self.animator = Some(animator);
         self.time = t;
+        self.pose_key = Some((frame, settings.fps.to_bits(), settings.animation.clone()));
         self.accel.rebuild_top(&self.mesh);
         if let Some(b) = self.mesh.world_bounds() {
             self.bounds = b;
@@ -162,6 +166,11 @@ impl Scene {
         let view = self.camera(settings.camera).ok().map(|c| (c, settings.width, settings.height));
         self.set_light_sampler_for(settings.light_sampler, view);
         Ok(())
+    }
+
+    /// What the scene was last posed for by `set_frame`: (frame, fps bits, animation).
+    pub fn pose_key(&self) -> Option<&(u32, u32, Option<String>)> {
+        self.pose_key.as_ref()
     }
 
     /// The time (seconds) the scene is posed at.

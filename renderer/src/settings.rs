@@ -81,6 +81,9 @@ pub struct RenderSettings {
     pub fps: f32,
     /// Which glTF animation plays (name or index); None: all of them together.
     pub animation: Option<String>,
+    /// The frame this image is of (a farm job of several frames is one job per frame; locally,
+    /// each frame of `--frames`). Time = frame / fps.
+    pub frame: u32,
 }
 
 impl Default for RenderSettings {
@@ -104,6 +107,7 @@ impl Default for RenderSettings {
             min_spp: 32,
             fps: crate::animation::DEFAULT_FPS,
             animation: None,
+            frame: 0,
             time_budget: None,
             light_units: Default::default(),
         }

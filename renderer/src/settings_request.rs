@@ -294,6 +294,7 @@ impl SettingsRequest {
             time_budget,
             fps: real("fps", self.fps)?.map_or(d.fps, |v| v as f32),
             animation: self.animation.clone(),
+            frame: self.frame_range()?.first,
         };
         s.validate().map_err(|m| bad("settings", m))?;
         Ok(s)

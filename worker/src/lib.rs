@@ -269,11 +269,31 @@ async fn scene_for(
     settings: &RenderSettings,
     loaded: &mut Option<(String, Arc<Scene>)>,
 ) -> Result<Arc<Scene>, String> {
-    // The loaded scene depends on the bundle and on what `prepare` reads from the settings.
+    // The loaded scene depends on the bundle and on what `prepare` reads from the settings; an
+    // animated scene also on the frame (and fps, animation), which a re-pose changes in place:
+    // a worker kept on a shot's frames loads and prepares once (the scheduler keeps it there).
     let key = format!("{} {}", unit.scene_hash, Scene::prepare_key(settings));
-    if let Some((k, s)) = loaded {
+    let pose = (settings.frame, settings.fps.to_bits(), settings.animation.clone());
+    if let Some((k, s)) = loaded.as_ref() {
         if *k == key {
-            return Ok(s.clone());
+            if s.pose_key() == Some(&pose) || !s.is_animated() {
+                return Ok(s.clone());
+            }
+            // Another frame of the same scene: re-pose it (nothing else holds it between units).
+            if let Some((k, s)) = loaded.take() {
+                if let Ok(mut scene) = Arc::try_unwrap(s) {
+                    let st = settings.clone();
+                    let scene = tokio::task::spawn_blocking(move || -> Result<Scene, String> {
+                        scene.set_frame(&st, st.frame).map_err(|e| e.to_string())?;
+                        Ok(scene)
+                    })
+                    .await
+                    .map_err(|e| e.to_string())??;
+                    let scene = Arc::new(scene);
+                    *loaded = Some((k, scene.clone()));
+                    return Ok(scene);
+                }
+            }
         }
     }
     if unit.scene_hash.len() != 64 || !unit.scene_hash.bytes().all(|b| b.is_ascii_hexdigit()) {
@@ -318,6 +338,7 @@ async fn scene_for(
     let scene = tokio::task::spawn_blocking(move || -> Result<Scene, String> {
         let mut scene = renderer::gltf_loader::load(&path).map_err(|e| e.to_string())?;
         scene.prepare(&st, &dir).map_err(|e| e.to_string())?;
+        scene.set_frame(&st, st.frame).map_err(|e| e.to_string())?;
         Ok(scene)
     })
     .await

@@ -655,7 +655,8 @@ mod tests {
         serde_json::from_str(
             r#"{"name":"n","priority":1,"spp":1,"width":1,"height":1,"camera":0,"integrator":"mis","mis_heuristic":"power",
                "sampler":"sobol","seed":1,"max_depth":1,"rr_depth":1,"filter":"box","env_color":[1,1,1],"env_strength":1,
-               "env_rotate":0,"env_sampling":true,"light_sampler":"auto","pass_spp":1,"time_budget":1,"noise_target":0.1,"min_spp":2}"#,
+               "env_rotate":0,"env_sampling":true,"light_sampler":"auto","pass_spp":1,"time_budget":1,"noise_target":0.1,"min_spp":2,
+               "frames":"0-3","fps":24,"animation":"walk"}"#,
         )
         .expect("every field")
     }

@@ -151,6 +151,47 @@ fn validate(root: gltf::json::Root) -> Result<gltf::Document, gltf::Error> {
     }
 }
 
+/// One component of a vertex attribute as f32 (glTF 2.0 §3.6.2.3, KHR_mesh_quantization):
+/// normalized integers to [0, 1] or [−1, 1] (signed: max(c / MAX, −1)), others to their value.
+fn decode_component(ty: DataType, norm: bool, b: &[u8]) -> f32 {
+    match ty {
+        DataType::F32 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+        DataType::I8 => {
+            let v = b[0] as i8 as f32;
+            if norm {
+                (v / 127.0).max(-1.0)
+            } else {
+                v
+            }
+        }
+        DataType::U8 => {
+            let v = b[0] as f32;
+            if norm {
+                v / 255.0
+            } else {
+                v
+            }
+        }
+        DataType::I16 => {
+            let v = i16::from_le_bytes([b[0], b[1]]) as f32;
+            if norm {
+                (v / 32767.0).max(-1.0)
+            } else {
+                v
+            }
+        }
+        DataType::U16 => {
+            let v = u16::from_le_bytes([b[0], b[1]]) as f32;
+            if norm {
+                v / 65535.0
+            } else {
+                v
+            }
+        }
+        DataType::U32 => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f32,
+    }
+}
+
 /// Appends `n` values of a vertex attribute for the vertices from `base` on, to storage that stays
 /// empty until some primitive has the attribute (then it is filled with `fill` up to `base` first).
 fn append_lazy<T: Copy>(store: &mut Vec<T>, base: usize, n: usize, values: Option<impl Iterator<Item = T>>, fill: T) {
@@ -356,6 +397,12 @@ impl Loader {
         if acc.sparse().is_some() {
             return Err(self.unsupported(format!("sparse accessor for {name}")));
         }
+        self.check_dense(acc, what, types, dims)
+    }
+
+    /// `check_accessor` without the refusal of sparse accessors (whose base is checked here).
+    fn check_dense(&self, acc: &gltf::Accessor, what: &str, types: &[DataType], dims: Dimensions) -> Result<usize, SceneError> {
+        let name = format!("{what} (accessor {})", acc.index());
         if !types.contains(&acc.data_type()) || acc.dimensions() != dims {
             return Err(self.unsupported(format!("{name} stored as {:?} {:?}", acc.data_type(), acc.dimensions())));
         }
@@ -1437,11 +1484,94 @@ impl Loader {
             16 => Dimensions::Mat4,
             _ => Dimensions::Scalar,
         };
-        let count = self.check_accessor(acc, what, types, dims)?;
         let ty = acc.data_type();
         if ty != DataType::F32 && normalized_only && !acc.normalized() {
             return Err(self.unsupported(format!("non-normalized integer {what} (accessor {})", acc.index())));
         }
+        if let Some(sparse) = acc.sparse() {
+            return self.read_sparse(acc, &sparse, buffers, what, types, dims);
+        }
+        let count = self.check_accessor(acc, what, types, dims)?;
+        self.read_dense(acc, buffers, what, count)
+    }
+
+    /// A sparse accessor (Blender writes morph targets so): its base (a buffer view, or zeros),
+    /// then `count` replaced elements, their indices and values bounds-checked first.
+    fn read_sparse<const N: usize>(
+        &self,
+        acc: &gltf::Accessor,
+        sparse: &gltf::accessor::sparse::Sparse,
+        buffers: &[Vec<u8>],
+        what: &str,
+        types: &[DataType],
+        dims: Dimensions,
+    ) -> Result<Vec<[f32; N]>, SceneError> {
+        let name = format!("{what} (sparse accessor {})", acc.index());
+        if !types.contains(&acc.data_type()) || acc.dimensions() != dims {
+            return Err(self.unsupported(format!("{name} stored as {:?} {:?}", acc.data_type(), acc.dimensions())));
+        }
+        let count = acc.count();
+        if count == 0 || (count as u64).saturating_mul(N as u64 * 4) > MAX_FILE_BYTES {
+            return Err(self.invalid(format!("{name}: {count} elements")));
+        }
+        let mut out: Vec<[f32; N]> = match acc.view() {
+            Some(_) => {
+                let c = self.check_dense(acc, what, types, dims)?;
+                self.read_dense(acc, buffers, what, c)?
+            }
+            None => vec![[0.0; N]; count],
+        };
+        let n = sparse.count();
+        if n > count {
+            return Err(self.invalid(format!("{name}: {n} sparse elements for {count}")));
+        }
+        let slice = |view: gltf::buffer::View, offset: usize, len: usize| -> Result<&[u8], SceneError> {
+            let start = view.offset().checked_add(offset);
+            let end = start.and_then(|st| st.checked_add(len));
+            match (start, end) {
+                (Some(st), Some(e)) if offset.saturating_add(len) <= view.length() => buffers
+                    .get(view.buffer().index())
+                    .and_then(|b| b.get(st..e))
+                    .ok_or_else(|| self.invalid(format!("{name}: sparse data outside its buffer"))),
+                _ => Err(self.invalid(format!("{name}: sparse data runs past its buffer view"))),
+            }
+        };
+        let idx = sparse.indices();
+        let isize = match idx.index_type() {
+            gltf::accessor::sparse::IndexType::U8 => 1,
+            gltf::accessor::sparse::IndexType::U16 => 2,
+            gltf::accessor::sparse::IndexType::U32 => 4,
+        };
+        let ibytes = slice(idx.view(), idx.offset() as usize, n * isize)?;
+        let esize = acc.size();
+        let vals = sparse.values();
+        let vbytes = slice(vals.view(), vals.offset() as usize, n * esize)?;
+        let (ty, norm, csize) = (acc.data_type(), acc.normalized(), acc.data_type().size());
+        for k in 0..n {
+            let b = &ibytes[k * isize..(k + 1) * isize];
+            let i = match isize {
+                1 => b[0] as usize,
+                2 => u16::from_le_bytes([b[0], b[1]]) as usize,
+                _ => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize,
+            };
+            let slot = out.get_mut(i).ok_or_else(|| self.invalid(format!("{name}: sparse index {i} of {count}")))?;
+            for (c, x) in slot.iter_mut().enumerate() {
+                let o = k * esize + c * csize;
+                *x = decode_component(ty, norm, &vbytes[o..o + csize]);
+            }
+        }
+        Ok(out)
+    }
+
+    /// Reads a dense accessor already bounded by `check_accessor`.
+    fn read_dense<const N: usize>(
+        &self,
+        acc: &gltf::Accessor,
+        buffers: &[Vec<u8>],
+        what: &str,
+        count: usize,
+    ) -> Result<Vec<[f32; N]>, SceneError> {
+        let ty = acc.data_type();
         let view = acc.view().ok_or_else(|| self.invalid(format!("{what} has no bufferView")))?;
         let buf = buffers
             .get(view.buffer().index())
@@ -1450,44 +1580,7 @@ impl Loader {
         let start = view.offset() + acc.offset();
         let size = ty.size();
         let norm = acc.normalized();
-        let decode = |b: &[u8]| -> f32 {
-            match ty {
-                DataType::F32 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
-                DataType::I8 => {
-                    let v = b[0] as i8 as f32;
-                    if norm {
-                        (v / 127.0).max(-1.0)
-                    } else {
-                        v
-                    }
-                }
-                DataType::U8 => {
-                    let v = b[0] as f32;
-                    if norm {
-                        v / 255.0
-                    } else {
-                        v
-                    }
-                }
-                DataType::I16 => {
-                    let v = i16::from_le_bytes([b[0], b[1]]) as f32;
-                    if norm {
-                        (v / 32767.0).max(-1.0)
-                    } else {
-                        v
-                    }
-                }
-                DataType::U16 => {
-                    let v = u16::from_le_bytes([b[0], b[1]]) as f32;
-                    if norm {
-                        v / 65535.0
-                    } else {
-                        v
-                    }
-                }
-                DataType::U32 => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f32,
-            }
-        };
+        let decode = |b: &[u8]| decode_component(ty, norm, b);
         // `check_accessor` proved start + (count − 1)·stride + N·size ≤ the view's end, and the
         // views were checked against their buffers in `load_buffers`.
         let mut out = Vec::with_capacity(count);

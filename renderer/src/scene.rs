@@ -150,7 +150,9 @@ impl Scene {
         let fps =
             if settings.fps > 0.0 && settings.fps.is_finite() { settings.fps } else { crate::animation::DEFAULT_FPS };
         let t = frame as f32 / fps;
+        let clock = std::time::Instant::now();
         let mut punctual = animator.apply(t, &mut self.mesh, &mut self.cameras);
+        let posed = clock.elapsed();
         let scale = self.light_units.scale();
         for p in &mut punctual {
             p.intensity *= scale;
@@ -162,9 +164,17 @@ impl Scene {
         if let Some(b) = self.mesh.world_bounds() {
             self.bounds = b;
         }
+        let rebuilt = clock.elapsed();
         self.set_punctual(punctual);
         let view = self.camera(settings.camera).ok().map(|c| (c, settings.width, settings.height));
         self.set_light_sampler_for(settings.light_sampler, view);
+        tracing::debug!(
+            frame,
+            pose_s = posed.as_secs_f64(),
+            top_level_bvh_s = (rebuilt - posed).as_secs_f64(),
+            lights_s = (clock.elapsed() - rebuilt).as_secs_f64(),
+            "frame posed"
+        );
         Ok(())
     }
 

@@ -19,6 +19,7 @@ img{max-width:160px;image-rendering:pixelated}input,select{margin-right:6px}
  noise target <input name="noise_target" type="number" step="any" placeholder="e.g. 0.02" style="width:6em">
  time budget <input name="time_budget" type="number" step="any" placeholder="s" style="width:5em">
  width <input name="width" type="number" placeholder="auto" style="width:6em">
+ frames <input name="frames" placeholder="e.g. 1-240" style="width:6em">
  <select name="integrator"><option>mis</option><option>nee</option><option>bsdf</option></select>
  priority <input name="priority" type="number" value="0" style="width:4em">
  <button>Submit</button></form>
@@ -36,11 +37,24 @@ async function api(path, opts={}) {
   if (!r.ok) { let e = r.status; try { e = (await r.json()).error } catch {} throw new Error(e); }
   return r;
 }
+// A shot (several frames): frames done and running, each frame's state, the latest frame's preview.
+function shotRow(j) {
+  const fj = j.frame_jobs || [];
+  const shown = [...fj].reverse().find(f => f.state === 'done' || (f.progress || 0) > 0);
+  const frames = fj.map(f => `<span title="frame ${f.frame}: ${esc(f.state)}, rel. error ${f.estimated_rel_error?.toExponential(2) ?? '-'}">${f.frame}:${f.state === 'done' ? 'done' : (100 * (f.progress || 0)).toFixed(0) + '%'}</span>`).join(' ');
+  return `<tr><td>${esc(j.id)}<br><small>${esc(j.name)} (frames ${j.frames.first}-${j.frames.last})</small>${(j.warnings || []).map(w => '<br><small class=warn>warning: ' + esc(w) + '</small>').join('')}</td><td>${esc(j.state)}</td>
+    <td><div class=bar><div style="width:${(100*j.progress.fraction).toFixed(1)}%"></div></div>${j.frames.done}/${j.frames.count} frames, ${j.frames.running} running</td>
+    <td>${j.elapsed_s?.toFixed(1) ?? '-'} s / ${j.eta_s?.toFixed(0) ?? '-'} s</td>
+    <td>worst frame ${j.noise.worst_frame_rel_error?.toExponential(2) ?? '-'}</td>
+    <td><small>${frames}</small></td>
+    <td>${shown ? `<img data-src="/api/v1/jobs/${esc(shown.id)}/preview.png">` : ''}</td>
+    <td>${j.frames.done ? `<a href="#" data-tar="${esc(j.id)}">frames.tar</a> ` : ''}${['queued','running'].includes(j.state) ? `<a href="#" data-cancel="${esc(j.id)}">cancel</a>` : ''}</td></tr>`;
+}
 async function refresh() {
   try {
     const jobs = (await (await api('/jobs')).json()).jobs.reverse();
     document.getElementById('jobs').innerHTML = '<tr><th>job</th><th>state</th><th>progress</th><th>elapsed / ETA</th><th>rel. error</th><th>spp</th><th>preview</th><th></th></tr>' +
-      jobs.map(j => `<tr><td>${esc(j.id)}<br><small>${esc(j.name)}</small>${(j.warnings || []).map(w => '<br><small class=warn>warning: ' + esc(w) + '</small>').join('')}</td><td>${esc(j.state)}${j.error ? '<br><span class=err>' + esc(j.error) + '</span>' : ''}</td>
+      jobs.map(j => j.kind === 'shot' ? shotRow(j) : `<tr><td>${esc(j.id)}<br><small>${esc(j.name)}</small>${(j.warnings || []).map(w => '<br><small class=warn>warning: ' + esc(w) + '</small>').join('')}</td><td>${esc(j.state)}${j.error ? '<br><span class=err>' + esc(j.error) + '</span>' : ''}</td>
       <td><div class=bar><div style="width:${(100*j.progress.fraction).toFixed(1)}%"></div></div>${j.progress.units_done}/${j.progress.units_total} units</td>
       <td>${j.elapsed_s?.toFixed(1) ?? '-'} s / ${j.eta_s?.toFixed(0) ?? '-'} s</td>
       <td>${j.noise.estimated_rel_error?.toExponential(2) ?? '-'}${j.budget.noise_target ? ' / target ' + j.budget.noise_target : ''}</td>
@@ -63,6 +77,8 @@ document.addEventListener('click', async e => {
     if (t.dataset.cancel) { e.preventDefault(); await api('/jobs/' + t.dataset.cancel + '/cancel', {method: 'POST'}); refresh(); }
     if (t.dataset.dl) { e.preventDefault(); const b = await (await api('/jobs/' + t.dataset.dl + '/image.exr')).blob();
       const a = document.createElement('a'); a.href = URL.createObjectURL(b); a.download = t.dataset.dl + '.exr'; a.click(); }
+    if (t.dataset.tar) { e.preventDefault(); const b = await (await api('/jobs/' + t.dataset.tar + '/frames.tar')).blob();
+      const a = document.createElement('a'); a.href = URL.createObjectURL(b); a.download = t.dataset.tar + '-frames.tar'; a.click(); }
   } catch (err) { msg(err.message); }
 });
 document.getElementById('submit').onsubmit = async e => {
@@ -74,6 +90,7 @@ document.getElementById('submit').onsubmit = async e => {
   if (f.width.value) s.width = +f.width.value;
   if (f.noise_target.value) s.noise_target = +f.noise_target.value;
   if (f.time_budget.value) s.time_budget = +f.time_budget.value;
+  if (f.frames.value) s.frames = f.frames.value;
   fd.append('settings', JSON.stringify(s));
   try { await api('/jobs', {method: 'POST', body: fd}); refresh(); } catch (err) { msg(err.message); }
 };

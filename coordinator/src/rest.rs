@@ -550,7 +550,7 @@ async fn delete_job(State(s): S, Path(id): Path<String>) -> Result<Json<Value>, 
 async fn download(State(s): S, Path(id): Path<String>) -> Result<Response, ApiError> {
     let state = {
         let farm = lock(&s.farm);
-        if farm.jobs.get(&id).is_none() && !farm.shot_frames(&id).is_empty() {
+        if !farm.jobs.contains_key(&id) && !farm.shot_frames(&id).is_empty() {
             return Err(err(
                 StatusCode::CONFLICT,
                 format!("'{id}' is a shot: its frames are at /frames/<n>.exr, all of them at /frames.tar"),

@@ -337,6 +337,7 @@ impl Animator {
             None => Vec::new(),
         };
         let node_world = pose.world[p.node];
+        #[allow(clippy::needless_range_loop)] // i indexes six parallel arrays and the mesh storage
         for i in 0..n {
             let m = if skin.is_some() {
                 // Σ wᵢ · joint matrix ᵢ (glTF §3.7.3.3); weights renormalised against rounding.

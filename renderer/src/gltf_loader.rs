@@ -401,7 +401,13 @@ impl Loader {
     }
 
     /// `check_accessor` without the refusal of sparse accessors (whose base is checked here).
-    fn check_dense(&self, acc: &gltf::Accessor, what: &str, types: &[DataType], dims: Dimensions) -> Result<usize, SceneError> {
+    fn check_dense(
+        &self,
+        acc: &gltf::Accessor,
+        what: &str,
+        types: &[DataType],
+        dims: Dimensions,
+    ) -> Result<usize, SceneError> {
         let name = format!("{what} (accessor {})", acc.index());
         if !types.contains(&acc.data_type()) || acc.dimensions() != dims {
             return Err(self.unsupported(format!("{name} stored as {:?} {:?}", acc.data_type(), acc.dimensions())));
@@ -1131,7 +1137,7 @@ impl Loader {
                     P::MorphTargetWeights => {
                         let v: Vec<f32> = self.read_floats::<1>(&out, buffers, &what, INTS, true)?.concat();
                         let keys = times.len() * per_key;
-                        if keys == 0 || v.len() % keys != 0 {
+                        if keys == 0 || !v.len().is_multiple_of(keys) {
                             return Err(self.invalid(format!("{what}: {} weights for {} keys", v.len(), times.len())));
                         }
                         let width = v.len() / keys;
@@ -1542,10 +1548,10 @@ impl Loader {
             gltf::accessor::sparse::IndexType::U16 => 2,
             gltf::accessor::sparse::IndexType::U32 => 4,
         };
-        let ibytes = slice(idx.view(), idx.offset() as usize, n * isize)?;
+        let ibytes = slice(idx.view(), idx.offset(), n * isize)?;
         let esize = acc.size();
         let vals = sparse.values();
-        let vbytes = slice(vals.view(), vals.offset() as usize, n * esize)?;
+        let vbytes = slice(vals.view(), vals.offset(), n * esize)?;
         let (ty, norm, csize) = (acc.data_type(), acc.normalized(), acc.data_type().size());
         for k in 0..n {
             let b = &ibytes[k * isize..(k + 1) * isize];

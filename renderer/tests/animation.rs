@@ -263,7 +263,9 @@ fn a_blender_rig_poses_as_blender_poses_it() {
             .as_array()
             .expect("frame")
             .iter()
-            .map(|p| Vec3::new(p[0].as_f64().unwrap() as f32, p[1].as_f64().unwrap() as f32, p[2].as_f64().unwrap() as f32))
+            .map(|p| {
+                Vec3::new(p[0].as_f64().unwrap() as f32, p[1].as_f64().unwrap() as f32, p[2].as_f64().unwrap() as f32)
+            })
             .collect();
         let nearest = |p: Vec3, set: &[Vec3]| set.iter().map(|q| (*q - p).length()).fold(f32::INFINITY, f32::min);
         let worst_a = theirs.iter().map(|p| nearest(*p, &ours)).fold(0.0f32, f32::max);

@@ -238,24 +238,7 @@ impl Accel {
                 instance: NO_INSTANCE,
             });
         }
-        if self.tris.is_empty() {
-            return None;
-        }
-        let (oa, da) = (Vec3A::from(o), Vec3A::from(d));
-        let ray = BvhRay::new(oa, da, 0.0, tmax);
-        let mut hit = RayHit::none();
-        let mut best: Option<Hit> = None;
-        self.bvh.ray_traverse(ray, &mut hit, |r, id| {
-            let tri = &self.tris[id];
-            match tri.intersect(oa, da, 0.0, r.tmax) {
-                Some((t, b1, b2)) => {
-                    best = Some(Hit { t, triangle: tri.id, b1, b2, instance: NO_INSTANCE });
-                    t
-                }
-                None => f32::INFINITY,
-            }
-        });
-        best
+        self.intersect_object(Vec3A::from(o), Vec3A::from(d), tmax)
     }
 
     fn intersect_two_level(&self, top: &TopLevel, oa: Vec3A, da: Vec3A, tmax: f32) -> Option<Hit> {
@@ -288,7 +271,8 @@ impl Accel {
         best
     }
 
-    /// Closest hit in a prototype's BVH, the ray already in object space (direction unnormalised).
+    /// Closest hit in a one-level BVH (the scene's, or a prototype's with the ray already in object
+    /// space, direction unnormalised).
     fn intersect_object(&self, oa: Vec3A, da: Vec3A, tmax: f32) -> Option<Hit> {
         if self.tris.is_empty() || !da.is_finite() || !oa.is_finite() {
             return None;

@@ -52,19 +52,20 @@ impl Clearcoat {
         self.ggx.is_delta()
     }
 
-    pub fn eval(&self, wo: Vec3, wi: Vec3) -> f32 {
+    /// `wo`, `wi` and their half vector in the coat's frame, when both lie above the coat and `wi`
+    /// above the shading surface (else the coat neither reflects nor samples there).
+    fn coat_frame(&self, wo: Vec3, wi: Vec3) -> Option<(Vec3, Vec3, Vec3)> {
         if self.is_delta() || wi.z <= 0.0 {
-            return 0.0;
+            return None;
         }
         let fr = self.frame();
         let (o, i) = (fr.to_local(wo), fr.to_local(wi));
-        if o.z <= 0.0 || i.z <= 0.0 {
-            return 0.0;
-        }
         let h = (o + i).normalize_or_zero();
-        if h == Vec3::ZERO {
-            return 0.0;
-        }
+        (o.z > 0.0 && i.z > 0.0 && h != Vec3::ZERO).then_some((o, i, h))
+    }
+
+    pub fn eval(&self, wo: Vec3, wi: Vec3) -> f32 {
+        let Some((o, i, h)) = self.coat_frame(wo, wi) else { return 0.0 };
         // The coat's BRDF in its own frame times its own cosine n_c·wi, expressed per unit of the
         // shading frame's cosine (which the integrator multiplies by): divide by wi.z, not i.z.
         let f = self.weight * schlick(o.dot(h).abs()) * self.ggx.d(h) * self.ggx.g2(o, i) / (4.0 * o.z * wi.z);
@@ -76,17 +77,9 @@ impl Clearcoat {
     }
 
     pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
-        if self.is_delta() || wi.z <= 0.0 {
-            return 0.0;
-        }
-        let fr = self.frame();
-        let (o, i) = (fr.to_local(wo), fr.to_local(wi));
-        if o.z <= 0.0 || i.z <= 0.0 {
-            return 0.0;
-        }
-        let h = (o + i).normalize_or_zero();
+        let Some((o, _, h)) = self.coat_frame(wo, wi) else { return 0.0 };
         let oh = o.dot(h);
-        if h == Vec3::ZERO || oh <= 0.0 {
+        if oh <= 0.0 {
             return 0.0;
         }
         self.ggx.visible_d(o, h) / (4.0 * oh)

@@ -68,24 +68,7 @@ def main():
     world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
     scene.world = world
 
-    scene.render.engine = "CYCLES"
-    scene.cycles.device = "CPU"
-    scene.cycles.samples = SPP
-    scene.cycles.use_adaptive_sampling = False
-    scene.cycles.use_denoising = False
-    scene.cycles.max_bounces = BOUNCES
-    scene.cycles.diffuse_bounces = BOUNCES
-    scene.cycles.glossy_bounces = BOUNCES
-    scene.cycles.sample_clamp_direct = 0.0
-    scene.cycles.sample_clamp_indirect = 0.0
-    scene.cycles.filter_type = "BOX"
-    scene.cycles.pixel_filter_type = "BOX"
-    scene.render.resolution_x, scene.render.resolution_y = W, H
-    scene.render.resolution_percentage = 100
-    scene.view_settings.view_transform = "Standard"
-    scene.render.image_settings.file_format = "OPEN_EXR"
-    scene.render.image_settings.color_depth = "32"
-    scene.render.filepath = os.path.join(HERE, "lights_cycles.exr")
+    render_settings(scene, "lights_cycles.exr")
 
     # Defaults, but for the two boxes a user ticks to take lights and camera along (both off by default).
     bpy.ops.export_scene.gltf(filepath=os.path.join(HERE, "lights.glb"), export_lights=True, export_cameras=True)

@@ -297,11 +297,32 @@ pub struct JobArgs {
     pub conn: Conn,
 }
 
-pub fn status(a: JobArgs) -> anyhow::Result<()> {
+#[derive(Args, Debug)]
+pub struct StatusArgs {
+    pub job: String,
+    /// One summary line on stdout instead of the job's JSON (whose per-tile noise can run to
+    /// thousands of lines).
+    #[arg(long)]
+    pub summary: bool,
+    #[command(flatten)]
+    pub conn: Conn,
+}
+
+pub fn status(a: StatusArgs) -> anyhow::Result<()> {
     let j = Api::new(&a.conn)?.get_json(&format!("/jobs/{}", a.job))?;
-    println!("{}", serde_json::to_string_pretty(&j).unwrap_or_default());
+    if !a.summary {
+        println!("{}", serde_json::to_string_pretty(&j).unwrap_or_default());
+    }
+    let line = |s: String| {
+        if a.summary {
+            println!("{s}");
+        } else {
+            // The headline on stderr, so that scripts reading the JSON on stdout are unaffected.
+            eprintln!("{s}");
+        }
+    };
     if j["kind"] == "shot" {
-        eprintln!(
+        line(format!(
             "{} {}: {:.0}% | frames {}/{} done, {} running | worst frame estimated relative error {}",
             a.job,
             j["state"].as_str().unwrap_or("?"),
@@ -310,22 +331,25 @@ pub fn status(a: JobArgs) -> anyhow::Result<()> {
             j["frames"]["count"],
             j["frames"]["running"],
             j["noise"]["worst_frame_rel_error"].as_f64().map_or("-".to_string(), |e| format!("{e:.3e}"))
-        );
+        ));
         return Ok(());
     }
-    // The headline on stderr, so that scripts reading the JSON on stdout are unaffected.
     let num = |v: &Value| v.as_f64().map_or("-".to_string(), |e| format!("{e:.3e}"));
-    eprintln!(
-        "{} {}: {:.0}% | spp {}..{} | estimated relative error {} (worst tile {}) | stop: {}",
+    // A job cancelled before any sample has no spp range: say "-", not "null..null".
+    let spp = match (j["progress"]["spp_min"].as_u64(), j["progress"]["spp_max"].as_u64()) {
+        (Some(lo), Some(hi)) if lo == hi => format!("{hi}"),
+        (Some(lo), Some(hi)) => format!("{lo}..{hi}"),
+        _ => "-".to_string(),
+    };
+    line(format!(
+        "{} {}: {:.0}% | spp {spp} | estimated relative error {} (worst tile {}) | stop: {}",
         a.job,
         j["state"].as_str().unwrap_or("?"),
         100.0 * j["progress"]["fraction"].as_f64().unwrap_or(0.0),
-        j["progress"]["spp_min"],
-        j["progress"]["spp_max"],
         num(&j["noise"]["estimated_rel_error"]),
         num(&j["noise"]["worst_tile"]["rel_error"]),
         j["budget"]["stop"].as_str().unwrap_or("?")
-    );
+    ));
     Ok(())
 }
 
@@ -378,17 +402,46 @@ pub fn list(a: ListArgs) -> anyhow::Result<()> {
 
 pub fn workers(a: ListArgs) -> anyhow::Result<()> {
     let v = Api::new(&a.conn)?.get_json("/workers")?;
-    println!("{:<16} {:<24} {:>5} {:>6} {:>8} {:>10}", "id", "name", "cores", "done", "rejected", "last seen");
-    for w in v["workers"].as_array().cloned().unwrap_or_default() {
+    let rows: Vec<[String; 6]> = v["workers"]
+        .as_array()
+        .cloned()
+        .unwrap_or_default()
+        .iter()
+        .map(|w| {
+            [
+                w["id"].as_str().unwrap_or("").to_string(),
+                w["name"].as_str().unwrap_or("").to_string(),
+                w["cores"].to_string(),
+                w["units_done"].to_string(),
+                w["units_rejected"].to_string(),
+                format!("{:.0}s", w["seconds_since_seen"].as_f64().unwrap_or(0.0)),
+            ]
+        })
+        .collect();
+    let head = ["id", "name", "cores", "done", "rejected", "last seen"];
+    // Columns as wide as their widest cell, so long ids and names keep the table aligned.
+    let width: Vec<usize> =
+        (0..6).map(|c| rows.iter().map(|r| r[c].chars().count()).chain([head[c].len()]).max().unwrap_or(0)).collect();
+    let print = |r: [&str; 6]| {
         println!(
-            "{:<16} {:<24} {:>5} {:>6} {:>8} {:>9.0}s",
-            w["id"].as_str().unwrap_or(""),
-            w["name"].as_str().unwrap_or(""),
-            w["cores"],
-            w["units_done"],
-            w["units_rejected"],
-            w["seconds_since_seen"].as_f64().unwrap_or(0.0)
-        );
+            "{:<w0$}  {:<w1$}  {:>w2$}  {:>w3$}  {:>w4$}  {:>w5$}",
+            r[0],
+            r[1],
+            r[2],
+            r[3],
+            r[4],
+            r[5],
+            w0 = width[0],
+            w1 = width[1],
+            w2 = width[2],
+            w3 = width[3],
+            w4 = width[4],
+            w5 = width[5]
+        )
+    };
+    print(head);
+    for r in &rows {
+        print([&r[0], &r[1], &r[2], &r[3], &r[4], &r[5]]);
     }
     Ok(())
 }

@@ -30,7 +30,7 @@ enum Command {
     /// Submit a scene to the farm.
     Submit(client::SubmitArgs),
     /// Show one job (JSON).
-    Status(client::JobArgs),
+    Status(client::StatusArgs),
     /// List jobs.
     List(client::ListArgs),
     /// Cancel a job.
@@ -48,6 +48,8 @@ fn main() -> std::process::ExitCode {
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
         )
         .with_writer(std::io::stderr)
+        // Colours only for a terminal: a log file or a pipe gets plain text.
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
     let cli = Cli::parse();
     let result = match cli.command {

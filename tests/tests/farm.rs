@@ -65,6 +65,11 @@ fn two_workers_give_the_local_image_bit_for_bit() {
     let j = farm.job(stdout.trim());
     assert_eq!(j["state"], "done");
     assert!(j["noise"]["estimated_rel_error"].as_f64().unwrap() > 0.0);
+    // `status --summary`: one line on stdout instead of the JSON.
+    let (code, line, err) = farm.cli(&["status", "--summary", stdout.trim()]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(line.lines().count(), 1, "{line}");
+    assert!(line.contains("done: 100%") && line.contains("spp 64 "), "{line}");
 }
 
 #[test]

@@ -233,11 +233,12 @@ pub fn submit(a: SubmitArgs) -> anyhow::Result<()> {
             ));
         } else {
             bar.set_message(format!(
-                "{} units {}/{} | rel. error {}",
+                "{} | {:.1} spp (mean) | rel. error {}{} | ETA {}",
                 j["state"].as_str().unwrap_or("?"),
-                j["progress"]["units_done"],
-                j["progress"]["units_total"],
-                j["noise"]["estimated_rel_error"].as_f64().map_or("-".into(), |e| format!("{e:.2e}"))
+                j["progress"]["spp_mean"].as_f64().unwrap_or(0.0),
+                j["noise"]["estimated_rel_error"].as_f64().map_or("-".into(), |e| format!("{e:.2e}")),
+                j["budget"]["noise_target"].as_f64().map_or(String::new(), |t| format!(" (target {t})")),
+                j["eta_s"].as_f64().map_or("-".into(), |e| format!("{e:.0} s"))
             ));
         }
         match j["state"].as_str() {
@@ -254,6 +255,25 @@ pub fn submit(a: SubmitArgs) -> anyhow::Result<()> {
     }
     bar.finish_and_clear();
     let written = fetch_images(&api, &id, &a.output)?;
+    // The summary: time, samples and noise, as `tessera render` reports them.
+    let j = api.get_json(&format!("/jobs/{id}"))?;
+    let num = |v: &Value| v.as_f64().map_or("-".to_string(), |e| format!("{e:.3e}"));
+    if j["kind"] == "shot" {
+        eprintln!(
+            "shot {id} done in {:.1} s: {} frames, worst frame estimated relative error {}",
+            j["elapsed_s"].as_f64().unwrap_or(0.0),
+            j["frames"]["count"],
+            num(&j["noise"]["worst_frame_rel_error"])
+        );
+    } else {
+        eprintln!(
+            "job {id} done in {:.1} s: {:.1} spp (mean), estimated relative error {}, stopped by {}",
+            j["elapsed_s"].as_f64().unwrap_or(0.0),
+            j["progress"]["spp_mean"].as_f64().unwrap_or(0.0),
+            num(&j["noise"]["estimated_rel_error"]),
+            j["budget"]["stop"].as_str().unwrap_or("?")
+        );
+    }
     eprintln!("job {id} done -> {}", written.join(", "));
     println!("{id}");
     Ok(())

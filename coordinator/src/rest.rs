@@ -271,6 +271,26 @@ fn job_json(j: &Job) -> Value {
     let s = &j.spec.settings;
     let elapsed_ms = j.started_ms.map(|st| j.finished_ms.unwrap_or(now) - st);
     let mut fraction = if total > 0 { done as f64 / total as f64 } else { 0.0 };
+    // A noise target: the samples planned are only a cap (65536 by default), so count progress
+    // towards the target instead. Relative MSE falls as 1/spp, so a tile at error e with target t
+    // is about (t/e)² of the way; a tile that holds its planned passes is done.
+    if let (Some(target), false) = (s.noise_target, j.state.is_final()) {
+        let (mut acc, mut px) = (0.0f64, 0.0f64);
+        for (i, (r, e)) in j.tiles.iter().zip(j.tile_noise()).enumerate() {
+            let f = if j.folded[i] >= j.planned[i] {
+                1.0
+            } else if e.rel_error.is_finite() && e.rel_error > 0.0 {
+                (target / e.rel_error).powi(2).min(0.99)
+            } else {
+                0.0
+            };
+            acc += f * r.pixels() as f64;
+            px += r.pixels() as f64;
+        }
+        if px > 0.0 {
+            fraction = fraction.max(acc / px);
+        }
+    }
     let mut eta_s = match (elapsed_ms, j.state.is_final()) {
         (Some(e), false) if fraction > 0.0 => Some(e as f64 / 1000.0 * (1.0 - fraction) / fraction),
         _ => None,
@@ -659,6 +679,43 @@ mod tests {
                "frames":"0-3","fps":24,"animation":"walk"}"#,
         )
         .expect("every field")
+    }
+
+    /// A noise-target job's progress counts tiles that met the target as done, not the 1/4 of their
+    /// sample cap they used (issue 14: "ETA 14 700 s and a bar near 0 %" for a 75 s job).
+    #[test]
+    fn noise_target_progress_counts_converged_tiles() {
+        use crate::state::{Job, JobSpec, JobState};
+        use renderer::film::{PartialSums, Rect};
+        let settings = renderer::RenderSettings {
+            width: 64,
+            height: 32,
+            spp: 64,
+            pass_spp: 16,
+            min_spp: 2,
+            noise_target: Some(0.05),
+            ..Default::default()
+        };
+        let spec =
+            JobSpec { name: "n".into(), scene_hash: "h".into(), settings, priority: 0, warnings: vec![], shot: None };
+        let mut job = Job::new("j".into(), spec, 0);
+        job.state = JobState::Running;
+        job.started_ms = Some(super::now_ms() - 10_000);
+        // Tile 0: one pass of a noiseless constant: it meets the target at once. Tile 1: nothing yet.
+        let rect = Rect { x0: 0, y0: 0, width: 32, height: 32 };
+        let mut sums = PartialSums::new(rect);
+        for i in 0..rect.pixels() {
+            for _ in 0..16 {
+                sums.add_sample(i, renderer::math::Vec3::splat(0.5));
+            }
+        }
+        job.restore_tile(0, 1, sums);
+        let (done, total) = job.samples_progress();
+        let v = super::job_json(&job);
+        let fraction = v["progress"]["fraction"].as_f64().expect("fraction");
+        assert!((done as f64 / total as f64 - 0.2).abs() < 1e-9, "{done}/{total}");
+        assert!((fraction - 0.5).abs() < 1e-9, "half the pixels met the target: {fraction}");
+        assert!(v["eta_s"].as_f64().expect("eta") < 11.0, "{v}");
     }
 
     /// The OpenAPI document's settings schema is checked against the one settings schema

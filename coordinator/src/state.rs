@@ -578,7 +578,8 @@ impl Farm {
     /// (job, worker) pairs whose leases expired.
     pub fn expire(&mut self, now_ms: i64) -> Vec<(String, String)> {
         let mut expired = Vec::new();
-        for job in self.jobs.values_mut() {
+        // A job in a final state holds no leases that matter (cancelled units are not "expired").
+        for job in self.jobs.values_mut().filter(|j| !j.state.is_final()) {
             for t in 0..job.leases.len() {
                 let gone: Vec<u32> =
                     job.leases[t].iter().filter(|(_, l)| l.deadline_ms < now_ms).map(|(&p, _)| p).collect();

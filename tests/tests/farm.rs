@@ -50,6 +50,7 @@ fn two_workers_give_the_local_image_bit_for_bit() {
     args.push("64");
     let (code, stdout, err) = farm.cli(&args);
     assert_eq!(code, 0, "submit --wait failed: {err}");
+    assert!(err.contains("spp (mean), estimated relative error"), "no summary line: {err}");
     let mut local_args = SETTINGS.to_vec();
     local_args.push("64");
     let local = local_render(&scene, &local_args, &farm.tmp.join("local.exr"));

@@ -420,9 +420,30 @@ pub fn list(a: ListArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-pub fn workers(a: ListArgs) -> anyhow::Result<()> {
-    let v = Api::new(&a.conn)?.get_json("/workers")?;
-    let rows: Vec<[String; 6]> = v["workers"]
+#[derive(Args, Debug)]
+pub struct WorkersArgs {
+    #[command(flatten)]
+    pub conn: Conn,
+    /// Stop giving this worker new units (the units it holds finish), then list the workers.
+    #[arg(long, value_name = "WORKER_ID", conflicts_with = "resume")]
+    pub drain: Option<String>,
+    /// Give a drained worker units again, then list the workers.
+    #[arg(long, value_name = "WORKER_ID")]
+    pub resume: Option<String>,
+}
+
+pub fn workers(a: WorkersArgs) -> anyhow::Result<()> {
+    let api = Api::new(&a.conn)?;
+    if let Some(id) = &a.drain {
+        api.post_json(&format!("/workers/{id}/drain"))?;
+        eprintln!("worker {id} draining: it takes no new units");
+    }
+    if let Some(id) = &a.resume {
+        api.post_json(&format!("/workers/{id}/resume"))?;
+        eprintln!("worker {id} resumed");
+    }
+    let v = api.get_json("/workers")?;
+    let rows: Vec<[String; 8]> = v["workers"]
         .as_array()
         .cloned()
         .unwrap_or_default()
@@ -435,33 +456,38 @@ pub fn workers(a: ListArgs) -> anyhow::Result<()> {
                 w["units_done"].to_string(),
                 w["units_rejected"].to_string(),
                 format!("{:.0}s", w["seconds_since_seen"].as_f64().unwrap_or(0.0)),
+                w["state"].as_str().unwrap_or("?").to_string(),
+                w["current_job"].as_str().unwrap_or("-").to_string(),
             ]
         })
         .collect();
-    let head = ["id", "name", "cores", "done", "rejected", "last seen"];
+    let head = ["id", "name", "cores", "done", "rejected", "last seen", "state", "job"];
     // Columns as wide as their widest cell, so long ids and names keep the table aligned.
     let width: Vec<usize> =
-        (0..6).map(|c| rows.iter().map(|r| r[c].chars().count()).chain([head[c].len()]).max().unwrap_or(0)).collect();
-    let print = |r: [&str; 6]| {
+        (0..8).map(|c| rows.iter().map(|r| r[c].chars().count()).chain([head[c].len()]).max().unwrap_or(0)).collect();
+    let print = |r: [&str; 8]| {
         println!(
-            "{:<w0$}  {:<w1$}  {:>w2$}  {:>w3$}  {:>w4$}  {:>w5$}",
+            "{:<w0$}  {:<w1$}  {:>w2$}  {:>w3$}  {:>w4$}  {:>w5$}  {:<w6$}  {}",
             r[0],
             r[1],
             r[2],
             r[3],
             r[4],
             r[5],
+            r[6],
+            r[7],
             w0 = width[0],
             w1 = width[1],
             w2 = width[2],
             w3 = width[3],
             w4 = width[4],
-            w5 = width[5]
+            w5 = width[5],
+            w6 = width[6]
         )
     };
     print(head);
     for r in &rows {
-        print([&r[0], &r[1], &r[2], &r[3], &r[4], &r[5]]);
+        print([&r[0], &r[1], &r[2], &r[3], &r[4], &r[5], &r[6], &r[7]]);
     }
     Ok(())
 }

@@ -38,7 +38,7 @@ enum Command {
     /// Download a finished job's EXR.
     Download(client::DownloadArgs),
     /// List the workers.
-    Workers(client::ListArgs),
+    Workers(client::WorkersArgs),
 }
 
 fn main() -> std::process::ExitCode {

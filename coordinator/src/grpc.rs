@@ -69,8 +69,12 @@ impl Farm for FarmService {
                 env!("CARGO_PKG_VERSION")
             )));
         }
-        let id = crate::new_id("w");
         let name: String = r.name.chars().take(64).collect();
+        // The id starts with the name the worker was given (URL-safe part of it), so `tessera
+        // workers` and the logs say which machine is which; the suffix keeps registrations apart.
+        let stem: String =
+            name.chars().filter(|c| c.is_ascii_alphanumeric() || *c == '-' || *c == '_').take(32).collect();
+        let id = if stem.is_empty() { crate::new_id("w") } else { format!("{stem}-{}", crate::new_id("w")) };
         tracing::info!(worker = %id, %name, cores = r.cores, version = %r.version, "worker registered");
         lock(&self.shared.workers).insert(
             id.clone(),
@@ -83,6 +87,7 @@ impl Farm for FarmService {
                 last_seen_ms: now_ms(),
                 units_done: 0,
                 units_rejected: 0,
+                draining: false,
                 settings_sent: Default::default(),
             },
         );
@@ -96,8 +101,13 @@ impl Farm for FarmService {
         loop {
             // Register interest before looking, so a notification between the look and the wait is not lost.
             let notified = self.shared.work_available.notified();
-            let unit =
-                lock(&self.shared.farm).lease(&r.worker_id, now_ms(), self.shared.config.lease.as_millis() as i64);
+            // A drained worker is told "nothing yet" until it is resumed.
+            let draining = lock(&self.shared.workers).get(&r.worker_id).is_some_and(|w| w.draining);
+            let unit = if draining {
+                None
+            } else {
+                lock(&self.shared.farm).lease(&r.worker_id, now_ms(), self.shared.config.lease.as_millis() as i64)
+            };
             if let Some(u) = unit {
                 // Settings travel once per job and registration: the worker keeps them by job id.
                 let first = lock(&self.shared.workers).get_mut(&r.worker_id).is_some_and(|w| {

@@ -70,6 +70,8 @@ pub struct WorkerInfo {
     pub last_seen_ms: i64,
     pub units_done: u64,
     pub units_rejected: u64,
+    /// Drained by an operator: it keeps what it holds but is given no new units.
+    pub draining: bool,
     /// Jobs whose settings this registration was sent (they travel once per job).
     #[serde(skip)]
     pub settings_sent: std::collections::HashSet<String>,

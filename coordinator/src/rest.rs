@@ -48,6 +48,8 @@ pub fn router(shared: Arc<Shared>) -> Router {
         .route("/jobs/{id}/frames/{frame}", get(frame_image))
         .route("/jobs/{id}/frames.tar", get(frames_archive))
         .route("/workers", get(list_workers))
+        .route("/workers/{id}/drain", post(drain_worker))
+        .route("/workers/{id}/resume", post(resume_worker))
         .layer(axum::middleware::from_fn_with_state(shared.clone(), auth))
         .layer(axum::middleware::from_fn_with_state(shared.clone(), upload_guard))
         .layer(DefaultBodyLimit::max(limit));
@@ -622,19 +624,61 @@ async fn preview(State(s): S, Path(id): Path<String>) -> Result<Response, ApiErr
     Ok(([(header::CONTENT_TYPE, "image/png")], Bytes::from(png)).into_response())
 }
 
+/// A worker's state: `offline` when not seen for three lease periods (it died or lost the
+/// network; its units are re-leased), `draining` when an operator stopped giving it work, `busy`
+/// while it holds units, else `idle`.
+fn worker_state(seconds_since_seen: f64, lease_s: f64, draining: bool, holds: bool) -> &'static str {
+    if seconds_since_seen > 3.0 * lease_s {
+        "offline"
+    } else if draining {
+        "draining"
+    } else if holds {
+        "busy"
+    } else {
+        "idle"
+    }
+}
+
 async fn list_workers(State(s): S) -> Json<Value> {
     let now = now_ms();
+    let held = lock(&s.farm).units_held();
+    let lease_s = s.config.lease.as_secs_f64();
     let workers = lock(&s.workers);
     let mut list: Vec<Value> = workers
         .values()
         .map(|w| {
             let mut v = serde_json::to_value(w).unwrap_or(Value::Null);
-            v["seconds_since_seen"] = json!((now - w.last_seen_ms) as f64 / 1000.0);
+            let since = (now - w.last_seen_ms) as f64 / 1000.0;
+            let units = held.get(&w.id).cloned().unwrap_or_default();
+            v["seconds_since_seen"] = json!(since);
+            v["state"] = json!(worker_state(since, lease_s, w.draining, !units.is_empty()));
+            v["current_job"] = json!(units.first().map(|(j, _)| j.clone()));
+            v["current_units"] = json!(units.iter().map(|(_, u)| u.clone()).collect::<Vec<_>>());
             v
         })
         .collect();
     list.sort_by(|a, b| a["id"].as_str().cmp(&b["id"].as_str()));
     Json(json!({ "workers": list }))
+}
+
+/// `POST /workers/{id}/drain` and `/resume`: stop (or restart) giving a worker new units; what it
+/// holds it finishes.
+async fn set_draining(s: &Shared, id: &str, draining: bool) -> Result<Json<Value>, ApiError> {
+    let mut workers = lock(&s.workers);
+    let w = workers.get_mut(id).ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no worker '{id}'")))?;
+    w.draining = draining;
+    tracing::info!(worker = %id, draining, "worker drain changed");
+    Ok(Json(json!({ "id": id, "draining": draining })))
+}
+
+async fn drain_worker(State(s): S, Path(id): Path<String>) -> Result<Json<Value>, ApiError> {
+    set_draining(&s, &id, true).await
+}
+
+async fn resume_worker(State(s): S, Path(id): Path<String>) -> Result<Json<Value>, ApiError> {
+    let r = set_draining(&s, &id, false).await;
+    s.work_available.notify_waiters();
+    r
 }
 
 async fn metrics(State(s): S) -> Response {

@@ -693,6 +693,19 @@ impl Farm {
         Some(job)
     }
 
+    /// The units each worker holds now (job id, unit id), for the workers' listing.
+    pub fn units_held(&self) -> HashMap<String, Vec<(String, String)>> {
+        let mut out: HashMap<String, Vec<(String, String)>> = HashMap::new();
+        for job in self.jobs.values().filter(|j| !j.state.is_final()) {
+            for (t, leases) in job.leases.iter().enumerate() {
+                for (&pass, l) in leases {
+                    out.entry(l.worker.clone()).or_default().push((job.id.clone(), job.unit_id(pass, t)));
+                }
+            }
+        }
+        out
+    }
+
     /// Unfinished jobs, a shot counting once.
     pub fn queued_jobs(&self) -> usize {
         let mut shots = HashSet::new();

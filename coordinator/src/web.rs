@@ -24,7 +24,7 @@ img{max-width:160px;image-rendering:pixelated}input,select{margin-right:6px}
  priority <input name="priority" type="number" value="0" style="width:4em">
  <button>Submit</button></form>
 <h2>Jobs</h2><table id="jobs"><tr><th>job</th><th>state</th><th>progress</th><th>elapsed / ETA</th><th>rel. error</th><th>spp</th><th>preview</th><th></th></tr></table>
-<h2>Workers</h2><table id="workers"><tr><th>id</th><th>name</th><th>cores</th><th>units done</th><th>rejected</th><th>last seen</th></tr></table>
+<h2>Workers</h2><table id="workers"><tr><th>id</th><th>name</th><th>cores</th><th>units done</th><th>rejected</th><th>last seen</th><th>state</th><th>job</th><th></th></tr></table>
 <script>
 const tok = document.getElementById('token');
 tok.value = localStorage.getItem('tessera-token') || '';
@@ -66,14 +66,16 @@ async function refresh() {
       img.src = URL.createObjectURL(await r.blob());
     }
     const ws = (await (await api('/workers')).json()).workers;
-    document.getElementById('workers').innerHTML = '<tr><th>id</th><th>name</th><th>cores</th><th>units done</th><th>rejected</th><th>last seen</th></tr>' +
-      ws.map(w => `<tr><td>${esc(w.id)}</td><td>${esc(w.name)}</td><td>${w.cores}</td><td>${w.units_done}</td><td>${w.units_rejected}</td><td>${w.seconds_since_seen.toFixed(0)} s ago</td></tr>`).join('');
+    document.getElementById('workers').innerHTML = '<tr><th>id</th><th>name</th><th>cores</th><th>units done</th><th>rejected</th><th>last seen</th><th>state</th><th>job</th><th></th></tr>' +
+      ws.map(w => `<tr><td>${esc(w.id)}</td><td>${esc(w.name)}</td><td>${w.cores}</td><td>${w.units_done}</td><td>${w.units_rejected}</td><td>${w.seconds_since_seen.toFixed(0)} s ago</td><td>${esc(w.state)}</td><td>${esc(w.current_job ?? '-')}</td><td><a href="#" data-${w.draining ? 'resume' : 'drain'}="${esc(w.id)}">${w.draining ? 'resume' : 'drain'}</a></td></tr>`).join('');
     msg('');
   } catch (e) { msg(e.message); }
 }
 document.addEventListener('click', async e => {
   const t = e.target;
   try {
+    if (t.dataset.drain || t.dataset.resume) { e.preventDefault();
+      await api('/workers/' + (t.dataset.drain || t.dataset.resume) + (t.dataset.drain ? '/drain' : '/resume'), {method: 'POST'}); refresh(); }
     if (t.dataset.cancel) { e.preventDefault(); await api('/jobs/' + t.dataset.cancel + '/cancel', {method: 'POST'}); refresh(); }
     if (t.dataset.dl) { e.preventDefault(); const b = await (await api('/jobs/' + t.dataset.dl + '/image.exr')).blob();
       const a = document.createElement('a'); a.href = URL.createObjectURL(b); a.download = t.dataset.dl + '.exr'; a.click(); }

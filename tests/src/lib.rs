@@ -125,7 +125,8 @@ impl Farm {
     pub fn start_worker(&mut self, threads: usize) -> usize {
         let log = std::fs::File::create(self.tmp.join(format!("worker-{}.log", self.workers.len()))).expect("log");
         let child = Command::new(tessera_bin())
-            .args(["worker", "--coordinator", &self.url, "--threads", &threads.to_string(), "--cache-dir"])
+            .args(["worker", "--coordinator", &self.url, "--threads", &threads.to_string()])
+            .args(["--name", &format!("worker{}", self.workers.len()), "--cache-dir"])
             .arg(self.tmp.join(format!("cache-{}", self.workers.len())))
             .envs(self.env.iter().map(|(k, v)| (k.as_str(), v.as_str())))
             .env("TESSERA_LOG", "info")

@@ -93,6 +93,22 @@ fn a_killed_worker_units_are_re_leased() {
             && j["progress"]["units_leased"].as_u64().unwrap_or(0) == 2
     });
     farm.workers[doomed].kill9();
+    // The dead worker is listed as offline (not "last seen N s" forever), the live one is not.
+    poll(Duration::from_secs(30), || {
+        let w: serde_json::Value = ureq::get(&format!("{}/api/v1/workers", farm.url))
+            .call()
+            .map_err(|e| e.to_string())?
+            .into_body()
+            .read_json()
+            .map_err(|e| e.to_string())?;
+        let state = |name: &str| {
+            w["workers"].as_array().into_iter().flatten().find(|x| x["name"] == name).map(|x| x["state"].clone())
+        };
+        match (state(&format!("worker{doomed}")), state(&format!("worker{}", 1 - doomed))) {
+            (Some(d), Some(l)) if d == "offline" && l != "offline" => Ok(()),
+            other => Err(format!("worker states {other:?}")),
+        }
+    });
     let j = farm.wait_job(&id, Duration::from_secs(180), |j| j["state"] == "done");
     assert_eq!(j["progress"]["units_done"], j["progress"]["units_total"]);
     let metrics = ureq::get(&format!("{}/metrics", farm.url)).call().unwrap().into_body().read_to_string().unwrap();
@@ -312,4 +328,28 @@ fn a_shot_on_two_workers_one_killed_gives_the_local_frames_byte_for_byte() {
         let at = archive.windows(entry.len()).position(|w| w == entry.as_bytes()).expect("frame in the archive");
         assert!(archive[at + 512..at + 512 + mine.len()] == mine[..], "frame {f}: archive bytes differ");
     }
+}
+
+/// Issue 14: a drained worker gets no new units until it is resumed; ids start with the worker's name.
+#[test]
+fn a_drained_worker_takes_no_units_until_resumed() {
+    let mut farm = Farm::start("drain", &[]);
+    farm.start_worker(1);
+    farm.wait_workers(1);
+    let w: serde_json::Value =
+        ureq::get(&format!("{}/api/v1/workers", farm.url)).call().unwrap().into_body().read_json().unwrap();
+    let id = w["workers"][0]["id"].as_str().unwrap().to_string();
+    assert!(id.starts_with("worker0-"), "{id}");
+    let (code, table, err) = farm.cli(&["workers", "--drain", &id]);
+    assert_eq!(code, 0, "{err}");
+    assert!(table.contains("draining"), "{table}");
+    let job = submit(&farm, "16");
+    std::thread::sleep(Duration::from_millis(2500));
+    let j = farm.job(&job);
+    assert_eq!(j["progress"]["units_done"], 0, "a drained worker rendered: {j}");
+    let (code, _, err) = farm.cli(&["workers", "--drain", "nosuchworker"]);
+    assert_ne!(code, 0, "draining an unknown worker must fail");
+    assert!(err.contains("nosuchworker") || err.contains("404") || err.contains("no such"), "{err}");
+    ureq::post(&format!("{}/api/v1/workers/{id}/resume", farm.url)).send_empty().unwrap();
+    farm.wait_job(&job, Duration::from_secs(60), |j| j["state"] == "done");
 }

@@ -106,7 +106,15 @@ impl Farm for FarmService {
             let unit = if draining {
                 None
             } else {
-                lock(&self.shared.farm).lease(&r.worker_id, now_ms(), self.shared.config.lease.as_millis() as i64)
+                let mut farm = lock(&self.shared.farm);
+                let unit = farm.lease(&r.worker_id, now_ms(), self.shared.config.lease.as_millis() as i64);
+                // The job's log names each worker once, at its first unit.
+                if let Some(job) = unit.as_ref().and_then(|u| farm.jobs.get_mut(&u.job_id)) {
+                    if job.workers_seen.len() < 4096 && job.workers_seen.insert(r.worker_id.clone()) {
+                        self.shared.event(&job.id, "worker_joined", &format!("{} took its first unit", r.worker_id));
+                    }
+                }
+                unit
             };
             if let Some(u) = unit {
                 // Settings travel once per job and registration: the worker keeps them by job id.

@@ -150,6 +150,14 @@ impl Shared {
         for job in store.load_jobs()? {
             if !job.state.is_final() {
                 tracing::info!(job = %job.id, done = job.units_done(), total = job.unit_count(), "resuming job from checkpoint");
+                let detail = format!(
+                    "coordinator restarted: resumed from the checkpoint with {} of {} units",
+                    job.units_done(),
+                    job.unit_count()
+                );
+                if let Err(e) = store.add_event(&job.id, now_ms(), "resumed", &detail) {
+                    tracing::warn!(job = %job.id, error = %e, "cannot store a job event");
+                }
             }
             farm.add_job(job);
         }
@@ -204,6 +212,11 @@ pub async fn serve_on(
                 lock(&s.metrics).units_expired += expired.len() as u64;
                 for (job, worker) in &expired {
                     tracing::warn!(%job, %worker, "lease expired: unit returned to the queue");
+                    let detail = format!(
+                        "a unit's lease held by {worker} expired (no heartbeat for {} s): returned to the queue",
+                        s.config.lease.as_secs_f64()
+                    );
+                    s.event(job, "lease_expired", &detail);
                 }
                 s.work_available.notify_waiters();
             }

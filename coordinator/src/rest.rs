@@ -4,7 +4,7 @@ use crate::service::ServiceError;
 use crate::state::{Job, JobSpec, JobState};
 use crate::{lock, now_ms, Shared};
 use axum::body::Bytes;
-use axum::extract::{DefaultBodyLimit, Multipart, Path, State};
+use axum::extract::{DefaultBodyLimit, Multipart, Path, Query, State};
 use axum::http::{header, StatusCode};
 use axum::response::{Html, IntoResponse, Response};
 use axum::routing::{get, post};
@@ -45,6 +45,9 @@ pub fn router(shared: Arc<Shared>) -> Router {
         .route("/jobs/{id}/cancel", post(cancel_job))
         .route("/jobs/{id}/image.exr", get(download))
         .route("/jobs/{id}/preview.png", get(preview))
+        .route("/jobs/{id}/events", get(job_events))
+        .route("/jobs/{id}/resubmit", post(resubmit_job))
+        .route("/events", get(live_events))
         .route("/jobs/{id}/frames/{frame}", get(frame_image))
         .route("/jobs/{id}/frames.tar", get(frames_archive))
         .route("/workers", get(list_workers))
@@ -342,6 +345,8 @@ fn job_json(j: &Job) -> Value {
         "techniques": { "integrator": s.integrator, "mis_heuristic": s.mis_heuristic, "sampler": s.sampler, "light_sampler": s.light_sampler, "filter": s.filter },
         "settings": s,
         "bad_workers": j.bad_workers.iter().collect::<Vec<_>>(),
+        // Changes whenever the preview would: clients fetch the preview only when it did.
+        "preview_version": format!("{}-{}-{}", j.state.as_str(), j.units_done(), j.finished_ms.unwrap_or(0)),
     })
 }
 
@@ -438,6 +443,11 @@ fn entity_json(farm: &crate::state::Farm, id: &str, detail: bool) -> Option<Valu
 }
 
 async fn list_jobs(State(s): S) -> Json<Value> {
+    Json(jobs_list(&s))
+}
+
+/// The job list (`GET /jobs`, and the `jobs` event of `GET /events`).
+fn jobs_list(s: &Shared) -> Value {
     let farm = lock(&s.farm);
     // Single jobs, and each shot once (its frames are listed inside it).
     let mut out = Vec::new();
@@ -456,7 +466,7 @@ async fn list_jobs(State(s): S) -> Json<Value> {
             }
         }
     }
-    Json(json!({ "jobs": out }))
+    json!({ "jobs": out })
 }
 
 async fn get_job(State(s): S, Path(id): Path<String>) -> Result<Json<Value>, ApiError> {
@@ -599,29 +609,204 @@ async fn download(State(s): S, Path(id): Path<String>) -> Result<Response, ApiEr
     Ok(([(header::CONTENT_TYPE, "image/x-exr")], Bytes::from(exr)).into_response())
 }
 
-async fn preview(State(s): S, Path(id): Path<String>) -> Result<Response, ApiError> {
+/// `preview.png?exposure=E&width=W`: exposure in stops (−20..20, default 0), and the largest
+/// width wanted (the image is shrunk by a whole factor to fit; default: full size).
+#[derive(serde::Deserialize)]
+struct PreviewQuery {
+    exposure: Option<f32>,
+    width: Option<u32>,
+}
+
+async fn preview(State(s): S, Path(id): Path<String>, Query(q): Query<PreviewQuery>) -> Result<Response, ApiError> {
+    let exposure = q.exposure.unwrap_or(0.0);
+    if !(-20.0..=20.0).contains(&exposure) {
+        return Err(err(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            format!("exposure {exposure}: must be within -20..20 stops"),
+        ));
+    }
+    if q.width == Some(0) {
+        return Err(err(StatusCode::UNPROCESSABLE_ENTITY, "width 0: must be at least 1"));
+    }
     // A running job's image is copied out under the lock and encoded outside it; a finished one's
-    // preview was stored when it finished (its accumulation is no longer in memory).
-    let image = {
+    // preview was stored when it finished (its accumulation is no longer in memory): at another
+    // exposure or size it is made from the stored EXR.
+    let (image, done) = {
         let farm = lock(&s.farm);
         let job = farm.jobs.get(&id).ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no job '{id}'")))?;
-        (!job.state.is_final()).then(|| job.image())
+        ((!job.state.is_final()).then(|| job.image()), job.state == JobState::Done)
     };
     let shared = s.clone();
     let png = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, ApiError> {
+        let internal = |e: String| err(StatusCode::INTERNAL_SERVER_ERROR, e);
+        let encode = |img: FinalImage| {
+            let img = match q.width {
+                Some(w) => img.downscaled(w),
+                None => img,
+            };
+            img.png_bytes(exposure).map_err(internal)
+        };
         match image {
-            Some(img) => {
-                FinalImage::from_sums(&img).png_bytes(0.0).map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e))
+            Some(img) => encode(FinalImage::from_sums(&img)),
+            None if done && (exposure != 0.0 || q.width.is_some()) => {
+                let exr = lock(&shared.store)
+                    .image(&id)
+                    .map_err(|e| internal(e.to_string()))?
+                    .ok_or_else(|| err(StatusCode::NOT_FOUND, format!("job '{id}' has no stored image")))?;
+                encode(FinalImage::from_exr_bytes(&exr).map_err(internal)?)
             }
             None => lock(&shared.store)
                 .preview(&id)
-                .map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
+                .map_err(|e| internal(e.to_string()))?
                 .ok_or_else(|| err(StatusCode::NOT_FOUND, format!("job '{id}' has no stored preview"))),
         }
     })
     .await
     .map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))??;
     Ok(([(header::CONTENT_TYPE, "image/png")], Bytes::from(png)).into_response())
+}
+
+/// `GET /jobs/{id}/events?after=SEQ`: the job's log, oldest first (at most 1000 a call; page on
+/// with `after` = the last `seq`). For a shot, every frame's log, each event naming its frame job.
+#[derive(serde::Deserialize)]
+struct EventsQuery {
+    after: Option<i64>,
+}
+
+async fn job_events(
+    State(s): S,
+    Path(id): Path<String>,
+    Query(q): Query<EventsQuery>,
+) -> Result<Json<Value>, ApiError> {
+    let ids = s.jobs_named(&id);
+    if ids.is_empty() {
+        return Err(err(StatusCode::NOT_FOUND, format!("no job '{id}'")));
+    }
+    let shared = s.clone();
+    let after = q.after.unwrap_or(0);
+    let events = tokio::task::spawn_blocking(move || -> Result<Vec<Value>, ApiError> {
+        let store = lock(&shared.store);
+        let mut out = Vec::new();
+        for job in &ids {
+            for e in
+                store.events(job, after, 1000).map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
+            {
+                let mut v = serde_json::to_value(&e).unwrap_or(Value::Null);
+                v["job"] = json!(job);
+                out.push(v);
+            }
+        }
+        out.sort_by_key(|v| v["seq"].as_i64().unwrap_or(0));
+        out.truncate(1000);
+        Ok(out)
+    })
+    .await
+    .map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))??;
+    Ok(Json(json!({ "events": events })))
+}
+
+/// `POST /jobs/{id}/resubmit`: a new job with the same scene, settings and priority (retry a
+/// failed job, render a cancelled one again, or repeat a finished one under a new seed by editing
+/// nothing: the settings are copied as they are, so the result is the same image).
+async fn resubmit_job(State(s): S, Path(id): Path<String>) -> Result<(StatusCode, Json<Value>), ApiError> {
+    let spec =
+        {
+            let farm = lock(&s.farm);
+            match farm.jobs.get(&id) {
+                Some(j) => j.spec.clone(),
+                None if !farm.shot_frames(&id).is_empty() => return Err(err(
+                    StatusCode::CONFLICT,
+                    format!(
+                        "'{id}' is a shot: resubmit its frame jobs ({id}-f<n>) one by one, or submit the shot again"
+                    ),
+                )),
+                None => return Err(err(StatusCode::NOT_FOUND, format!("no job '{id}'"))),
+            }
+        };
+    let spec = JobSpec { shot: None, ..spec };
+    let shared = s.clone();
+    let hash = spec.scene_hash.clone();
+    let new_id = tokio::task::spawn_blocking(move || -> Result<String, ApiError> {
+        let scene = lock(&shared.store)
+            .scene(&hash)
+            .map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
+            .ok_or_else(|| err(StatusCode::GONE, "the job's scene is no longer stored"))?;
+        shared.submit_job(spec, &scene).map_err(service_err)
+    })
+    .await
+    .map_err(|e| err(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))??;
+    s.event(&new_id, "resubmitted", &format!("a copy of {id}"));
+    Ok((StatusCode::CREATED, Json(json!({ "id": new_id, "resubmitted_from": id }))))
+}
+
+/// Most clients of `GET /events` at once (each holds a connection; more get 503).
+pub const MAX_EVENT_STREAMS: usize = 64;
+
+/// `GET /events`: server-sent events for pages that stay open. A `jobs` event carries what
+/// `GET /jobs` returns and a `workers` event what `GET /workers` returns, each sent when it changed
+/// (checked every second; the clock fields alone do not count as a change, but at least every
+/// 15 s a fresh copy is sent). The page then downloads a preview only when a job's
+/// `preview_version` changed, instead of polling everything.
+async fn live_events(State(s): S) -> Result<Response, ApiError> {
+    use axum::response::sse::{Event, KeepAlive, Sse};
+    use std::sync::atomic::Ordering;
+    static STREAMS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    if STREAMS.fetch_add(1, Ordering::SeqCst) >= MAX_EVENT_STREAMS {
+        STREAMS.fetch_sub(1, Ordering::SeqCst);
+        return Err(err(
+            StatusCode::SERVICE_UNAVAILABLE,
+            format!("{MAX_EVENT_STREAMS} event streams are open: poll GET /jobs instead"),
+        ));
+    }
+    let (tx, rx) = tokio::sync::mpsc::channel::<Result<Event, std::convert::Infallible>>(4);
+    tokio::spawn(async move {
+        struct Release;
+        impl Drop for Release {
+            fn drop(&mut self) {
+                STREAMS.fetch_sub(1, Ordering::SeqCst);
+            }
+        }
+        let _release = Release;
+        // Without the fields that change with the clock alone.
+        fn steady(mut v: Value, list: &str, clock: &[&str]) -> Value {
+            if let Some(items) = v[list].as_array_mut() {
+                for item in items {
+                    for f in clock {
+                        if let Some(o) = item.as_object_mut() {
+                            o.remove(*f);
+                        }
+                    }
+                }
+            }
+            v
+        }
+        let (mut last_jobs, mut last_workers) = (Value::Null, Value::Null);
+        let mut tick = tokio::time::interval(std::time::Duration::from_secs(1));
+        let mut n = 0u64;
+        loop {
+            tick.tick().await;
+            let fresh = n.is_multiple_of(15);
+            n += 1;
+            let jobs = jobs_list(&s);
+            let steady_jobs = steady(jobs.clone(), "jobs", &["elapsed_s", "eta_s"]);
+            if fresh || steady_jobs != last_jobs {
+                last_jobs = steady_jobs;
+                if tx.send(Ok(Event::default().event("jobs").data(jobs.to_string()))).await.is_err() {
+                    return;
+                }
+            }
+            let workers = workers_list(&s);
+            let steady_workers = steady(workers.clone(), "workers", &["seconds_since_seen", "last_seen_ms"]);
+            if fresh || steady_workers != last_workers {
+                last_workers = steady_workers;
+                if tx.send(Ok(Event::default().event("workers").data(workers.to_string()))).await.is_err() {
+                    return;
+                }
+            }
+        }
+    });
+    let stream = tokio_stream::wrappers::ReceiverStream::new(rx);
+    Ok(Sse::new(stream).keep_alive(KeepAlive::default()).into_response())
 }
 
 /// A worker's state: `offline` when not seen for three lease periods (it died or lost the
@@ -640,6 +825,11 @@ fn worker_state(seconds_since_seen: f64, lease_s: f64, draining: bool, holds: bo
 }
 
 async fn list_workers(State(s): S) -> Json<Value> {
+    Json(workers_list(&s))
+}
+
+/// The worker list (`GET /workers`, and the `workers` event of `GET /events`).
+fn workers_list(s: &Shared) -> Value {
     let now = now_ms();
     let held = lock(&s.farm).units_held();
     let lease_s = s.config.lease.as_secs_f64();
@@ -658,7 +848,7 @@ async fn list_workers(State(s): S) -> Json<Value> {
         })
         .collect();
     list.sort_by(|a, b| a["id"].as_str().cmp(&b["id"].as_str()));
-    Json(json!({ "workers": list }))
+    json!({ "workers": list })
 }
 
 /// `POST /workers/{id}/drain` and `/resume`: stop (or restart) giving a worker new units; what it

@@ -63,6 +63,7 @@ impl Shared {
         };
         let id = job.id.clone();
         tracing::info!(job = %id, name = %job.spec.name, width = job.spec.settings.width, height = job.spec.settings.height, "job submitted");
+        self.event(&id, "submitted", &submitted_detail(&job));
         farm.add_job(job);
         drop(farm);
         self.work_available.notify_waiters();
@@ -113,6 +114,11 @@ impl Shared {
         }
         tracing::info!(shot = %shot, name = %spec.name, frames = %frames, "shot submitted");
         for job in jobs {
+            self.event(
+                &job.id,
+                "submitted",
+                &format!("frame {} of shot {shot}: {}", job.spec.settings.frame, submitted_detail(&job)),
+            );
             farm.add_job(job);
         }
         drop(farm);
@@ -141,6 +147,65 @@ impl Shared {
         tracing::info!(job = %id, "job deleted");
         Ok(())
     }
+}
+
+impl Shared {
+    /// Appends to a job's event log (served by `GET /jobs/{id}/events`). Best effort: a log line
+    /// that cannot be stored is logged and dropped, never a reason to refuse work.
+    pub fn event(&self, job_id: &str, kind: &str, detail: &str) {
+        if let Err(e) = lock(&self.store).add_event(job_id, now_ms(), kind, detail) {
+            tracing::warn!(job = %job_id, %kind, error = %e, "cannot store a job event");
+        }
+    }
+
+    /// As `event`, for ids that come from a worker: only jobs the farm has get a log (a forged
+    /// unit id must not create rows). Takes the farm lock: not for callers that hold it.
+    pub fn event_if_known(&self, job_id: &str, kind: &str, detail: &str) {
+        if lock(&self.farm).jobs.contains_key(job_id) {
+            self.event(job_id, kind, detail);
+        }
+    }
+}
+
+/// The job a unit id (`<job>/<pass>/<tile>`-like, job first) belongs to.
+fn job_of(unit_id: &str) -> &str {
+    unit_id.split('/').next().unwrap_or(unit_id)
+}
+
+/// What the log says of a new job: its size and budget.
+fn submitted_detail(job: &Job) -> String {
+    let s = &job.spec.settings;
+    let budget = match (s.noise_target, s.time_budget) {
+        (Some(t), _) => format!("noise target {t} (min {} spp, cap {} spp)", s.min_spp, s.spp),
+        (None, Some(b)) => format!("time budget {b} s (cap {} spp)", s.spp),
+        (None, None) => format!("{} spp", s.spp),
+    };
+    let integrator =
+        serde_json::to_value(s.integrator).ok().and_then(|v| v.as_str().map(str::to_string)).unwrap_or_default();
+    format!("{}×{}, {budget}, {integrator} integrator, priority {}", s.width, s.height, job.spec.priority)
+}
+
+/// A point of the job's convergence curve (JSON: seconds since start, mean spp, estimated
+/// relative error, units done), at most every 2 s, or every 1 % of the elapsed time for long jobs
+/// (so a day-long job logs a few hundred points), and always at completion.
+fn progress_point(job: &mut Job, now: i64, force: bool) -> Option<String> {
+    let started = job.started_ms?;
+    let gap = 2000.max((now - started) / 100);
+    if !force && now - job.last_progress_ms < gap {
+        return None;
+    }
+    job.last_progress_ms = now;
+    let (done, _) = job.samples_progress();
+    let noise = job.noise();
+    Some(
+        serde_json::json!({
+            "t_s": (now - started) as f64 / 1000.0,
+            "spp_mean": done as f64 / job.pixels().max(1) as f64,
+            "rel_error": noise.map(|n| n.rel_error).filter(|e| e.is_finite()),
+            "units_done": job.units_done(),
+        })
+        .to_string(),
+    )
 }
 
 /// What happened to a worker's result (the gRPC reply is made from it).
@@ -182,6 +247,7 @@ impl Shared {
             SubmitOutcome::Merged { tiles_changed, job_complete } => {
                 let job_id = unit_id.rsplit_once('/').map(|(j, _)| j.to_string()).unwrap_or_default();
                 if let Some(job) = farm.jobs.get(&job_id) {
+                    let job: &Job = job;
                     let store = lock(&self.store);
                     let mut failed = None;
                     for &tile in &tiles_changed {
@@ -196,6 +262,13 @@ impl Shared {
                         }
                     }
                     drop(store);
+                    if failed.is_none() {
+                        if let Some(point) =
+                            farm.jobs.get_mut(&job_id).and_then(|j| progress_point(j, now_ms(), job_complete))
+                        {
+                            self.event(&job_id, "progress", &point);
+                        }
+                    }
                     if let Some(e) = failed {
                         tracing::error!(job = %job_id, unit = %unit_id, error = %e, "checkpoint failed: merge undone");
                         if let Some(snap) = snapshot {
@@ -214,12 +287,18 @@ impl Shared {
             SubmitOutcome::NotLeased(why) => {
                 drop(farm);
                 tracing::warn!(%worker, unit = %unit_id, %why, "result from a worker without the lease refused");
+                self.event_if_known(job_of(unit_id), "result_refused", &format!("unit {unit_id} from {worker}: {why}"));
                 lock(&self.metrics).results_forged += 1;
                 return Err(ResultError::NotLeased(why));
             }
             SubmitOutcome::Rejected(why) => {
                 drop(farm);
                 tracing::warn!(%worker, unit = %unit_id, %why, "result rejected; worker put on the job's bad list");
+                self.event_if_known(
+                    job_of(unit_id),
+                    "result_rejected",
+                    &format!("unit {unit_id} from {worker}: {why}; the worker is barred from this job"),
+                );
                 lock(&self.metrics).units_rejected += 1;
                 if let Some(w) = lock(&self.workers).get_mut(worker) {
                     w.units_rejected += 1;
@@ -275,11 +354,24 @@ impl Shared {
                 job.state = crate::state::JobState::Done;
                 job.finished_ms = Some(finished_ms);
                 job.finish_error = None;
+                let detail = format!(
+                    "done in {:.1} s: {} spp, estimated relative error {}, stopped by {}",
+                    job.started_ms.map_or(0.0, |st| (finished_ms - st) as f64 / 1000.0),
+                    job.noise().map_or("-".into(), |n| if n.spp_min == n.spp_max {
+                        n.spp_min.to_string()
+                    } else {
+                        format!("{}..{}", n.spp_min, n.spp_max)
+                    }),
+                    job.noise().map_or("-".into(), |n| format!("{:.4}", n.rel_error)),
+                    stop.as_str()
+                );
                 job.release();
                 tracing::info!(job = %id, "job done");
+                self.event(id, "done", &detail);
             }
             (Err(e), true) => {
                 tracing::error!(job = %id, error = %e, "cannot store the finished image; will retry");
+                self.event(id, "storage_error", &format!("cannot store the finished image ({e}); retrying in 10 s"));
                 job.finish_error = Some(format!("cannot store the finished image ({e}); retrying"));
                 job.finish_retry_ms = now_ms() + 10_000;
                 lock(&self.metrics).storage_errors += 1;
@@ -293,6 +385,7 @@ impl Shared {
                     tracing::error!(job = %id, error = %se, "cannot save the failed state");
                 }
                 tracing::error!(job = %id, error = %e, "job failed");
+                self.event(id, "failed", &e);
             }
         }
     }
@@ -326,6 +419,7 @@ impl Shared {
             lock(&self.store).put_preview(id, &png)?;
         }
         tracing::info!(job = %id, "job cancelled");
+        self.event(id, "cancelled", "cancelled by the user");
         Ok(())
     }
 }

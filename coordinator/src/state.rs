@@ -139,6 +139,10 @@ pub struct Job {
     failures: HashMap<String, u32>,
     /// Scheduling round-robin: when this job last got a unit.
     last_served: u64,
+    /// Workers that have been given a unit of this job (the job's log names each once).
+    pub workers_seen: HashSet<String>,
+    /// When the last point of the convergence curve was logged (ms).
+    pub last_progress_ms: i64,
 }
 
 impl Job {
@@ -175,6 +179,8 @@ impl Job {
             bad_workers: HashSet::new(),
             failures: HashMap::new(),
             last_served: 0,
+            workers_seen: HashSet::new(),
+            last_progress_ms: 0,
         }
     }
 

@@ -37,6 +37,21 @@ pub struct Store {
     db: Connection,
 }
 
+/// Most events stored per job (about 100 bytes each).
+pub const MAX_EVENTS_PER_JOB: usize = 5000;
+
+/// One line of a job's log: what happened to it (`kind`: submitted, worker_joined, lease_expired,
+/// result_rejected, result_refused, progress, done, failed, cancelled, resumed, storage_error,
+/// log_full) with a human-readable `detail` (for `progress`, JSON: `t_s`, `spp_mean`,
+/// `rel_error`, `fraction`).
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct StoredEvent {
+    pub seq: i64,
+    pub t_ms: i64,
+    pub kind: String,
+    pub detail: String,
+}
+
 impl Store {
     /// Opens (or creates) the database in `dir`. `max_bytes` caps its size (`TESSERA_MAX_DB_MB`):
     /// beyond it writes fail as on a full disk (SQLITE_FULL), which the farm answers with 507 and
@@ -56,7 +71,11 @@ impl Store {
                  job_id TEXT NOT NULL, tile INTEGER NOT NULL, folded INTEGER NOT NULL, sums BLOB NOT NULL,
                  PRIMARY KEY (job_id, tile));
              CREATE TABLE IF NOT EXISTS images (job_id TEXT PRIMARY KEY, exr BLOB NOT NULL);
-             CREATE TABLE IF NOT EXISTS previews (job_id TEXT PRIMARY KEY, png BLOB NOT NULL);",
+             CREATE TABLE IF NOT EXISTS previews (job_id TEXT PRIMARY KEY, png BLOB NOT NULL);
+             CREATE TABLE IF NOT EXISTS events (
+                 seq INTEGER PRIMARY KEY AUTOINCREMENT, job_id TEXT NOT NULL, t_ms INTEGER NOT NULL,
+                 kind TEXT NOT NULL, detail TEXT NOT NULL);
+             CREATE INDEX IF NOT EXISTS events_by_job ON events (job_id, seq);",
         )?;
         // Databases made before checksums: add the column (old images stay unchecked).
         let has_sha: bool = db.prepare("SELECT 1 FROM pragma_table_info('images') WHERE name = 'sha256'")?.exists([])?;
@@ -173,7 +192,7 @@ impl Store {
     /// caller knows no other job uses it), in one transaction.
     pub fn delete_job(&mut self, id: &str, scene: Option<&str>) -> Result<(), StoreError> {
         let tx = self.db.transaction()?;
-        for table in ["tiles", "images", "previews"] {
+        for table in ["tiles", "images", "previews", "events"] {
             tx.execute(&format!("DELETE FROM {table} WHERE job_id = ?1"), params![id])?;
         }
         tx.execute("DELETE FROM jobs WHERE id = ?1", params![id])?;
@@ -182,6 +201,35 @@ impl Store {
         }
         tx.commit()?;
         Ok(())
+    }
+
+    /// Appends an event to a job's log, unless the log already holds `MAX_EVENTS_PER_JOB` (a
+    /// worker failing in a loop must not fill the disk; the last event says the log is full).
+    pub fn add_event(&self, job_id: &str, t_ms: i64, kind: &str, detail: &str) -> Result<(), StoreError> {
+        let n: i64 =
+            self.db.query_row("SELECT COUNT(*) FROM events WHERE job_id = ?1", params![job_id], |r| r.get(0))?;
+        let cap = MAX_EVENTS_PER_JOB as i64;
+        let (kind, detail) = match n {
+            n if n < cap - 1 => (kind, detail),
+            n if n == cap - 1 => ("log_full", "the event log is full: later events are not stored"),
+            _ => return Ok(()),
+        };
+        self.db.execute(
+            "INSERT INTO events (job_id, t_ms, kind, detail) VALUES (?1, ?2, ?3, ?4)",
+            params![job_id, t_ms, kind, detail],
+        )?;
+        Ok(())
+    }
+
+    /// A job's events after sequence number `after`, oldest first, at most `limit`.
+    pub fn events(&self, job_id: &str, after: i64, limit: usize) -> Result<Vec<StoredEvent>, StoreError> {
+        let mut stmt = self.db.prepare(
+            "SELECT seq, t_ms, kind, detail FROM events WHERE job_id = ?1 AND seq > ?2 ORDER BY seq LIMIT ?3",
+        )?;
+        let rows = stmt.query_map(params![job_id, after, limit as i64], |r| {
+            Ok(StoredEvent { seq: r.get(0)?, t_ms: r.get(1)?, kind: r.get(2)?, detail: r.get(3)? })
+        })?;
+        Ok(rows.collect::<Result<_, _>>()?)
     }
 
     /// Every job, with unfinished ones restored to their checkpointed progress. A row that cannot be

@@ -143,6 +143,77 @@ impl FinalImage {
         Image::from_layer(layer)
     }
 
+    /// Reads back an image this module wrote (R, G, B; variance and spp when present), from bytes
+    /// (the farm keeps finished EXRs in its database). A file without R, G or B is an error.
+    pub fn from_exr_bytes(bytes: &[u8]) -> std::result::Result<Self, String> {
+        let image = read()
+            .no_deep_data()
+            .largest_resolution_level()
+            .all_channels()
+            .first_valid_layer()
+            .all_attributes()
+            .from_buffered(std::io::Cursor::new(bytes))
+            .map_err(|e| e.to_string())?;
+        let layer = image.layer_data;
+        let (w, h) = (layer.size.width(), layer.size.height());
+        let channel = |name: &str| -> Option<Vec<f32>> {
+            layer.channel_data.list.iter().find(|c| c.name.eq(name)).map(|c| c.sample_data.values_as_f32().collect())
+        };
+        let (Some(r), Some(g), Some(b)) = (channel("R"), channel("G"), channel("B")) else {
+            return Err("the EXR has no R, G and B channels".into());
+        };
+        let n = w * h;
+        Ok(FinalImage {
+            width: w as u32,
+            height: h as u32,
+            rgb: (0..n).map(|i| [r[i], g[i], b[i]]).collect(),
+            variance: channel(VARIANCE_CHANNEL).unwrap_or_else(|| vec![0.0; n]),
+            spp: channel(SPP_CHANNEL).map(|v| v.iter().map(|&x| x as u32).collect()).unwrap_or_else(|| vec![0; n]),
+        })
+    }
+
+    /// The image shrunk by a whole factor so that it is at most `max_width` wide (box filter over
+    /// the factor × factor block; edge blocks average what they cover). Previews are downloaded at
+    /// the size they are shown: a 160 px thumbnail of a 4K frame is 0.3 % of its pixels.
+    pub fn downscaled(&self, max_width: u32) -> FinalImage {
+        let f = self.width.div_ceil(max_width.max(1)).max(1);
+        if f == 1 {
+            return FinalImage {
+                width: self.width,
+                height: self.height,
+                rgb: self.rgb.clone(),
+                variance: self.variance.clone(),
+                spp: self.spp.clone(),
+            };
+        }
+        let (w, h) = (self.width.div_ceil(f), self.height.div_ceil(f));
+        let mut rgb = vec![[0.0f32; 3]; (w * h) as usize];
+        let mut variance = vec![0.0f32; (w * h) as usize];
+        let mut spp = vec![0u32; (w * h) as usize];
+        for y in 0..h {
+            for x in 0..w {
+                let (mut acc, mut var, mut n, mut s) = ([0.0f32; 3], 0.0f32, 0u32, 0u32);
+                for sy in y * f..((y + 1) * f).min(self.height) {
+                    for sx in x * f..((x + 1) * f).min(self.width) {
+                        let i = (sy * self.width + sx) as usize;
+                        for (a, v) in acc.iter_mut().zip(self.rgb[i]) {
+                            *a += v;
+                        }
+                        var += self.variance[i];
+                        s = s.max(self.spp[i]);
+                        n += 1;
+                    }
+                }
+                let o = (y * w + x) as usize;
+                let n = n.max(1) as f32;
+                rgb[o] = [acc[0] / n, acc[1] / n, acc[2] / n];
+                variance[o] = var / (n * n);
+                spp[o] = s;
+            }
+        }
+        FinalImage { width: w, height: h, rgb, variance, spp }
+    }
+
     /// An 8-bit sRGB PNG: radiance × 2^exposure, clamped, sRGB-encoded.
     pub fn png_bytes(&self, exposure: f32) -> std::result::Result<Vec<u8>, String> {
         let scale = 2f32.powf(exposure);
@@ -244,4 +315,48 @@ fn canonical_header(bytes: &mut [u8]) -> std::result::Result<(), String> {
     }
     debug_assert_eq!(out, at);
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::FinalImage;
+
+    fn image(w: u32, h: u32) -> FinalImage {
+        let n = (w * h) as usize;
+        FinalImage {
+            width: w,
+            height: h,
+            rgb: (0..n).map(|i| [i as f32, 2.0 * i as f32, 0.5]).collect(),
+            variance: vec![1.0; n],
+            spp: (0..n as u32).collect(),
+        }
+    }
+
+    #[test]
+    fn downscaling_averages_blocks_and_keeps_partial_edges() {
+        let img = image(5, 3);
+        let d = img.downscaled(2);
+        // factor 3: 2×1 blocks; the right block covers columns 3..5 only.
+        assert_eq!((d.width, d.height), (2, 1));
+        let left: f32 = [0, 1, 2, 5, 6, 7, 10, 11, 12].iter().map(|&i| i as f32).sum::<f32>() / 9.0;
+        let right: f32 = [3, 4, 8, 9, 13, 14].iter().map(|&i| i as f32).sum::<f32>() / 6.0;
+        assert!((d.rgb[0][0] - left).abs() < 1e-5 && (d.rgb[1][0] - right).abs() < 1e-5, "{:?}", d.rgb);
+        assert!((d.variance[0] - 1.0 / 9.0).abs() < 1e-6, "variance of a mean of 9");
+        assert_eq!(d.spp, vec![12, 14]);
+        assert_eq!(img.downscaled(0).width, 1, "a zero width is treated as 1");
+        assert_eq!(img.downscaled(100).rgb, img.rgb, "no upscaling");
+    }
+
+    #[test]
+    fn an_exr_reads_back_from_bytes() {
+        let img = image(7, 4);
+        let bytes = img.exr_bytes(&[("tessera", "x".into())]).expect("encodes");
+        let back = FinalImage::from_exr_bytes(&bytes).expect("decodes");
+        assert_eq!((back.width, back.height), (7, 4));
+        assert_eq!(back.rgb, img.rgb);
+        assert_eq!(back.spp, img.spp);
+        let err = FinalImage::from_exr_bytes(&bytes[..bytes.len() / 2]).err().expect("a cut file is an error");
+        assert!(!err.is_empty());
+        assert!(FinalImage::from_exr_bytes(b"not an exr").is_err());
+    }
 }

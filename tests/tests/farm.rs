@@ -71,6 +71,52 @@ fn two_workers_give_the_local_image_bit_for_bit() {
     assert_eq!(code, 0, "{err}");
     assert_eq!(line.lines().count(), 1, "{line}");
     assert!(line.contains("done: 100%") && line.contains("spp 64 "), "{line}");
+    // A preview at the size it is shown, and brighter at +2 stops (made from the stored EXR).
+    let png = |q: &str| {
+        let bytes = ureq::get(&format!("{}/api/v1/jobs/{}/preview.png{q}", farm.url, stdout.trim()))
+            .call()
+            .unwrap()
+            .into_body()
+            .read_to_vec()
+            .unwrap();
+        let img = image::load_from_memory(&bytes).unwrap().to_rgb8();
+        let mean = img.pixels().map(|p| p.0.iter().map(|&c| c as f64).sum::<f64>()).sum::<f64>() / img.len() as f64;
+        (img.width(), mean)
+    };
+    let (full_w, full_mean) = png("");
+    let (small_w, small_mean) = png("?width=20");
+    let (_, bright_mean) = png("?exposure=2");
+    assert!(small_w <= 20 && small_w < full_w, "{small_w} vs {full_w}");
+    assert!((small_mean - full_mean).abs() < 0.05 * full_mean + 2.0, "{small_mean} vs {full_mean}");
+    assert!(bright_mean > 1.3 * full_mean, "{bright_mean} vs {full_mean}");
+    let bad = ureq::get(&format!("{}/api/v1/jobs/{}/preview.png?exposure=99", farm.url, stdout.trim())).call();
+    assert!(matches!(bad, Err(ureq::Error::StatusCode(422))), "{bad:?}");
+    // Resubmit: a new job, same scene and settings, the same image.
+    let r: serde_json::Value = ureq::post(&format!("{}/api/v1/jobs/{}/resubmit", farm.url, stdout.trim()))
+        .send_empty()
+        .unwrap()
+        .into_body()
+        .read_json()
+        .unwrap();
+    let again = r["id"].as_str().unwrap().to_string();
+    assert_ne!(again, stdout.trim());
+    farm.wait_job(&again, Duration::from_secs(60), |j| j["state"] == "done");
+    let out2 = farm.tmp.join("again.exr");
+    assert_eq!(farm.cli(&["download", &again, "-o", out2.to_str().unwrap()]).0, 0);
+    assert!(std::fs::read(&out2).unwrap() == local, "the resubmitted job's EXR differs");
+    // Live updates: the event stream opens with the job list and the workers.
+    let resp = ureq::get(&format!("{}/api/v1/events", farm.url)).call().unwrap();
+    assert!(resp.headers().get("content-type").unwrap().to_str().unwrap().starts_with("text/event-stream"));
+    let mut reader = resp.into_body().into_reader();
+    let mut got = Vec::new();
+    let mut buf = [0u8; 4096];
+    while !(String::from_utf8_lossy(&got).contains("event: workers")) {
+        let n = std::io::Read::read(&mut reader, &mut buf).unwrap();
+        assert!(n > 0, "the event stream ended");
+        got.extend_from_slice(&buf[..n]);
+    }
+    let text = String::from_utf8_lossy(&got);
+    assert!(text.contains("event: jobs") && text.contains(&again), "{text}");
 }
 
 #[test]
@@ -118,6 +164,28 @@ fn a_killed_worker_units_are_re_leased() {
         .and_then(|l| l.split_whitespace().nth(1)?.parse().ok())
         .unwrap_or(0);
     assert!(expired >= 1, "the dead worker's lease must have expired and been re-leased:\n{metrics}");
+    // The job's log tells what happened: both workers joined, the dead one's lease expired, the
+    // error fell as samples came in, and the job finished.
+    let ev: serde_json::Value =
+        ureq::get(&format!("{}/api/v1/jobs/{id}/events", farm.url)).call().unwrap().into_body().read_json().unwrap();
+    let events = ev["events"].as_array().unwrap();
+    let kinds: Vec<&str> = events.iter().map(|e| e["kind"].as_str().unwrap()).collect();
+    assert_eq!(kinds.first(), Some(&"submitted"), "{kinds:?}");
+    assert_eq!(kinds.last(), Some(&"done"), "{kinds:?}");
+    assert_eq!(kinds.iter().filter(|k| **k == "worker_joined").count(), 2, "{kinds:?}");
+    let lapsed = events.iter().find(|e| e["kind"] == "lease_expired").expect("a lease_expired event");
+    assert!(lapsed["detail"].as_str().unwrap().contains(&format!("worker{doomed}-")), "{lapsed}");
+    let curve: Vec<(f64, f64)> = events
+        .iter()
+        .filter(|e| e["kind"] == "progress")
+        .map(|e| {
+            let p: serde_json::Value = serde_json::from_str(e["detail"].as_str().unwrap()).unwrap();
+            (p["spp_mean"].as_f64().unwrap(), p["rel_error"].as_f64().unwrap_or(f64::INFINITY))
+        })
+        .collect();
+    assert!(curve.len() >= 2, "{curve:?}");
+    let (first, last) = (curve[0], curve[curve.len() - 1]);
+    assert!(last.0 == 256.0 && last.1 < first.1, "the curve must end at 256 spp with less error: {curve:?}");
     let out = farm.tmp.join("kill-worker.exr");
     assert_eq!(farm.cli(&["download", &id, "-o", out.to_str().unwrap()]).0, 0);
     let mut local_args = SETTINGS.to_vec();

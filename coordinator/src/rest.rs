@@ -709,20 +709,21 @@ async fn job_events(
 /// failed job, render a cancelled one again, or repeat a finished one under a new seed by editing
 /// nothing: the settings are copied as they are, so the result is the same image).
 async fn resubmit_job(State(s): S, Path(id): Path<String>) -> Result<(StatusCode, Json<Value>), ApiError> {
-    let spec =
-        {
-            let farm = lock(&s.farm);
-            match farm.jobs.get(&id) {
-                Some(j) => j.spec.clone(),
-                None if !farm.shot_frames(&id).is_empty() => return Err(err(
+    let spec = {
+        let farm = lock(&s.farm);
+        match farm.jobs.get(&id) {
+            Some(j) => j.spec.clone(),
+            None if !farm.shot_frames(&id).is_empty() => {
+                return Err(err(
                     StatusCode::CONFLICT,
                     format!(
                         "'{id}' is a shot: resubmit its frame jobs ({id}-f<n>) one by one, or submit the shot again"
                     ),
-                )),
-                None => return Err(err(StatusCode::NOT_FOUND, format!("no job '{id}'"))),
+                ))
             }
-        };
+            None => return Err(err(StatusCode::NOT_FOUND, format!("no job '{id}'"))),
+        }
+    };
     let spec = JobSpec { shot: None, ..spec };
     let shared = s.clone();
     let hash = spec.scene_hash.clone();

@@ -872,6 +872,13 @@ async fn resume_worker(State(s): S, Path(id): Path<String>) -> Result<Json<Value
     r
 }
 
+/// A job's share of the queue depth: its pending units, at most two passes over its tiles. A
+/// noise-target job plans its whole sample cap (up to 65536 spp) but stops long before; counting
+/// that as work would scale a farm to its maximum for one small job.
+fn queue_depth(pending: usize, tiles: usize) -> usize {
+    pending.min(2 * tiles)
+}
+
 async fn metrics(State(s): S) -> Response {
     let mut out = String::new();
     let farm = lock(&s.farm);
@@ -879,13 +886,15 @@ async fn metrics(State(s): S) -> Response {
         let n = farm.jobs.values().filter(|j| j.state.as_str() == state).count();
         out += &format!("tessera_jobs{{state=\"{state}\"}} {n}\n");
     }
-    let (mut leased, mut done, mut total) = (0, 0, 0);
+    let (mut leased, mut done, mut total, mut depth) = (0, 0, 0, 0);
     for j in farm.jobs.values().filter(|j| !j.state.is_final()) {
         leased += j.units_leased();
         done += j.units_done();
         total += j.unit_count();
+        depth += queue_depth(j.unit_count() - j.units_done() - j.units_leased(), j.tiles.len());
     }
     drop(farm);
+    out += &format!("# HELP tessera_queue_depth Units workers could take now (per job at most two passes' worth: a noise-target job's sample cap is not work). The autoscaling signal.\n# TYPE tessera_queue_depth gauge\ntessera_queue_depth {depth}\n");
     out += &format!("tessera_units{{state=\"leased\"}} {leased}\ntessera_units{{state=\"done\"}} {done}\ntessera_units{{state=\"pending\"}} {}\n", total - done - leased);
     let now = now_ms();
     let live = lock(&s.workers).values().filter(|w| now - w.last_seen_ms < 60_000).count();
@@ -955,6 +964,13 @@ mod tests {
 
     /// The OpenAPI document's settings schema is checked against the one settings schema
     /// (renderer/src/settings_request.rs): same fields, same bounds, same defaults.
+    #[test]
+    fn queue_depth_counts_at_most_two_passes_a_job() {
+        assert_eq!(super::queue_depth(5, 16), 5);
+        assert_eq!(super::queue_depth(65536 * 16, 16), 32);
+        assert_eq!(super::queue_depth(0, 16), 0);
+    }
+
     #[test]
     fn openapi_settings_match_the_settings_schema() {
         let doc: Value = serde_json::from_str(super::OPENAPI).expect("openapi.json parses");

@@ -219,9 +219,15 @@ pub fn submit(a: SubmitArgs) -> anyhow::Result<()> {
         indicatif::ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {percent:>3}% {msg}")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
+    // Samples per second over the whole wait so far (the farm's rate, all workers together).
+    let waited = std::time::Instant::now();
+    let mut first_samples: Option<f64> = None;
     loop {
         let j = api.get_json(&format!("/jobs/{id}"))?;
         let frac = j["progress"]["fraction"].as_f64().unwrap_or(0.0);
+        let samples = j["progress"]["samples_done"].as_f64().unwrap_or(0.0);
+        let base = *first_samples.get_or_insert(samples);
+        let rate = (samples - base) / waited.elapsed().as_secs_f64().max(1e-3);
         bar.set_position((frac * 1000.0) as u64);
         if j["kind"] == "shot" {
             bar.set_message(format!(
@@ -233,9 +239,10 @@ pub fn submit(a: SubmitArgs) -> anyhow::Result<()> {
             ));
         } else {
             bar.set_message(format!(
-                "{} | {:.1} spp (mean) | rel. error {}{} | ETA {}",
+                "{} | {:.1} spp (mean) | {:.2} Msamples/s | rel. error {}{} | ETA {}",
                 j["state"].as_str().unwrap_or("?"),
                 j["progress"]["spp_mean"].as_f64().unwrap_or(0.0),
+                rate / 1e6,
                 j["noise"]["estimated_rel_error"].as_f64().map_or("-".into(), |e| format!("{e:.2e}")),
                 j["budget"]["noise_target"].as_f64().map_or(String::new(), |t| format!(" (target {t})")),
                 j["eta_s"].as_f64().map_or("-".into(), |e| format!("{e:.0} s"))

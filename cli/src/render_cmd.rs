@@ -257,14 +257,11 @@ fn render_frame(
 ) -> Result<()> {
     let counters = Counters::default();
     let pixels = settings.width as u64 * settings.height as u64;
-    // A time budget shows progress in time; a noise target cannot know its total in advance.
-    let bar = match (settings.time_budget, settings.noise_target) {
-        (Some(b), _) => indicatif::ProgressBar::new((b * 1000.0) as u64),
-        (None, Some(_)) => indicatif::ProgressBar::new_spinner(),
-        (None, None) => indicatif::ProgressBar::new(pixels * settings.spp as u64),
-    };
+    // Progress in thousandths, for every budget: samples for a fixed count, the renderer's own
+    // measure (tiles converging towards the target) for a noise target, time for a time budget.
+    let bar = indicatif::ProgressBar::new(1000);
     bar.set_style(
-        indicatif::ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {percent:>3}% {msg} ETA {eta}")
+        indicatif::ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {percent:>3}% {msg}")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     let start = Instant::now();
@@ -277,12 +274,30 @@ fn render_frame(
                 let samples = counters.samples.load(Ordering::Relaxed);
                 let secs = start.elapsed().as_secs_f64().max(1e-3);
                 let rays = counters.rays.load(Ordering::Relaxed) as f64 / secs;
-                bar.set_position(if settings.time_budget.is_some() { (secs * 1000.0) as u64 } else { samples });
+                let planned = pixels.max(1) as f64 * settings.spp as f64;
+                let mut fraction = match settings.noise_target {
+                    Some(_) => counters.progress(),
+                    None => samples as f64 / planned,
+                };
+                if let Some(b) = settings.time_budget {
+                    fraction = fraction.max(secs / b);
+                }
+                let fraction = fraction.clamp(0.0, 1.0);
+                bar.set_position((fraction * 1000.0) as u64);
+                let eta = (fraction > 0.0).then(|| secs * (1.0 - fraction) / fraction);
+                let eta = match settings.time_budget {
+                    Some(b) => eta.map_or(b - secs, |e| e.min(b - secs)).max(0.0),
+                    None => eta.unwrap_or(f64::NAN),
+                };
                 bar.set_message(format!(
-                    "{:.1}/{} spp (mean/cap) | {:.2} Mrays/s",
+                    "{:.1}/{} spp (mean/cap) | {:.2} Msamples/s | {:.2} Mrays/s | rel. error {}{} | ETA {}",
                     samples as f64 / pixels.max(1) as f64,
                     settings.spp,
-                    rays / 1e6
+                    samples as f64 / secs / 1e6,
+                    rays / 1e6,
+                    counters.rel_error().map_or("-".into(), |e| format!("{e:.2e}")),
+                    settings.noise_target.map_or(String::new(), |t| format!(" (target {t})")),
+                    if eta.is_finite() { format!("{eta:.0} s") } else { "-".into() }
                 ));
                 std::thread::sleep(Duration::from_millis(100));
             }

@@ -25,6 +25,56 @@ pub struct Counters {
     pub nonfinite: AtomicU64,
     /// Set to stop `render` at the next pass boundary (the image stays unbiased).
     pub cancel: AtomicBool,
+    /// After each pass: the image's estimated relative error (`f64` bits; 0 until every pixel has
+    /// two samples). For progress displays; the result's own estimate is the one to report.
+    pub rel_error_bits: AtomicU64,
+    /// After each pass: the fraction of the work done (`f64` bits), the same measure the farm
+    /// reports: samples done of those planned, and under a noise target each unfinished tile
+    /// counts (target / error)², at most 0.99 (relative MSE falls as 1/spp).
+    pub progress_bits: AtomicU64,
+}
+
+impl Counters {
+    /// The estimated relative error after the last pass (None before it is known).
+    pub fn rel_error(&self) -> Option<f64> {
+        let e = f64::from_bits(self.rel_error_bits.load(Ordering::Relaxed));
+        (e > 0.0 && e.is_finite()).then_some(e)
+    }
+
+    /// The fraction of the work done after the last pass (0 before the first).
+    pub fn progress(&self) -> f64 {
+        f64::from_bits(self.progress_bits.load(Ordering::Relaxed))
+    }
+}
+
+/// The error and progress `Counters` reports after a pass: pixel-weighted relative MSE over the
+/// tiles, and per tile the fraction of its work done.
+fn pass_report(settings: &RenderSettings, tiles: &[(PartialSums, u32)], active: &[usize]) -> (f64, f64) {
+    let (mut mse, mut frac, mut px) = (0.0f64, 0.0f64, 0.0f64);
+    let mut still = vec![false; tiles.len()];
+    for &t in active {
+        still[t] = true;
+    }
+    for (t, (sums, folded)) in tiles.iter().enumerate() {
+        let e = crate::noise::estimate(sums);
+        let n = sums.rect.pixels() as f64;
+        mse += e.rel_mse * n;
+        px += n;
+        let f = if !still[t] {
+            1.0
+        } else {
+            let by_samples = *folded as f64 / settings.pass_count().max(1) as f64;
+            match settings.noise_target {
+                Some(target) if e.rel_error.is_finite() && e.rel_error > 0.0 => {
+                    by_samples.max((target / e.rel_error).powi(2).min(0.99))
+                }
+                _ => by_samples,
+            }
+        };
+        frac += f * n;
+    }
+    let px = px.max(1.0);
+    ((mse / px).sqrt(), frac / px)
 }
 
 /// Samples a filter offset from the pixel centre, in pixels (filter importance sampling).
@@ -158,6 +208,9 @@ pub fn render(scene: &Scene, settings: &RenderSettings, counters: &Counters) -> 
             *folded += 1;
         }
         active.retain(|&t| budget::tile_needs_more(settings, &tiles[t].0, tiles[t].1));
+        let (rel_error, progress) = pass_report(settings, &tiles, &active);
+        counters.rel_error_bits.store(if rel_error.is_finite() { rel_error.to_bits() } else { 0 }, Ordering::Relaxed);
+        counters.progress_bits.store(progress.to_bits(), Ordering::Relaxed);
     }
     if stop == StopReason::SampleCount && tiles.iter().any(|(_, f)| *f < settings.pass_count()) {
         stop = StopReason::NoiseTarget;
@@ -167,4 +220,42 @@ pub fn render(scene: &Scene, settings: &RenderSettings, counters: &Counters) -> 
         image.merge_tile(t).expect("tiles lie inside the image");
     }
     Rendered { image, tiles, passes, stop }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::pass_report;
+    use crate::film::{PartialSums, Rect};
+    use crate::math::Vec3;
+    use crate::settings::RenderSettings;
+
+    /// A 2×1 tile whose pixels hold samples 0.5 ± d: relative error known in closed form.
+    fn tile(x0: u32, spp: u32, d: f32) -> PartialSums {
+        let mut t = PartialSums::new(Rect { x0, y0: 0, width: 2, height: 1 });
+        for i in 0..2 {
+            for k in 0..spp {
+                let v = if k % 2 == 0 { 0.5 + d } else { 0.5 - d };
+                t.add_sample(i, Vec3::new(v, v, v));
+            }
+        }
+        t
+    }
+
+    #[test]
+    fn progress_counts_finished_tiles_whole_and_others_by_their_error() {
+        let settings =
+            RenderSettings { spp: 1024, pass_spp: 16, noise_target: Some(0.01), ..RenderSettings::default() };
+        let (noisy, quiet) = (tile(0, 32, 0.2), tile(2, 32, 0.0));
+        let e = crate::noise::estimate(&noisy).rel_error;
+        let tiles = vec![(noisy, 2), (quiet, 2)];
+        // Tile 1 stopped (met the target); tile 0 is at error e: (0.01 / e)² of the way.
+        let (err, frac) = pass_report(&settings, &tiles, &[0]);
+        let expect = 0.5 * (0.01 / e).powi(2).clamp(2.0 / 64.0, 0.99) + 0.5;
+        assert!((frac - expect).abs() < 1e-12, "{frac} vs {expect}");
+        assert!((err - (e * e / 2.0).sqrt()).abs() < 1e-9, "pixel-weighted: {err} vs {e}");
+        // Without a target, progress is the samples done.
+        let fixed = RenderSettings { noise_target: None, ..settings };
+        let (_, frac) = pass_report(&fixed, &tiles, &[0, 1]);
+        assert!((frac - 2.0 / 64.0).abs() < 1e-12, "{frac}");
+    }
 }

@@ -90,9 +90,14 @@ fn a_noise_target_is_met_with_fewer_samples_where_the_image_is_quiet() {
         min_spp: 16,
         ..RenderSettings::default()
     };
-    let r = render(&s, &settings, &Counters::default());
+    let counters = Counters::default();
+    let r = render(&s, &settings, &counters);
     assert_eq!(r.stop, StopReason::NoiseTarget);
     let e = estimate(&r.image);
+    // What the progress display read after the last pass: all the work, the image's error.
+    assert_eq!(counters.progress(), 1.0, "every tile stopped: the work is done");
+    let shown = counters.rel_error().expect("an error after the last pass");
+    assert!((shown - e.rel_error).abs() < 1e-6 * e.rel_error, "shown {shown} vs result {}", e.rel_error);
     let rgb = FinalImage::from_sums(&r.image).rgb;
     let truth = (rel_mse_against(&rgb, &reference).unwrap() - ref_own).sqrt();
     println!(

@@ -252,10 +252,15 @@ pub fn submit(a: SubmitArgs) -> anyhow::Result<()> {
             Some("done") => break,
             Some("failed") | Some("cancelled") => {
                 bar.abandon();
-                return Err(fail(
-                    5,
-                    format!("job {id} {}: {}", j["state"].as_str().unwrap_or("?"), j["error"].as_str().unwrap_or("")),
-                ));
+                let reason = match (j["state"].as_str(), j["error"].as_str()) {
+                    (_, Some(e)) if !e.is_empty() => e.to_string(),
+                    (Some("cancelled"), _) => format!(
+                        "cancelled (tessera cancel, DELETE or the web page) at {:.1} spp (mean); the image so far is at /api/v1/jobs/{id}/preview.png",
+                        j["progress"]["spp_mean"].as_f64().unwrap_or(0.0)
+                    ),
+                    _ => "no reason given".into(),
+                };
+                return Err(fail(5, format!("job {id} {}: {reason}", j["state"].as_str().unwrap_or("?"))));
             }
             _ => std::thread::sleep(Duration::from_millis(300)),
         }

@@ -418,6 +418,38 @@ fn a_drained_worker_takes_no_units_until_resumed() {
     let (code, _, err) = farm.cli(&["workers", "--drain", "nosuchworker"]);
     assert_ne!(code, 0, "draining an unknown worker must fail");
     assert!(err.contains("nosuchworker") || err.contains("404") || err.contains("no such"), "{err}");
+    // A job cancelled while `submit --wait` waits for it: the waiter says so, with a reason.
+    let scene = cornell();
+    let out = farm.tmp.join("cancelled.exr");
+    let (code, err) = std::thread::scope(|sc| {
+        let waiter = sc.spawn(|| {
+            let mut args = vec!["submit", scene.to_str().unwrap(), "--wait", "-o", out.to_str().unwrap()];
+            args.extend_from_slice(SETTINGS);
+            args.push("16");
+            farm.cli(&args)
+        });
+        let other = poll(Duration::from_secs(20), || {
+            let list: serde_json::Value = ureq::get(&format!("{}/api/v1/jobs", farm.url))
+                .call()
+                .map_err(|e| e.to_string())?
+                .into_body()
+                .read_json()
+                .map_err(|e| e.to_string())?;
+            list["jobs"]
+                .as_array()
+                .into_iter()
+                .flatten()
+                .filter_map(|j| j["id"].as_str())
+                .find(|j| *j != job)
+                .map(str::to_string)
+                .ok_or_else(|| "the waiter's job is not listed yet".to_string())
+        });
+        ureq::post(&format!("{}/api/v1/jobs/{other}/cancel", farm.url)).send_empty().unwrap();
+        let (code, _, err) = waiter.join().unwrap();
+        (code, err)
+    });
+    assert_eq!(code, 5, "{err}");
+    assert!(err.contains("cancelled (tessera cancel, DELETE or the web page) at 0.0 spp"), "{err}");
     ureq::post(&format!("{}/api/v1/workers/{id}/resume", farm.url)).send_empty().unwrap();
     farm.wait_job(&job, Duration::from_secs(60), |j| j["state"] == "done");
 }

@@ -1,0 +1,101 @@
+#!/usr/bin/env python3
+"""Tessera against its peers on the same scenes, in one command: paths/s, relMSE and efficiency.
+
+    cargo build --release
+    apt-get install libllvm19    # for Mitsuba's vectorised CPU backend (llvm_ad_rgb)
+    python3 scenes/references/bench_peers.py [--spp 64] [--runs 3] [--variants scalar_rgb llvm_ad_rgb] [scenes...]
+
+For each scene with a Mitsuba reference (make_references.py) it renders, at the reference's resolution
+and `--spp`, with `tessera render` (default settings: mis, Sobol; the render time Tessera reports,
+without process start and scene load) and with each Mitsuba variant (path integrator, independent
+sampler, the scene translation of make_references.py; mi.render() timed on a loaded scene after one
+warm-up render, so the LLVM backend's kernel compilation is not counted). Median over --runs runs with
+different seeds. relMSE against the reference: mean over pixels and channels of (x − ref)² / (ref² +
+0.01). Efficiency = 1 / (relMSE · seconds): equal efficiency means equal error in equal time; the
+ratio column is each renderer's efficiency over Tessera's (above 1: better than Tessera).
+"""
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+LLVM = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
+if os.path.exists(LLVM):
+    os.environ.setdefault("DRJIT_LIBLLVM_PATH", LLVM)
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import make_references as mr  # noqa: E402
+
+ROOT = os.path.dirname(mr.ROOT)
+TESSERA = os.path.join(ROOT, "target", "release", "tessera")
+
+
+def rel_mse(img, ref):
+    return float(np.mean((img - ref) ** 2 / (ref ** 2 + 1e-2)))
+
+
+def main():
+    import mitsuba as mi
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--spp", type=int, default=64)
+    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--variants", nargs="+", default=["scalar_rgb", "llvm_ad_rgb"])
+    ap.add_argument("--tessera-args", default="", help="extra flags for tessera render (quoted)")
+    ap.add_argument("scenes", nargs="*", default=list(mr.SCENES))
+    a = ap.parse_args()
+    summary = []
+    for name in a.scenes:
+        rel, w, h = mr.SCENES[name]
+        mi.set_variant("scalar_rgb")
+        ref = np.array(mi.Bitmap(os.path.join(mr.HERE, f"{name}.exr")), dtype=np.float64)[:, :, :3]
+        env = mr.ENVIRONMENTS.get(name)
+        env_args = ["--env", os.path.join(mr.ROOT, env[0]), "--env-rotate", str(env[1])] if env else []
+        rows = []
+        with tempfile.TemporaryDirectory() as tmp:
+            times, errs = [], []
+            for r in range(a.runs):
+                out = os.path.join(tmp, "t.exr")
+                p = subprocess.run([TESSERA, "render", os.path.join(mr.ROOT, rel), "-o", out, "--spp", str(a.spp),
+                                    "--width", str(w), "--height", str(h), "--seed", str(r), *env_args,
+                                    *a.tessera_args.split()], check=True, stderr=subprocess.PIPE, text=True)
+                times.append(float(p.stderr.split(" in ")[1].split("s ")[0]))
+                errs.append(rel_mse(np.array(mi.Bitmap(out), dtype=np.float64)[:, :, :3], ref))
+            rows.append(("tessera", statistics.median(times), statistics.median(errs)))
+            for variant in a.variants:
+                try:
+                    mi.set_variant(variant)
+                    scene = mi.load_dict(mr.build_scene(os.path.join(mr.ROOT, rel), w, h, 1, tmp, env))
+                    mi.render(scene, seed=999, spp=a.spp)  # warm-up (JIT compilation for llvm)
+                except Exception as e:  # a missing libLLVM says so and the others still run
+                    print(f"{name}: {variant} unavailable: {e}", file=sys.stderr)
+                    continue
+                times, errs = [], []
+                for r in range(a.runs):
+                    t0 = time.perf_counter()
+                    img = np.array(mi.render(scene, seed=1000 + r, spp=a.spp), dtype=np.float64)[:, :, :3]
+                    times.append(time.perf_counter() - t0)
+                    errs.append(rel_mse(img, ref))
+                rows.append((f"mitsuba {variant}", statistics.median(times), statistics.median(errs)))
+                del scene
+        base = 1.0 / (rows[0][1] * rows[0][2])
+        print(f"\n{name} ({w}x{h}, {a.spp} spp, median of {a.runs} runs)")
+        print(f"{'renderer':<22} {'seconds':>8} {'Mpaths/s':>9} {'relMSE':>10} {'efficiency':>11} {'vs tessera':>10}")
+        for label, t, e in rows:
+            eff = 1.0 / (t * e)
+            print(f"{label:<22} {t:>8.3f} {w * h * a.spp / t / 1e6:>9.3f} {e:>10.3e} {eff:>11.1f} {eff / base:>10.2f}")
+            summary.append((name, label, t, w * h * a.spp / t / 1e6, e, eff / base))
+    print("\nsummary: Tessera's paths/s over each peer's, and each peer's efficiency over Tessera's")
+    for name in a.scenes:
+        mine = [s for s in summary if s[0] == name and s[1] == "tessera"]
+        for s in summary:
+            if s[0] == name and s[1] != "tessera" and mine:
+                print(f"{name:<14} vs {s[1]:<22} paths/s ratio {mine[0][3] / s[3]:>6.2f}   peer efficiency ratio {s[5]:>6.2f}")
+
+
+if __name__ == "__main__":
+    main()

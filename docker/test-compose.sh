@@ -27,37 +27,8 @@ T=target/release/tessera
 tmp=$(mktemp -d)
 dc() { "${COMPOSE[@]}" -p "$project" -f docker/docker-compose.yml "$@"; }
 trap 'dc down -v --remove-orphans >/dev/null 2>&1; rm -rf "$tmp"' EXIT
-passed=0
-failed=0
-ok() { echo "PASS $1"; passed=$((passed + 1)); }
-ko() { echo "FAIL $1"; failed=$((failed + 1)); }
-field() { python3 -c "import json,sys; j=json.load(sys.stdin); print(eval('j' + sys.argv[1]))" "$1"; }
-wait_api() {
-  for _ in $(seq 1 120); do $T list >/dev/null 2>&1 && return 0; sleep 0.5; done
-  return 1
-}
-wait_units() { # job, minimum units done
-  for _ in $(seq 1 600); do
-    n=$($T status "$1" 2>/dev/null | field '["progress"]["units_done"]') || n=0
-    [ "${n:-0}" -ge "$2" ] && return 0
-    sleep 0.1
-  done
-  return 1
-}
-wait_done() {
-  for _ in $(seq 1 1200); do
-    s=$($T status "$1" 2>/dev/null | field '["state"]') || s=""
-    [ "$s" = done ] && return 0
-    sleep 0.25
-  done
-  return 1
-}
+source docker/lib.sh
 workers() { docker ps -q --filter "label=com.docker.compose.project=$project" --filter "label=com.docker.compose.service=worker"; }
-same_as_local() { # job, spp, name
-  $T download "$1" -o "$tmp/$3.exr" &&
-    $T render scenes/cornell/cornell.gltf --spp "$2" --width 128 --height 128 -o "$tmp/$3-local.exr" 2>/dev/null &&
-    cmp -s "$tmp/$3.exr" "$tmp/$3-local.exr"
-}
 
 # 1. Two workers, bit-identical to a local render.
 dc up -d --scale worker=2 >/dev/null 2>&1

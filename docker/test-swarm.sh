@@ -42,15 +42,7 @@ cleanup() {
   rm -rf "$tmp"
 }
 trap cleanup EXIT
-passed=0
-failed=0
-ok() { echo "PASS $1"; passed=$((passed + 1)); }
-ko() { echo "FAIL $1"; failed=$((failed + 1)); }
-field() { python3 -c "import json,sys; j=json.load(sys.stdin); print(eval('j' + sys.argv[1]))" "$1"; }
-wait_api() {
-  for _ in $(seq 1 240); do $T list >/dev/null 2>&1 && return 0; sleep 0.5; done
-  return 1
-}
+source docker/lib.sh
 wait_workers() { # how many live (not offline) workers
   for _ in $(seq 1 240); do
     n=$(curl -s -H "Authorization: Bearer $TESSERA_TOKEN" "$TESSERA_COORDINATOR/api/v1/workers" |
@@ -59,27 +51,6 @@ wait_workers() { # how many live (not offline) workers
     sleep 0.5
   done
   return 1
-}
-wait_units() {
-  for _ in $(seq 1 600); do
-    n=$($T status "$1" 2>/dev/null | field '["progress"]["units_done"]') || n=0
-    [ "${n:-0}" -ge "$2" ] && return 0
-    sleep 0.1
-  done
-  return 1
-}
-wait_done() {
-  for _ in $(seq 1 1200); do
-    s=$($T status "$1" 2>/dev/null | field '["state"]') || s=""
-    [ "$s" = done ] && return 0
-    sleep 0.25
-  done
-  return 1
-}
-same_as_local() { # job, spp, name
-  $T download "$1" -o "$tmp/$3.exr" &&
-    $T render scenes/cornell/cornell.gltf --spp "$2" --width 128 --height 128 -o "$tmp/$3-local.exr" 2>/dev/null &&
-    cmp -s "$tmp/$3.exr" "$tmp/$3-local.exr"
 }
 logs() { docker service logs --tail 20 "${stack}_coordinator" 2>&1 | tail -20; docker service ps "${stack}_worker" 2>&1 | tail -8; }
 

@@ -30,13 +30,7 @@ if os.path.exists(LLVM):
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import make_references as mr  # noqa: E402
-
-ROOT = os.path.dirname(mr.ROOT)
-TESSERA = os.path.join(ROOT, "target", "release", "tessera")
-
-
-def rel_mse(img, ref):
-    return float(np.mean((img - ref) ** 2 / (ref ** 2 + 1e-2)))
+from equal_time import TESSERA, rel_mse  # noqa: E402  (the same metric and binary as equal_time.py)
 
 
 def main():

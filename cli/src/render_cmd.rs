@@ -274,21 +274,12 @@ fn render_frame(
                 let samples = counters.samples.load(Ordering::Relaxed);
                 let secs = start.elapsed().as_secs_f64().max(1e-3);
                 let rays = counters.rays.load(Ordering::Relaxed) as f64 / secs;
-                let planned = pixels.max(1) as f64 * settings.spp as f64;
-                let mut fraction = match settings.noise_target {
+                let work = match settings.noise_target {
                     Some(_) => counters.progress(),
-                    None => samples as f64 / planned,
+                    None => samples as f64 / (pixels.max(1) as f64 * settings.spp as f64),
                 };
-                if let Some(b) = settings.time_budget {
-                    fraction = fraction.max(secs / b);
-                }
-                let fraction = fraction.clamp(0.0, 1.0);
+                let (fraction, eta) = renderer::budget::fraction_and_eta(settings, work, secs);
                 bar.set_position((fraction * 1000.0) as u64);
-                let eta = (fraction > 0.0).then(|| secs * (1.0 - fraction) / fraction);
-                let eta = match settings.time_budget {
-                    Some(b) => eta.map_or(b - secs, |e| e.min(b - secs)).max(0.0),
-                    None => eta.unwrap_or(f64::NAN),
-                };
                 bar.set_message(format!(
                     "{:.1}/{} spp (mean/cap) | {:.2} Msamples/s | {:.2} Mrays/s | rel. error {}{} | ETA {}",
                     samples as f64 / pixels.max(1) as f64,
@@ -297,7 +288,7 @@ fn render_frame(
                     rays / 1e6,
                     counters.rel_error().map_or("-".into(), |e| format!("{e:.2e}")),
                     settings.noise_target.map_or(String::new(), |t| format!(" (target {t})")),
-                    if eta.is_finite() { format!("{eta:.0} s") } else { "-".into() }
+                    eta.filter(|e| e.is_finite()).map_or("-".into(), |e| format!("{e:.0} s"))
                 ));
                 std::thread::sleep(Duration::from_millis(100));
             }

@@ -45,6 +45,38 @@ impl StopReason {
     }
 }
 
+/// How far along a tile is, in [0, 1], for progress displays (`tessera render`'s bar, the farm's
+/// `progress.fraction` and ETA). A tile that will get no more passes (`finished`) is done. Else
+/// the share of its planned passes it holds; under a noise target at least (target / error)²,
+/// since relative MSE falls as 1/spp, capped at 0.99 until the tile actually stops (a sample cap
+/// of 65536 spp would otherwise make a converging job look near 0 %).
+pub fn tile_progress(settings: &RenderSettings, passes_folded: u32, finished: bool, rel_error: f64) -> f64 {
+    if finished {
+        return 1.0;
+    }
+    let by_samples = passes_folded as f64 / settings.pass_count().max(1) as f64;
+    match settings.noise_target {
+        Some(target) if rel_error.is_finite() && rel_error > 0.0 => {
+            by_samples.max((target / rel_error).powi(2).min(0.99))
+        }
+        _ => by_samples,
+    }
+}
+
+/// The fraction shown and the seconds left, from the fraction of the work done after `elapsed_s`
+/// seconds: the rate so far, extrapolated. A time budget bounds both: progress is at least the
+/// share of the budget spent, and what is left at most the budget that is left. None while
+/// nothing is known (no work done, no budget).
+pub fn fraction_and_eta(settings: &RenderSettings, work: f64, elapsed_s: f64) -> (f64, Option<f64>) {
+    let mut fraction = work.clamp(0.0, 1.0);
+    let mut eta = (fraction > 0.0).then(|| elapsed_s * (1.0 - fraction) / fraction);
+    if let Some(b) = settings.time_budget {
+        fraction = fraction.max((elapsed_s / b).min(1.0));
+        eta = Some(eta.unwrap_or(f64::INFINITY).min((b - elapsed_s).max(0.0)));
+    }
+    (fraction, eta)
+}
+
 /// Whether a tile holding `passes_folded` passes (folded in order into `tile`) gets another one.
 ///
 /// Without a noise target: until the sample count is reached. With one: also stop once the tile
@@ -89,6 +121,17 @@ mod tests {
             t.add_sample(0, Vec3::splat(v));
         }
         t
+    }
+
+    #[test]
+    fn eta_extrapolates_the_rate_and_a_time_budget_bounds_it() {
+        let fixed = RenderSettings::default();
+        assert_eq!(fraction_and_eta(&fixed, 0.25, 10.0), (0.25, Some(30.0)));
+        assert_eq!(fraction_and_eta(&fixed, 0.0, 10.0), (0.0, None), "nothing done: nothing known");
+        let budget = RenderSettings { time_budget: Some(20.0), ..RenderSettings::default() };
+        // The work says 30 s more; the budget has 10 s left and is half spent.
+        assert_eq!(fraction_and_eta(&budget, 0.25, 10.0), (0.5, Some(10.0)));
+        assert_eq!(fraction_and_eta(&budget, 0.0, 25.0), (1.0, Some(0.0)), "an overrun budget is done");
     }
 
     #[test]

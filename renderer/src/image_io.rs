@@ -146,29 +146,17 @@ impl FinalImage {
     /// Reads back an image this module wrote (R, G, B; variance and spp when present), from bytes
     /// (the farm keeps finished EXRs in its database). A file without R, G or B is an error.
     pub fn from_exr_bytes(bytes: &[u8]) -> std::result::Result<Self, String> {
-        let image = read()
-            .no_deep_data()
-            .largest_resolution_level()
-            .all_channels()
-            .first_valid_layer()
-            .all_attributes()
-            .from_buffered(std::io::Cursor::new(bytes))
-            .map_err(|e| e.to_string())?;
-        let layer = image.layer_data;
-        let (w, h) = (layer.size.width(), layer.size.height());
-        let channel = |name: &str| -> Option<Vec<f32>> {
-            layer.channel_data.list.iter().find(|c| c.name.eq(name)).map(|c| c.sample_data.values_as_f32().collect())
-        };
-        let (Some(r), Some(g), Some(b)) = (channel("R"), channel("G"), channel("B")) else {
+        let exr = read_exr_bytes(bytes)?;
+        let (Some(r), Some(g), Some(b)) = (exr.channel("R"), exr.channel("G"), exr.channel("B")) else {
             return Err("the EXR has no R, G and B channels".into());
         };
-        let n = w * h;
+        let n = r.len();
         Ok(FinalImage {
-            width: w as u32,
-            height: h as u32,
+            width: exr.width,
+            height: exr.height,
             rgb: (0..n).map(|i| [r[i], g[i], b[i]]).collect(),
-            variance: channel(VARIANCE_CHANNEL).unwrap_or_else(|| vec![0.0; n]),
-            spp: channel(SPP_CHANNEL).map(|v| v.iter().map(|&x| x as u32).collect()).unwrap_or_else(|| vec![0; n]),
+            variance: exr.channel(VARIANCE_CHANNEL).map_or_else(|| vec![0.0; n], <[f32]>::to_vec),
+            spp: exr.channel(SPP_CHANNEL).map_or_else(|| vec![0; n], |v| v.iter().map(|&x| x as u32).collect()),
         })
     }
 
@@ -259,7 +247,20 @@ impl ExrChannels {
 /// Reads all channels of the first layer of an EXR as f32.
 pub fn read_exr(path: &Path) -> std::result::Result<ExrChannels, RenderError> {
     let err = |message: String| RenderError::Read { path: path.into(), message };
-    let image = read_first_flat_layer_from_file(path).map_err(|e| err(e.to_string()))?;
+    let bytes = std::fs::read(path).map_err(|e| err(e.to_string()))?;
+    read_exr_bytes(&bytes).map_err(err)
+}
+
+/// [`read_exr`] of a file's bytes.
+pub fn read_exr_bytes(bytes: &[u8]) -> std::result::Result<ExrChannels, String> {
+    let image = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_buffered(std::io::Cursor::new(bytes))
+        .map_err(|e| e.to_string())?;
     let layer = image.layer_data;
     let tessera = match layer.attributes.other.get(&Text::from("tessera")) {
         Some(AttributeValue::Text(t)) => Some(t.to_string()),

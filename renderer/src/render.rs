@@ -13,6 +13,7 @@ use std::time::Instant;
 
 use crate::budget;
 pub use crate::budget::{StopReason, TILE};
+use crate::noise::NoiseEstimate;
 
 /// Live counters a caller may watch while rendering (progress bars, rays/s, metrics).
 #[derive(Default, Debug)]
@@ -47,31 +48,25 @@ impl Counters {
     }
 }
 
-/// The error and progress `Counters` reports after a pass: pixel-weighted relative MSE over the
-/// tiles, and per tile the fraction of its work done.
-fn pass_report(settings: &RenderSettings, tiles: &[(PartialSums, u32)], active: &[usize]) -> (f64, f64) {
+/// The error and progress `Counters` reports after a pass, from each tile's noise estimate (kept
+/// by `render`, made once per pass for the tiles that pass changed): pixel-weighted relative MSE
+/// over the tiles, and per tile [`budget::tile_progress`].
+fn pass_report(
+    settings: &RenderSettings,
+    tiles: &[(PartialSums, u32)],
+    noise: &[NoiseEstimate],
+    active: &[usize],
+) -> (f64, f64) {
     let (mut mse, mut frac, mut px) = (0.0f64, 0.0f64, 0.0f64);
     let mut still = vec![false; tiles.len()];
     for &t in active {
         still[t] = true;
     }
-    for (t, (sums, folded)) in tiles.iter().enumerate() {
-        let e = crate::noise::estimate(sums);
+    for (t, ((sums, folded), e)) in tiles.iter().zip(noise).enumerate() {
         let n = sums.rect.pixels() as f64;
         mse += e.rel_mse * n;
         px += n;
-        let f = if !still[t] {
-            1.0
-        } else {
-            let by_samples = *folded as f64 / settings.pass_count().max(1) as f64;
-            match settings.noise_target {
-                Some(target) if e.rel_error.is_finite() && e.rel_error > 0.0 => {
-                    by_samples.max((target / e.rel_error).powi(2).min(0.99))
-                }
-                _ => by_samples,
-            }
-        };
-        frac += f * n;
+        frac += budget::tile_progress(settings, *folded, !still[t], e.rel_error) * n;
     }
     let px = px.max(1.0);
     ((mse / px).sqrt(), frac / px)
@@ -185,6 +180,9 @@ pub fn render(scene: &Scene, settings: &RenderSettings, counters: &Counters) -> 
     let rects = Rect::tiles(settings.width, settings.height, TILE);
     let mut tiles: Vec<(PartialSums, u32)> = rects.iter().map(|r| (PartialSums::new(*r), 0)).collect();
     let mut active: Vec<usize> = (0..rects.len()).collect();
+    // Each tile's noise, re-estimated only when a pass changed it (for the progress display).
+    let unknown = NoiseEstimate { rel_mse: f64::INFINITY, rel_error: f64::INFINITY, spp_min: 0, spp_max: 0 };
+    let mut noise = vec![unknown; rects.len()];
     let mut stop = StopReason::SampleCount;
     let mut passes = 0;
     while !active.is_empty() {
@@ -206,9 +204,10 @@ pub fn render(scene: &Scene, settings: &RenderSettings, counters: &Counters) -> 
             let (tile, folded) = &mut tiles[t];
             tile.merge(s).expect("a tile's pass has the tile's rect");
             *folded += 1;
+            noise[t] = crate::noise::estimate(tile);
         }
         active.retain(|&t| budget::tile_needs_more(settings, &tiles[t].0, tiles[t].1));
-        let (rel_error, progress) = pass_report(settings, &tiles, &active);
+        let (rel_error, progress) = pass_report(settings, &tiles, &noise, &active);
         counters.rel_error_bits.store(if rel_error.is_finite() { rel_error.to_bits() } else { 0 }, Ordering::Relaxed);
         counters.progress_bits.store(progress.to_bits(), Ordering::Relaxed);
     }
@@ -248,14 +247,15 @@ mod tests {
         let (noisy, quiet) = (tile(0, 32, 0.2), tile(2, 32, 0.0));
         let e = crate::noise::estimate(&noisy).rel_error;
         let tiles = vec![(noisy, 2), (quiet, 2)];
+        let noise: Vec<_> = tiles.iter().map(|(t, _)| crate::noise::estimate(t)).collect();
         // Tile 1 stopped (met the target); tile 0 is at error e: (0.01 / e)² of the way.
-        let (err, frac) = pass_report(&settings, &tiles, &[0]);
+        let (err, frac) = pass_report(&settings, &tiles, &noise, &[0]);
         let expect = 0.5 * (0.01 / e).powi(2).clamp(2.0 / 64.0, 0.99) + 0.5;
         assert!((frac - expect).abs() < 1e-12, "{frac} vs {expect}");
         assert!((err - (e * e / 2.0).sqrt()).abs() < 1e-9, "pixel-weighted: {err} vs {e}");
         // Without a target, progress is the samples done.
         let fixed = RenderSettings { noise_target: None, ..settings };
-        let (_, frac) = pass_report(&fixed, &tiles, &[0, 1]);
+        let (_, frac) = pass_report(&fixed, &tiles, &noise, &[0, 1]);
         assert!((frac - 2.0 / 64.0).abs() < 1e-12, "{frac}");
     }
 }

@@ -100,6 +100,9 @@ pub struct Shared {
     pub metrics: Mutex<Metrics>,
     /// Wakes long-polling `Lease` calls when work appears.
     pub work_available: tokio::sync::Notify,
+    /// The job and worker lists `GET /events` streams, made once for all its clients
+    /// (`rest::publish_live_lists`).
+    pub live: tokio::sync::watch::Sender<rest::LiveLists>,
     pub started: std::time::Instant,
 }
 
@@ -168,6 +171,7 @@ impl Shared {
             workers: Mutex::new(HashMap::new()),
             metrics: Mutex::new(Metrics::default()),
             work_available: tokio::sync::Notify::new(),
+            live: tokio::sync::watch::Sender::new(rest::LiveLists::default()),
             started: std::time::Instant::now(),
         }))
     }
@@ -222,6 +226,7 @@ pub async fn serve_on(
             }
         }
     });
+    tokio::spawn(rest::publish_live_lists(shared.clone()));
     let app = rest::router(shared.clone()).merge(grpc::router(shared.clone())).fallback(rest::not_found);
     tracing::info!(addr = %listener.local_addr()?, tls = tls.is_some(), max_connections = shared.config.conn.max_connections, "coordinator listening (REST, web, gRPC)");
     let acceptor = tls.map(tokio_rustls::TlsAcceptor::from);

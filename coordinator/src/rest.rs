@@ -276,35 +276,22 @@ fn job_json(j: &Job) -> Value {
     let s = &j.spec.settings;
     let elapsed_ms = j.started_ms.map(|st| j.finished_ms.unwrap_or(now) - st);
     let mut fraction = if total > 0 { done as f64 / total as f64 } else { 0.0 };
-    // A noise target: the samples planned are only a cap (65536 by default), so count progress
-    // towards the target instead. Relative MSE falls as 1/spp, so a tile at error e with target t
-    // is about (t/e)² of the way; a tile that holds its planned passes is done.
-    if let (Some(target), false) = (s.noise_target, j.state.is_final()) {
+    // A noise target: the samples planned are only a cap (65536 by default), so count each tile's
+    // progress towards the target instead (the measure `tessera render` shows too).
+    if s.noise_target.is_some() && !j.state.is_final() {
         let (mut acc, mut px) = (0.0f64, 0.0f64);
         for (i, (r, e)) in j.tiles.iter().zip(j.tile_noise()).enumerate() {
-            let f = if j.folded[i] >= j.planned[i] {
-                1.0
-            } else if e.rel_error.is_finite() && e.rel_error > 0.0 {
-                (target / e.rel_error).powi(2).min(0.99)
-            } else {
-                0.0
-            };
-            acc += f * r.pixels() as f64;
+            let finished = j.folded[i] >= j.planned[i];
+            acc += renderer::budget::tile_progress(s, j.folded[i], finished, e.rel_error) * r.pixels() as f64;
             px += r.pixels() as f64;
         }
         if px > 0.0 {
             fraction = fraction.max(acc / px);
         }
     }
-    let mut eta_s = match (elapsed_ms, j.state.is_final()) {
-        (Some(e), false) if fraction > 0.0 => Some(e as f64 / 1000.0 * (1.0 - fraction) / fraction),
-        _ => None,
-    };
-    // A time budget bounds the job: progress is at least the budget's share spent.
-    if let (Some(b), Some(e), false) = (s.time_budget, elapsed_ms, j.state.is_final()) {
-        let spent = e as f64 / 1000.0;
-        fraction = fraction.max((spent / b).min(1.0));
-        eta_s = Some(eta_s.unwrap_or(f64::INFINITY).min((b - spent).max(0.0)));
+    let mut eta_s = None;
+    if let (Some(e), false) = (elapsed_ms, j.state.is_final()) {
+        (fraction, eta_s) = renderer::budget::fraction_and_eta(s, fraction, e as f64 / 1000.0);
     }
     let noise = j.noise();
     let worst = j
@@ -740,13 +727,66 @@ async fn resubmit_job(State(s): S, Path(id): Path<String>) -> Result<(StatusCode
     Ok((StatusCode::CREATED, Json(json!({ "id": new_id, "resubmitted_from": id }))))
 }
 
+/// What `GET /events` streams: each list (as `GET /jobs` and `GET /workers` return it) with a
+/// version that grows when it is republished.
+#[derive(Clone, Default)]
+pub struct LiveLists {
+    pub jobs: (u64, Arc<str>),
+    pub workers: (u64, Arc<str>),
+}
+
+/// Makes the lists `GET /events` streams, once a second and once for all its clients (none are
+/// made while nobody listens). A list is republished when it changed — the fields that change with
+/// the clock alone do not count — and at least every 15 s, which is also how a client that went
+/// away is noticed.
+pub async fn publish_live_lists(s: Arc<Shared>) {
+    // Without the fields that change with the clock alone.
+    fn steady(mut v: Value, list: &str, clock: &[&str]) -> Value {
+        for item in v[list].as_array_mut().into_iter().flatten() {
+            if let Some(o) = item.as_object_mut() {
+                for f in clock {
+                    o.remove(*f);
+                }
+            }
+        }
+        v
+    }
+    let mut last = [Value::Null, Value::Null];
+    let mut tick = tokio::time::interval(std::time::Duration::from_secs(1));
+    for n in 0u64.. {
+        tick.tick().await;
+        if s.live.receiver_count() == 0 {
+            last = [Value::Null, Value::Null];
+            continue;
+        }
+        let mut lists = s.live.borrow().clone();
+        // Each list: its name (the key of its array), the list now, its clock fields, its slot.
+        type Feed<'a> = (&'static str, Value, &'static [&'static str], &'a mut (u64, Arc<str>));
+        let feeds: [Feed; 2] = [
+            ("jobs", jobs_list(&s), &["elapsed_s", "eta_s"], &mut lists.jobs),
+            ("workers", workers_list(&s), &["seconds_since_seen", "last_seen_ms"], &mut lists.workers),
+        ];
+        let mut changed = false;
+        for ((name, value, clock, slot), last) in feeds.into_iter().zip(&mut last) {
+            let now = steady(value.clone(), name, clock);
+            if n.is_multiple_of(15) || now != *last {
+                *last = now;
+                *slot = (slot.0 + 1, value.to_string().into());
+                changed = true;
+            }
+        }
+        if changed {
+            s.live.send_replace(lists);
+        }
+    }
+}
+
 /// Most clients of `GET /events` at once (each holds a connection; more get 503).
 pub const MAX_EVENT_STREAMS: usize = 64;
 
 /// `GET /events`: server-sent events for pages that stay open. A `jobs` event carries what
 /// `GET /jobs` returns and a `workers` event what `GET /workers` returns, each sent when it changed
-/// (checked every second; the clock fields alone do not count as a change, but at least every
-/// 15 s a fresh copy is sent). The page then downloads a preview only when a job's
+/// (see [`publish_live_lists`]). The page then downloads a preview only when a job's
 /// `preview_version` changed, instead of polling everything.
 async fn live_events(State(s): S) -> Result<Response, ApiError> {
     use axum::response::sse::{Event, KeepAlive, Sse};
@@ -760,6 +800,7 @@ async fn live_events(State(s): S) -> Result<Response, ApiError> {
         ));
     }
     let (tx, rx) = tokio::sync::mpsc::channel::<Result<Event, std::convert::Infallible>>(4);
+    let mut lists = s.live.subscribe();
     tokio::spawn(async move {
         struct Release;
         impl Drop for Release {
@@ -768,41 +809,21 @@ async fn live_events(State(s): S) -> Result<Response, ApiError> {
             }
         }
         let _release = Release;
-        // Without the fields that change with the clock alone.
-        fn steady(mut v: Value, list: &str, clock: &[&str]) -> Value {
-            if let Some(items) = v[list].as_array_mut() {
-                for item in items {
-                    for f in clock {
-                        if let Some(o) = item.as_object_mut() {
-                            o.remove(*f);
-                        }
+        let mut sent = [0u64; 2];
+        loop {
+            let now = lists.borrow_and_update().clone();
+            for ((name, (version, data)), sent) in
+                [("jobs", now.jobs), ("workers", now.workers)].into_iter().zip(&mut sent)
+            {
+                if version > *sent {
+                    *sent = version;
+                    if tx.send(Ok(Event::default().event(name).data(&*data))).await.is_err() {
+                        return;
                     }
                 }
             }
-            v
-        }
-        let (mut last_jobs, mut last_workers) = (Value::Null, Value::Null);
-        let mut tick = tokio::time::interval(std::time::Duration::from_secs(1));
-        let mut n = 0u64;
-        loop {
-            tick.tick().await;
-            let fresh = n.is_multiple_of(15);
-            n += 1;
-            let jobs = jobs_list(&s);
-            let steady_jobs = steady(jobs.clone(), "jobs", &["elapsed_s", "eta_s"]);
-            if fresh || steady_jobs != last_jobs {
-                last_jobs = steady_jobs;
-                if tx.send(Ok(Event::default().event("jobs").data(jobs.to_string()))).await.is_err() {
-                    return;
-                }
-            }
-            let workers = workers_list(&s);
-            let steady_workers = steady(workers.clone(), "workers", &["seconds_since_seen", "last_seen_ms"]);
-            if fresh || steady_workers != last_workers {
-                last_workers = steady_workers;
-                if tx.send(Ok(Event::default().event("workers").data(workers.to_string()))).await.is_err() {
-                    return;
-                }
+            if lists.changed().await.is_err() {
+                return;
             }
         }
     });
@@ -854,7 +875,7 @@ fn workers_list(s: &Shared) -> Value {
 
 /// `POST /workers/{id}/drain` and `/resume`: stop (or restart) giving a worker new units; what it
 /// holds it finishes.
-async fn set_draining(s: &Shared, id: &str, draining: bool) -> Result<Json<Value>, ApiError> {
+fn set_draining(s: &Shared, id: &str, draining: bool) -> Result<Json<Value>, ApiError> {
     let mut workers = lock(&s.workers);
     let w = workers.get_mut(id).ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no worker '{id}'")))?;
     w.draining = draining;
@@ -863,11 +884,11 @@ async fn set_draining(s: &Shared, id: &str, draining: bool) -> Result<Json<Value
 }
 
 async fn drain_worker(State(s): S, Path(id): Path<String>) -> Result<Json<Value>, ApiError> {
-    set_draining(&s, &id, true).await
+    set_draining(&s, &id, true)
 }
 
 async fn resume_worker(State(s): S, Path(id): Path<String>) -> Result<Json<Value>, ApiError> {
-    let r = set_draining(&s, &id, false).await;
+    let r = set_draining(&s, &id, false);
     s.work_available.notify_waiters();
     r
 }
@@ -891,7 +912,7 @@ async fn metrics(State(s): S) -> Response {
         leased += j.units_leased();
         done += j.units_done();
         total += j.unit_count();
-        depth += queue_depth(j.unit_count() - j.units_done() - j.units_leased(), j.tiles.len());
+        depth += queue_depth(j.unit_count().saturating_sub(j.units_done() + j.units_leased()), j.tiles.len());
     }
     drop(farm);
     out += &format!("# HELP tessera_queue_depth Units workers could take now (per job at most two passes' worth: a noise-target job's sample cap is not work). The autoscaling signal.\n# TYPE tessera_queue_depth gauge\ntessera_queue_depth {depth}\n");
@@ -962,8 +983,6 @@ mod tests {
         assert!(v["eta_s"].as_f64().expect("eta") < 11.0, "{v}");
     }
 
-    /// The OpenAPI document's settings schema is checked against the one settings schema
-    /// (renderer/src/settings_request.rs): same fields, same bounds, same defaults.
     #[test]
     fn queue_depth_counts_at_most_two_passes_a_job() {
         assert_eq!(super::queue_depth(5, 16), 5);
@@ -971,6 +990,8 @@ mod tests {
         assert_eq!(super::queue_depth(0, 16), 0);
     }
 
+    /// The OpenAPI document's settings schema is checked against the one settings schema
+    /// (renderer/src/settings_request.rs): same fields, same bounds, same defaults.
     #[test]
     fn openapi_settings_match_the_settings_schema() {
         let doc: Value = serde_json::from_str(super::OPENAPI).expect("openapi.json parses");

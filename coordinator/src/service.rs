@@ -247,7 +247,6 @@ impl Shared {
             SubmitOutcome::Merged { tiles_changed, job_complete } => {
                 let job_id = unit_id.rsplit_once('/').map(|(j, _)| j.to_string()).unwrap_or_default();
                 if let Some(job) = farm.jobs.get(&job_id) {
-                    let job: &Job = job;
                     let store = lock(&self.store);
                     let mut failed = None;
                     for &tile in &tiles_changed {
@@ -354,15 +353,14 @@ impl Shared {
                 job.state = crate::state::JobState::Done;
                 job.finished_ms = Some(finished_ms);
                 job.finish_error = None;
+                let (spp, error) = match job.noise() {
+                    Some(n) if n.spp_min == n.spp_max => (n.spp_min.to_string(), format!("{:.4}", n.rel_error)),
+                    Some(n) => (format!("{}..{}", n.spp_min, n.spp_max), format!("{:.4}", n.rel_error)),
+                    None => ("-".into(), "-".into()),
+                };
                 let detail = format!(
-                    "done in {:.1} s: {} spp, estimated relative error {}, stopped by {}",
+                    "done in {:.1} s: {spp} spp, estimated relative error {error}, stopped by {}",
                     job.started_ms.map_or(0.0, |st| (finished_ms - st) as f64 / 1000.0),
-                    job.noise().map_or("-".into(), |n| if n.spp_min == n.spp_max {
-                        n.spp_min.to_string()
-                    } else {
-                        format!("{}..{}", n.spp_min, n.spp_max)
-                    }),
-                    job.noise().map_or("-".into(), |n| format!("{:.4}", n.rel_error)),
                     stop.as_str()
                 );
                 job.release();

@@ -43,7 +43,7 @@ pub const MAX_EVENTS_PER_JOB: usize = 5000;
 /// One line of a job's log: what happened to it (`kind`: submitted, worker_joined, lease_expired,
 /// result_rejected, result_refused, progress, done, failed, cancelled, resumed, storage_error,
 /// log_full) with a human-readable `detail` (for `progress`, JSON: `t_s`, `spp_mean`,
-/// `rel_error`, `fraction`).
+/// `rel_error`, `units_done`).
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct StoredEvent {
     pub seq: i64,

@@ -163,6 +163,17 @@ impl Farm {
         )
     }
 
+    /// `GET /api/v1{path}` as JSON (no token: test farms run without one); the error as text,
+    /// for `poll`.
+    pub fn api(&self, path: &str) -> Result<Value, String> {
+        ureq::get(&format!("{}/api/v1{path}", self.url))
+            .call()
+            .map_err(|e| format!("GET {path}: {e}"))?
+            .into_body()
+            .read_json()
+            .map_err(|e| format!("GET {path}: {e}"))
+    }
+
     pub fn job(&self, id: &str) -> Value {
         let (code, out, err) = self.cli(&["status", id]);
         assert_eq!(code, 0, "status failed: {err}");

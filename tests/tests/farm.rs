@@ -141,12 +141,7 @@ fn a_killed_worker_units_are_re_leased() {
     farm.workers[doomed].kill9();
     // The dead worker is listed as offline (not "last seen N s" forever), the live one is not.
     poll(Duration::from_secs(30), || {
-        let w: serde_json::Value = ureq::get(&format!("{}/api/v1/workers", farm.url))
-            .call()
-            .map_err(|e| e.to_string())?
-            .into_body()
-            .read_json()
-            .map_err(|e| e.to_string())?;
+        let w = farm.api("/workers")?;
         let state = |name: &str| {
             w["workers"].as_array().into_iter().flatten().find(|x| x["name"] == name).map(|x| x["state"].clone())
         };
@@ -166,8 +161,7 @@ fn a_killed_worker_units_are_re_leased() {
     assert!(expired >= 1, "the dead worker's lease must have expired and been re-leased:\n{metrics}");
     // The job's log tells what happened: both workers joined, the dead one's lease expired, the
     // error fell as samples came in, and the job finished.
-    let ev: serde_json::Value =
-        ureq::get(&format!("{}/api/v1/jobs/{id}/events", farm.url)).call().unwrap().into_body().read_json().unwrap();
+    let ev = farm.api(&format!("/jobs/{id}/events")).unwrap();
     let events = ev["events"].as_array().unwrap();
     let kinds: Vec<&str> = events.iter().map(|e| e["kind"].as_str().unwrap()).collect();
     assert_eq!(kinds.first(), Some(&"submitted"), "{kinds:?}");
@@ -404,8 +398,7 @@ fn a_drained_worker_takes_no_units_until_resumed() {
     let mut farm = Farm::start("drain", &[]);
     farm.start_worker(1);
     farm.wait_workers(1);
-    let w: serde_json::Value =
-        ureq::get(&format!("{}/api/v1/workers", farm.url)).call().unwrap().into_body().read_json().unwrap();
+    let w = farm.api("/workers").unwrap();
     let id = w["workers"][0]["id"].as_str().unwrap().to_string();
     assert!(id.starts_with("worker0-"), "{id}");
     let (code, table, err) = farm.cli(&["workers", "--drain", &id]);
@@ -429,12 +422,7 @@ fn a_drained_worker_takes_no_units_until_resumed() {
             farm.cli(&args)
         });
         let other = poll(Duration::from_secs(20), || {
-            let list: serde_json::Value = ureq::get(&format!("{}/api/v1/jobs", farm.url))
-                .call()
-                .map_err(|e| e.to_string())?
-                .into_body()
-                .read_json()
-                .map_err(|e| e.to_string())?;
+            let list = farm.api("/jobs")?;
             list["jobs"]
                 .as_array()
                 .into_iter()

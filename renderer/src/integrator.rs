@@ -40,6 +40,12 @@ pub fn radiance(
     // transmission enters a mesh through its front face, cleared when one leaves. Meshes are taken
     // as closed and not nested (a path inside two absorbing meshes at once sees the inner one).
     let mut medium = Vec3::ZERO;
+    // Product of η² over the transmissions so far: radiance crossing into glass is divided by η²
+    // (dielectric.rs), which says nothing about how much the path will carry once it leaves again,
+    // so Russian roulette looks at beta·eta_scale (pbrt-v4 §13.4.3 `etaScale`; Mitsuba's `eta`).
+    // Without it, paths inside glass were killed with probability 1 − 1/η² = 56 % at ior 1.5 and
+    // the survivors came back out 2.25× brighter: fireflies.
+    let mut eta_scale = 1.0f32;
     loop {
         *rays += 1;
         // Per-bounce random bits for stochastic (BLEND) transparency, only drawn when it can matter.
@@ -246,6 +252,7 @@ pub fn radiance(
             break;
         }
         if transmitted {
+            eta_scale *= bsdf.eta * bsdf.eta;
             // Entering through the front (winding) face: into this mesh's medium; else out of it.
             medium = if sp.ng.dot(wo_world) > 0.0 { material.absorption } else { Vec3::ZERO };
         }
@@ -255,7 +262,7 @@ pub fn radiance(
         depth += 1;
 
         if depth >= settings.rr_depth {
-            let m = beta.max_element();
+            let m = beta.max_element() * eta_scale;
             if m < 1.0 {
                 let q = (1.0 - m).max(0.0);
                 if u_bsdf[(dims::RUSSIAN_ROULETTE % 4) as usize] < q {

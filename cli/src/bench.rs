@@ -34,6 +34,10 @@ pub enum BenchKind {
     /// Production size: a 10⁴-instance scene of a 10⁵-triangle mesh and 10⁷ unique triangles —
     /// load, BVH build, memory and a short render.
     Scale(crate::scale::ScaleArgs),
+    /// The ray-query engine alone on one thread: BVH build time and closest-hit / occlusion
+    /// Mrays/s for incoherent rays inside a dense icosphere, for both accelerators (`--dump`
+    /// writes the workload for scenes/references/bench_embree.py).
+    Rays(crate::rays::RaysArgs),
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -56,6 +60,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             init_threads(args.threads)?;
             return crate::scale::run(a);
         }
+        Some(BenchKind::Rays(a)) => return crate::rays::run(a),
         None => {}
     }
     init_threads(args.threads)?;

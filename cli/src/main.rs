@@ -4,6 +4,7 @@ mod bench;
 mod client;
 mod convergence;
 mod farm_cmd;
+mod rays;
 mod render_cmd;
 mod scale;
 

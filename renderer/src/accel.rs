@@ -11,7 +11,7 @@
 use crate::math::{Vec3, Vec3A};
 use crate::mesh::Mesh;
 use obvhs::cwbvh::CwBvh;
-use obvhs::ray::{Ray as BvhRay, RayHit};
+use obvhs::ray::Ray as BvhRay;
 
 /// Precomputed triangle for intersection: a vertex and two edges (Möller & Trumbore 1997).
 #[derive(Clone, Copy, Debug)]
@@ -79,6 +79,41 @@ struct TopLevel {
 enum TopPrim {
     Triangle(RtTriangle),
     Instance { index: u32, prototype: u32, to_object: glam::Affine3A },
+}
+
+/// Closest-hit traversal of `bvh`: obvhs' traversal loop (`obvhs::traverse!`) with the 8-wide
+/// AVX2 node test of [`crate::cwbvh_node`]. `prim(ray, i)` intersects primitive slot `i` and returns
+/// its hit distance (∞ for a miss); a closer hit shortens the ray for the rest of the traversal.
+#[inline(always)]
+fn traverse_closest(bvh: &CwBvh, mut ray: BvhRay, mut prim: impl FnMut(&BvhRay, usize) -> f32) {
+    use glam::UVec2;
+    let mut state = bvh.new_traversal(ray.direction);
+    let mut node;
+    obvhs::traverse!(bvh, node, state, crate::cwbvh_node::intersect(node, &ray, state.oct_inv4), {
+        let t = prim(&ray, state.primitive_id as usize);
+        if t < ray.tmax {
+            ray.tmax = t;
+        }
+    });
+}
+
+/// True when `prim` reports a hit closer than `ray.tmax` for some primitive (traversal stops at
+/// the first).
+#[inline(always)]
+fn traverse_any(bvh: &CwBvh, ray: BvhRay, mut prim: impl FnMut(usize) -> f32) -> bool {
+    use glam::UVec2;
+    let mut state = bvh.new_traversal(ray.direction);
+    let mut node;
+    let mut hit = false;
+    'outer: {
+        obvhs::traverse!(bvh, node, state, crate::cwbvh_node::intersect(node, &ray, state.oct_inv4), {
+            if prim(state.primitive_id as usize) < ray.tmax {
+                hit = true;
+                break 'outer;
+            }
+        });
+    }
+    hit
 }
 
 /// obvhs's build quality for `n` triangles: "medium" (the best trace speed per build second at
@@ -246,9 +281,8 @@ impl Accel {
             return None;
         }
         let ray = BvhRay::new(oa, da, 0.0, tmax);
-        let mut hit = RayHit::none();
         let mut best: Option<Hit> = None;
-        self.bvh.ray_traverse(ray, &mut hit, |r, id| match &top.prims[id] {
+        traverse_closest(&self.bvh, ray, |r, id| match &top.prims[id] {
             TopPrim::Triangle(tri) => match tri.intersect(oa, da, 0.0, r.tmax) {
                 Some((t, b1, b2)) => {
                     best = Some(Hit { t, triangle: tri.id, b1, b2, instance: NO_INSTANCE });
@@ -278,9 +312,8 @@ impl Accel {
             return None;
         }
         let ray = BvhRay::new(oa, da, 0.0, tmax);
-        let mut hit = RayHit::none();
         let mut best: Option<Hit> = None;
-        self.bvh.ray_traverse(ray, &mut hit, |r, id| {
+        traverse_closest(&self.bvh, ray, |r, id| {
             let tri = &self.tris[id];
             match tri.intersect(oa, da, 0.0, r.tmax) {
                 Some((t, b1, b2)) => {
@@ -301,7 +334,7 @@ impl Accel {
             }
             let (oa, da) = (Vec3A::from(o), Vec3A::from(d));
             let ray = BvhRay::new(oa, da, 0.0, tmax);
-            return !self.bvh.ray_traverse_miss(ray, |_, id| match &top.prims[id] {
+            return traverse_any(&self.bvh, ray, |id| match &top.prims[id] {
                 TopPrim::Triangle(tri) => tri.intersect(oa, da, 0.0, tmax).map_or(f32::INFINITY, |h| h.0),
                 TopPrim::Instance { prototype, to_object, .. } => {
                     let blas = &top.blas[*prototype as usize];
@@ -310,12 +343,12 @@ impl Accel {
                         return f32::INFINITY;
                     }
                     let r = BvhRay::new(oo, dd, 0.0, tmax);
-                    if blas.bvh.ray_traverse_miss(r, |_, j| {
+                    if traverse_any(&blas.bvh, r, |j| {
                         blas.tris[j].intersect(oo, dd, 0.0, tmax).map_or(f32::INFINITY, |h| h.0)
                     }) {
-                        f32::INFINITY
-                    } else {
                         0.0
+                    } else {
+                        f32::INFINITY
                     }
                 }
             });
@@ -328,8 +361,6 @@ impl Accel {
         }
         let (oa, da) = (Vec3A::from(o), Vec3A::from(d));
         let ray = BvhRay::new(oa, da, 0.0, tmax);
-        !self
-            .bvh
-            .ray_traverse_miss(ray, |_, id| self.tris[id].intersect(oa, da, 0.0, tmax).map_or(f32::INFINITY, |h| h.0))
+        traverse_any(&self.bvh, ray, |id| self.tris[id].intersect(oa, da, 0.0, tmax).map_or(f32::INFINITY, |h| h.0))
     }
 }

@@ -33,6 +33,7 @@ pub mod bundle;
 pub mod bvh;
 pub mod camera;
 pub mod clearcoat;
+pub mod cwbvh_node;
 pub mod dielectric;
 pub mod distribution;
 pub mod environment;

@@ -1,0 +1,145 @@
+//! `tessera bench rays`: the ray-query engine alone, on one thread — BVH build time, closest-hit
+//! and occlusion rays per second for incoherent rays on a dense mesh — for both accelerators
+//! (obvhs' CWBVH and the own BVH2), so they can be set beside Embree on the same workload
+//! (`scenes/references/bench_embree.py` reads what `--dump` writes and runs Embree 4 on it).
+//!
+//! The workload is the one the per-core-speed issue names: rays starting at random points inside
+//! a subdivided unit icosphere (level 8: 1 310 720 triangles) in uniformly random directions, so
+//! every ray hits and neighbouring rays share nothing.
+
+use anyhow::{Context, Result};
+use clap::Args;
+use renderer::accel::{Accel, AccelKind};
+use renderer::math::Vec3;
+use renderer::mesh::{Mesh, Triangle};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+#[derive(Args, Debug)]
+pub struct RaysArgs {
+    /// Icosphere subdivision level: 20·4^level triangles (7: 327 680; 8: 1 310 720).
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(0..=9))]
+    pub level: u32,
+    /// Number of rays per timed run.
+    #[arg(long, default_value_t = 1_000_000, value_parser = clap::value_parser!(u32).range(1..=100_000_000))]
+    pub rays: u32,
+    /// Timed runs per query (after one warm-up); the median is reported.
+    #[arg(long, default_value_t = 5)]
+    pub runs: usize,
+    /// Write the workload and Tessera's hit distances (raw little-endian f32 arrays) into this
+    /// folder: vertices.f32 (triangles × 3 × xyz), origins.f32, directions.f32, t_closest.f32.
+    #[arg(long)]
+    pub dump: Option<PathBuf>,
+}
+
+/// The workload's rays: origins uniform in the ball of radius 0.5, directions uniform on the
+/// sphere, from a counter-based hash so every run (and the dump) sees the same rays.
+fn rays(n: u32) -> (Vec<Vec3>, Vec<Vec3>) {
+    let u = |i: u64| (renderer::sampler::hash_u64(i) >> 40) as f32 / (1u64 << 24) as f32;
+    let mut origins = Vec::with_capacity(n as usize);
+    let mut dirs = Vec::with_capacity(n as usize);
+    for i in 0..n as u64 {
+        let k = i * 8;
+        // Direction: z uniform in [−1, 1], azimuth uniform (Archimedes).
+        let z = 1.0 - 2.0 * u(k);
+        let phi = std::f32::consts::TAU * u(k + 1);
+        let r = (1.0 - z * z).max(0.0).sqrt();
+        dirs.push(Vec3::new(r * phi.cos(), r * phi.sin(), z));
+        // Origin: a uniform direction times radius 0.5·∛u.
+        let z = 1.0 - 2.0 * u(k + 2);
+        let phi = std::f32::consts::TAU * u(k + 3);
+        let r = (1.0 - z * z).max(0.0).sqrt();
+        let rad = 0.5 * u(k + 4).cbrt();
+        origins.push(Vec3::new(r * phi.cos(), r * phi.sin(), z) * rad);
+    }
+    (origins, dirs)
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+}
+
+fn write_f32s(path: &Path, values: impl Iterator<Item = f32>) -> Result<()> {
+    let mut w = std::io::BufWriter::new(
+        std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?,
+    );
+    for v in values {
+        w.write_all(&v.to_le_bytes())?;
+    }
+    w.flush().with_context(|| format!("cannot write {}", path.display()))
+}
+
+pub fn run(a: RaysArgs) -> Result<()> {
+    let (positions, faces) = renderer::testing::icosphere(a.level);
+    let mesh = Mesh {
+        triangles: faces.iter().map(|&v| Triangle { v, material: 0, flags: 0 }).collect(),
+        positions,
+        ..Mesh::default()
+    };
+    let (origins, dirs) = rays(a.rays);
+    println!(
+        "icosphere level {}: {} triangles | {} incoherent rays from inside | 1 thread | median of {} runs",
+        a.level,
+        mesh.triangles.len(),
+        a.rays,
+        a.runs
+    );
+    println!("{:<8} {:>10} {:>16} {:>16}", "accel", "build s", "closest Mrays/s", "occluded Mrays/s");
+    let mut closest_t: Vec<f32> = Vec::new();
+    for kind in [AccelKind::Obvhs, AccelKind::Own] {
+        let t = Instant::now();
+        let accel = Accel::build_with(&mesh, kind);
+        let build = t.elapsed().as_secs_f64();
+        let (mut closest, mut occluded) = (Vec::new(), Vec::new());
+        let mut misses = 0usize;
+        let mut ts = vec![f32::INFINITY; origins.len()];
+        for run in 0..=a.runs {
+            let t = Instant::now();
+            for (i, (o, d)) in origins.iter().zip(&dirs).enumerate() {
+                ts[i] = accel.intersect(*o, *d, f32::INFINITY).map_or(f32::INFINITY, |h| h.t);
+            }
+            let secs = t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            let mut blocked = 0usize;
+            for (o, d) in origins.iter().zip(&dirs) {
+                blocked += accel.occluded(*o, *d, 10.0) as usize;
+            }
+            let secs_occ = t.elapsed().as_secs_f64();
+            misses = origins.len() - blocked;
+            if run > 0 {
+                closest.push(origins.len() as f64 / secs / 1e6);
+                occluded.push(origins.len() as f64 / secs_occ / 1e6);
+            }
+        }
+        let lost = ts.iter().filter(|t| !t.is_finite()).count();
+        println!(
+            "{:<8} {:>10.3} {:>16.3} {:>16.3}{}",
+            format!("{kind:?}").to_lowercase(),
+            build,
+            median(closest),
+            median(occluded),
+            if lost + misses > 0 {
+                format!("  ({lost} closest / {misses} occlusion rays escaped)")
+            } else {
+                String::new()
+            }
+        );
+        if kind == AccelKind::Obvhs {
+            closest_t = ts;
+        }
+    }
+    if let Some(dir) = &a.dump {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        write_f32s(
+            &dir.join("vertices.f32"),
+            (0..mesh.triangles.len() as u32).flat_map(|i| mesh.vertices(i)).flat_map(|v| v.to_array()),
+        )?;
+        write_f32s(&dir.join("origins.f32"), origins.iter().flat_map(|v| v.to_array()))?;
+        write_f32s(&dir.join("directions.f32"), dirs.iter().flat_map(|v| v.to_array()))?;
+        write_f32s(&dir.join("t_closest.f32"), closest_t.into_iter())?;
+        println!("workload written to {}", dir.display());
+    }
+    Ok(())
+}

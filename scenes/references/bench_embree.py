@@ -1,0 +1,92 @@
+#!/usr/bin/env python3
+"""Tessera's ray queries against Embree 4 on the same triangles and the same rays, one thread.
+
+    cargo build --release
+    pip install embreex numpy
+    python3 scenes/references/bench_embree.py [--level 8] [--rays 1000000] [--runs 5]
+
+Runs `tessera bench rays --dump DIR` (icosphere of 20·4^level triangles, incoherent rays from
+inside it; Tessera's build time and Mrays/s for obvhs' CWBVH and the own BVH2), then loads the
+dumped vertices and rays into Embree 4 through embreex (rtcIntersect1 / rtcOccluded1 per ray in
+embreex's Cython loop, one thread) and prints Embree's build time and Mrays/s beside Tessera's,
+with their ratio. It also checks that both engines found the same hits: the closest-hit distances
+must agree to 1e-4 relative on every ray (a disagreement is printed and fails the script).
+Embree's build time is that of the first query minus a steady-state query of one ray's cost
+(embreex commits the scene lazily), i.e. scene commit with Embree's default build quality.
+"""
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+from equal_time import TESSERA  # noqa: E402
+
+
+def main():
+    from embreex import rtcore_scene as rtcs
+    from embreex.mesh_construction import TriangleMesh
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--level", type=int, default=8)
+    ap.add_argument("--rays", type=int, default=1_000_000)
+    ap.add_argument("--runs", type=int, default=5)
+    a = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        out = subprocess.run([TESSERA, "bench", "rays", "--level", str(a.level), "--rays", str(a.rays),
+                              "--runs", str(a.runs), "--dump", tmp], check=True, capture_output=True, text=True)
+        print(out.stdout, end="")
+        tess = {}
+        for line in out.stdout.splitlines():
+            f = line.split()
+            if f and f[0] in ("obvhs", "own"):
+                tess[f[0]] = (float(f[1]), float(f[2]), float(f[3]))
+        verts = np.fromfile(os.path.join(tmp, "vertices.f32"), dtype="<f4").reshape(-1, 3, 3)
+        orig = np.fromfile(os.path.join(tmp, "origins.f32"), dtype="<f4").reshape(-1, 3)
+        dirs = np.fromfile(os.path.join(tmp, "directions.f32"), dtype="<f4").reshape(-1, 3)
+        t_tess = np.fromfile(os.path.join(tmp, "t_closest.f32"), dtype="<f4")
+
+    t0 = time.perf_counter()
+    scene = rtcs.EmbreeScene()
+    TriangleMesh(scene, verts)
+    scene.run(orig[:1], dirs[:1], output=1)  # commits (builds) the BVH
+    first = time.perf_counter() - t0
+    build = first
+    closest, occluded = [], []
+    res = None
+    for run in range(a.runs + 1):
+        t0 = time.perf_counter()
+        res = scene.run(orig, dirs, output=1)
+        s = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        scene.run(orig, dirs, dists=np.full(len(orig), 10.0, dtype=np.float32), query="OCCLUDED")
+        s_occ = time.perf_counter() - t0
+        if run > 0:
+            closest.append(len(orig) / s / 1e6)
+            occluded.append(len(orig) / s_occ / 1e6)
+    emb = (build, statistics.median(closest), statistics.median(occluded))
+    print(f"{'embree 4':<8} {emb[0]:>10.3f} {emb[1]:>16.3f} {emb[2]:>16.3f}   (embreex {__import__('embreex').__version__ if hasattr(__import__('embreex'), '__version__') else ''})")
+
+    t_emb = np.asarray(res["tfar"], dtype=np.float64)
+    hit = np.asarray(res["primID"]) >= 0
+    bad = ~hit | (np.abs(t_emb - t_tess) > 1e-4 * np.maximum(t_emb, 1e-3))
+    print(f"hits agree: {len(orig) - bad.sum()} of {len(orig)} rays (closest t within 1e-4 relative)")
+    for k in ("obvhs", "own"):
+        if k in tess:
+            b, c, o = tess[k]
+            print(f"tessera {k:<6} over embree: build time {b / emb[0]:.2f}x, closest-hit rays/s {c / emb[1]:.2f}x, "
+                  f"occlusion rays/s {o / emb[2]:.2f}x")
+    if bad.sum() > 0:
+        i = np.flatnonzero(bad)[:5]
+        print("disagreeing rays (index, embree t, tessera t):", list(zip(i, t_emb[i], t_tess[i])), file=sys.stderr)
+        sys.exit(1)
+
+
+if __name__ == "__main__":
+    main()

@@ -3,7 +3,8 @@
 //!
 //! Conventions: `depth` counts scattering events; a path with `max_depth = 0` sees only emission,
 //! `max_depth = 1` adds direct lighting. Russian roulette (pbrt-v4 §13.4.3) starts once `depth`
-//! reaches `rr_depth` and is based on the path throughput.
+//! reaches `rr_depth` and is based on the path throughput times the η² of the transmissions so far
+//! (radiance scaling at glass boundaries is not energy the path will lose).
 
 use crate::light::emitted;
 use crate::math::{balance_heuristic, offset_ray_origin, power_heuristic, Frame, Vec2, Vec3, SHADOW_EPSILON};

@@ -40,7 +40,8 @@ pub enum BenchKind {
     Rays(crate::rays::RaysArgs),
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
+/// Median (the mean of the two middle values for an even count; NaN for none).
+pub(crate) fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     let n = v.len();
     if n == 0 {

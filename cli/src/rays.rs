@@ -7,6 +7,7 @@
 //! a subdivided unit icosphere (level 8: 1 310 720 triangles) in uniformly random directions, so
 //! every ray hits and neighbouring rays share nothing.
 
+use crate::bench::median;
 use anyhow::{Context, Result};
 use clap::Args;
 use renderer::accel::{Accel, AccelKind};
@@ -36,7 +37,7 @@ pub struct RaysArgs {
 /// The workload's rays: origins uniform in the ball of radius 0.5, directions uniform on the
 /// sphere, from a counter-based hash so every run (and the dump) sees the same rays.
 fn rays(n: u32) -> (Vec<Vec3>, Vec<Vec3>) {
-    let u = |i: u64| (renderer::sampler::hash_u64(i) >> 40) as f32 / (1u64 << 24) as f32;
+    let u = renderer::sampler::hash_unit;
     let mut origins = Vec::with_capacity(n as usize);
     let mut dirs = Vec::with_capacity(n as usize);
     for i in 0..n as u64 {
@@ -54,11 +55,6 @@ fn rays(n: u32) -> (Vec<Vec3>, Vec<Vec3>) {
         origins.push(Vec3::new(r * phi.cos(), r * phi.sin(), z) * rad);
     }
     (origins, dirs)
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
 fn write_f32s(path: &Path, values: impl Iterator<Item = f32>) -> Result<()> {

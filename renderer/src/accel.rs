@@ -97,17 +97,16 @@ fn traverse_closest(bvh: &CwBvh, mut ray: BvhRay, mut prim: impl FnMut(&BvhRay, 
     });
 }
 
-/// True when `prim` reports a hit closer than `ray.tmax` for some primitive (traversal stops at
-/// the first).
+/// True when `prim(i)` reports a hit for some primitive slot `i` (traversal stops at the first).
 #[inline(always)]
-fn traverse_any(bvh: &CwBvh, ray: BvhRay, mut prim: impl FnMut(usize) -> f32) -> bool {
+fn traverse_any(bvh: &CwBvh, ray: BvhRay, mut prim: impl FnMut(usize) -> bool) -> bool {
     use glam::UVec2;
     let mut state = bvh.new_traversal(ray.direction);
     let mut node;
     let mut hit = false;
     'outer: {
         obvhs::traverse!(bvh, node, state, crate::cwbvh_node::intersect(node, &ray, state.oct_inv4), {
-            if prim(state.primitive_id as usize) < ray.tmax {
+            if prim(state.primitive_id as usize) {
                 hit = true;
                 break 'outer;
             }
@@ -335,21 +334,15 @@ impl Accel {
             let (oa, da) = (Vec3A::from(o), Vec3A::from(d));
             let ray = BvhRay::new(oa, da, 0.0, tmax);
             return traverse_any(&self.bvh, ray, |id| match &top.prims[id] {
-                TopPrim::Triangle(tri) => tri.intersect(oa, da, 0.0, tmax).map_or(f32::INFINITY, |h| h.0),
+                TopPrim::Triangle(tri) => tri.intersect(oa, da, 0.0, tmax).is_some(),
                 TopPrim::Instance { prototype, to_object, .. } => {
                     let blas = &top.blas[*prototype as usize];
                     let (oo, dd) = (to_object.transform_point3a(oa), to_object.transform_vector3a(da));
                     if blas.tris.is_empty() || !oo.is_finite() || !dd.is_finite() {
-                        return f32::INFINITY;
+                        return false;
                     }
                     let r = BvhRay::new(oo, dd, 0.0, tmax);
-                    if traverse_any(&blas.bvh, r, |j| {
-                        blas.tris[j].intersect(oo, dd, 0.0, tmax).map_or(f32::INFINITY, |h| h.0)
-                    }) {
-                        0.0
-                    } else {
-                        f32::INFINITY
-                    }
+                    traverse_any(&blas.bvh, r, |j| blas.tris[j].intersect(oo, dd, 0.0, tmax).is_some())
                 }
             });
         }
@@ -361,6 +354,6 @@ impl Accel {
         }
         let (oa, da) = (Vec3A::from(o), Vec3A::from(d));
         let ray = BvhRay::new(oa, da, 0.0, tmax);
-        traverse_any(&self.bvh, ray, |id| self.tris[id].intersect(oa, da, 0.0, tmax).map_or(f32::INFINITY, |h| h.0))
+        traverse_any(&self.bvh, ray, |id| self.tris[id].intersect(oa, da, 0.0, tmax).is_some())
     }
 }

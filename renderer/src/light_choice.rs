@@ -24,7 +24,6 @@ use crate::light::{LightSamplerKind, LightSet};
 use crate::material::Material;
 use crate::math::{luminance, offset_ray_origin, Frame, Vec2, Vec3};
 use crate::mesh::Mesh;
-use crate::sampler::hash_u64;
 use crate::scene::Scene;
 use crate::texture::Texture;
 
@@ -39,7 +38,7 @@ pub const TREE_LEVEL_COST: f64 = 0.10;
 
 /// A uniform number in [0, 1) from a hash of (stream, index).
 fn rand(stream: u64, i: u64) -> f32 {
-    (hash_u64(stream.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ i) >> 40) as f32 / (1u64 << 24) as f32
+    crate::sampler::hash_unit(stream.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ i)
 }
 
 /// A shading point of the pilot: position (offset off the surface), normal on the viewer's side,

@@ -166,6 +166,12 @@ pub fn hash_u64(mut x: u64) -> u64 {
     x ^ (x >> 31)
 }
 
+/// A uniform number in [0, 1) from the top 24 bits of `hash_u64(x)` (every such float exactly).
+#[inline]
+pub fn hash_unit(x: u64) -> f32 {
+    (hash_u64(x) >> 40) as f32 / (1u64 << 24) as f32
+}
+
 #[inline]
 fn hash_u32(x: u32) -> u32 {
     hash_u64(x as u64) as u32

@@ -294,11 +294,7 @@ impl Scene {
             let stops = match self.coverage(&hit) {
                 (AlphaMode::Opaque, _) => true,
                 (AlphaMode::Mask(cutoff), a) => a >= cutoff,
-                (AlphaMode::Blend, a) => {
-                    let u = (crate::sampler::hash_u64(((seed as u64) << 32) | layer as u64) >> 40) as f32
-                        / (1u64 << 24) as f32;
-                    u < a
-                }
+                (AlphaMode::Blend, a) => crate::sampler::hash_unit(((seed as u64) << 32) | layer as u64) < a,
             };
             if stops {
                 return Some(hit);

@@ -41,6 +41,8 @@ fn through_slab(integrator: IntegratorKind) -> (f64, f64) {
         ..RenderSettings::default()
     };
     let sums = render_tile(&scene, &s, Rect { x0: 0, y0: 0, width: 8, height: 8 }, 0..s.spp);
+    // White light through clear glass: luminance equals every channel, so the green sums and the
+    // luminance squares describe one quantity.
     let (mut n, mut sum, mut sum_sq) = (0.0f64, 0.0f64, 0.0f64);
     for i in 0..sums.rect.pixels() {
         let c = sums.count[i] as f64;

@@ -1,6 +1,7 @@
 //! Ray-triangle intersection over the whole scene: a compressed-wide BVH (CWBVH, 8-wide, SIMD node
-//! tests) built and traversed by `obvhs`, with triangles stored in BVH leaf order and intersected by
-//! our own Möller-Trumbore test (which also reports the barycentrics shading needs).
+//! tests) built by `obvhs` and traversed by its loop with our 8-wide node test, with triangles
+//! stored in BVH leaf order as coordinate arrays and intersected by our watertight test
+//! (`triangle.rs`), all the leaf triangles a node test reaches eight at a time.
 //!
 //! Instancing makes it two-level: each prototype (a mesh several nodes place) gets its own BVH over
 //! its object-space triangles, built once; the top level holds the world-space triangles and one
@@ -13,45 +14,8 @@ use crate::mesh::Mesh;
 use obvhs::cwbvh::CwBvh;
 use obvhs::ray::Ray as BvhRay;
 
-/// Precomputed triangle for intersection: a vertex and two edges (Möller & Trumbore 1997).
-#[derive(Clone, Copy, Debug)]
-pub struct RtTriangle {
-    pub v0: Vec3A,
-    pub e1: Vec3A,
-    pub e2: Vec3A,
-    /// Index into `Mesh::triangles`.
-    pub id: u32,
-}
-
-impl RtTriangle {
-    pub fn new(v: [Vec3; 3], id: u32) -> Self {
-        let v0 = Vec3A::from(v[0]);
-        RtTriangle { v0, e1: Vec3A::from(v[1]) - v0, e2: Vec3A::from(v[2]) - v0, id }
-    }
-
-    /// Returns (t, b1, b2) for a hit with `tmin < t < tmax`.
-    #[inline(always)]
-    pub fn intersect(&self, o: Vec3A, d: Vec3A, tmin: f32, tmax: f32) -> Option<(f32, f32, f32)> {
-        let pvec = d.cross(self.e2);
-        let det = self.e1.dot(pvec);
-        if det == 0.0 || !det.is_finite() {
-            return None;
-        }
-        let inv = 1.0 / det;
-        let tvec = o - self.v0;
-        let b1 = tvec.dot(pvec) * inv;
-        if !(0.0..=1.0).contains(&b1) {
-            return None;
-        }
-        let qvec = tvec.cross(self.e1);
-        let b2 = d.dot(qvec) * inv;
-        if b2 < 0.0 || b1 + b2 > 1.0 {
-            return None;
-        }
-        let t = self.e2.dot(qvec) * inv;
-        (t > tmin && t < tmax).then_some((t, b1, b2))
-    }
-}
+pub use crate::triangle::RtTriangle;
+use crate::triangle::{TriangleSoa, WatertightRay, LANES};
 
 #[derive(Clone, Copy, Debug)]
 pub struct Hit {
@@ -82,37 +46,63 @@ enum TopPrim {
 }
 
 /// Closest-hit traversal of `bvh`: obvhs' traversal loop (`obvhs::traverse!`) with the 8-wide
-/// AVX2 node test of [`crate::cwbvh_node`]. `prim(ray, i)` intersects primitive slot `i` and returns
-/// its hit distance (∞ for a miss); a closer hit shortens the ray for the rest of the traversal.
+/// AVX2 node test of [`crate::cwbvh_node`]. The loop hands over a node's hit leaf primitives one
+/// at a time, highest slot first; `group(ray, base, mask)` takes them all at once instead (slots
+/// `base + i` for the bits i of `mask`, at most 24) and returns the closest hit distance among
+/// them (∞ for none), which shortens the ray for the rest of the traversal.
 #[inline(always)]
-fn traverse_closest(bvh: &CwBvh, mut ray: BvhRay, mut prim: impl FnMut(&BvhRay, usize) -> f32) {
+fn traverse_closest(bvh: &CwBvh, mut ray: BvhRay, mut group: impl FnMut(&BvhRay, usize, u32) -> f32) {
     use glam::UVec2;
     let mut state = bvh.new_traversal(ray.direction);
     let mut node;
     obvhs::traverse!(bvh, node, state, crate::cwbvh_node::intersect(node, &ray, state.oct_inv4), {
-        let t = prim(&ray, state.primitive_id as usize);
+        let base = state.primitive_group.x;
+        let mask = state.primitive_group.y | (1 << (state.primitive_id - base));
+        state.primitive_group.y = 0;
+        let t = group(&ray, base as usize, mask);
         if t < ray.tmax {
             ray.tmax = t;
         }
     });
 }
 
-/// True when `prim(i)` reports a hit for some primitive slot `i` (traversal stops at the first).
+/// True when `group(base, mask)` reports a hit for some group of primitive slots (as in
+/// [`traverse_closest`]); traversal stops at the first.
 #[inline(always)]
-fn traverse_any(bvh: &CwBvh, ray: BvhRay, mut prim: impl FnMut(usize) -> bool) -> bool {
+fn traverse_any(bvh: &CwBvh, ray: BvhRay, mut group: impl FnMut(usize, u32) -> bool) -> bool {
     use glam::UVec2;
     let mut state = bvh.new_traversal(ray.direction);
     let mut node;
     let mut hit = false;
     'outer: {
         obvhs::traverse!(bvh, node, state, crate::cwbvh_node::intersect(node, &ray, state.oct_inv4), {
-            if prim(state.primitive_id as usize) {
+            let base = state.primitive_group.x;
+            let mask = state.primitive_group.y | (1 << (state.primitive_id - base));
+            state.primitive_group.y = 0;
+            if group(base as usize, mask) {
                 hit = true;
                 break 'outer;
             }
         });
     }
     hit
+}
+
+/// The windows of at most [`LANES`] consecutive slots that cover the bits of `mask`, highest
+/// first: (first bit, lanes of that window). Taken in this order with a strictly shrinking bound
+/// they pick the hit a one-at-a-time test from the highest slot down picks.
+#[inline(always)]
+fn windows(mut mask: u32) -> impl Iterator<Item = (usize, u32)> {
+    std::iter::from_fn(move || {
+        if mask == 0 {
+            return None;
+        }
+        let hi = 31 - mask.leading_zeros();
+        let start = hi.saturating_sub(LANES as u32 - 1).max(mask.trailing_zeros());
+        let lanes = (mask >> start) & ((1 << LANES) - 1);
+        mask &= !(((1u32 << LANES) - 1) << start);
+        Some((start as usize, lanes))
+    })
 }
 
 /// obvhs's build quality for `n` triangles: "medium" (the best trace speed per build second at
@@ -140,10 +130,14 @@ pub enum AccelKind {
 
 crate::named_choices!(AccelKind, "accelerator", { "obvhs" => Self::Obvhs, "own" => Self::Own });
 
+#[derive(Default)]
 pub struct Accel {
     bvh: CwBvh,
-    /// Triangles in `bvh.primitive_indices` order, so a leaf's primitives are contiguous in memory.
-    tris: Vec<RtTriangle>,
+    /// Triangles in `bvh.primitive_indices` order, so a node's leaf primitives are consecutive slots.
+    tris: TriangleSoa,
+    /// Test leaf triangles one at a time (`TriangleSoa::intersect8_scalar`): the reference the
+    /// eight-wide test is held to (same hits, same images), off except in tests.
+    scalar_reference: bool,
     own: Option<crate::bvh::Bvh>,
     /// Set when the scene has instances (then `bvh`, `tris` and `own` are empty).
     top: Option<Box<TopLevel>>,
@@ -170,7 +164,8 @@ impl Accel {
             let tris = ids.iter().map(|&i| RtTriangle::new(mesh.vertices(i), i)).collect();
             return Accel {
                 bvh: CwBvh::default(),
-                tris: Vec::new(),
+                tris: TriangleSoa::default(),
+                scalar_reference: false,
                 own: Some(crate::bvh::Bvh::build(tris)),
                 top: None,
             };
@@ -183,19 +178,17 @@ impl Accel {
             })
             .collect();
         if prims.is_empty() {
-            return Accel { bvh: CwBvh::default(), tris: Vec::new(), own: None, top: None };
+            return Accel::default();
         }
         let bvh = obvhs::cwbvh::builder::build_cwbvh_from_tris(
             &prims,
             build_params(prims.len()),
             &mut std::time::Duration::default(),
         );
-        let tris = bvh
-            .primitive_indices
-            .iter()
-            .map(|&k| RtTriangle::new(mesh.vertices(ids[k as usize]), ids[k as usize]))
-            .collect();
-        Accel { bvh, tris, own: None, top: None }
+        let tris = TriangleSoa::new(
+            bvh.primitive_indices.iter().map(|&k| RtTriangle::new(mesh.vertices(ids[k as usize]), ids[k as usize])),
+        );
+        Accel { bvh, tris, scalar_reference: false, own: None, top: None }
     }
 
     /// After an animation moved instances or world vertices: a new top level over the prototype
@@ -244,18 +237,21 @@ impl Accel {
             });
         }
         if boxes.is_empty() {
-            return Accel {
-                bvh: CwBvh::default(),
-                tris: Vec::new(),
-                own: None,
-                top: Some(Box::new(TopLevel { prims, blas })),
-            };
+            return Accel { top: Some(Box::new(TopLevel { prims, blas })), ..Accel::default() };
         }
         let bvh =
             obvhs::cwbvh::builder::build_cwbvh(&boxes, obvhs::BvhBuildParams::medium_build(), &mut Default::default());
         // Leaf order, so a leaf's primitives sit together.
         let prims = bvh.primitive_indices.iter().map(|&i| prims[i as usize]).collect();
-        Accel { bvh, tris: Vec::new(), own: None, top: Some(Box::new(TopLevel { prims, blas })) }
+        Accel { bvh, top: Some(Box::new(TopLevel { prims, blas })), ..Accel::default() }
+    }
+
+    /// Makes every leaf triangle test the one-at-a-time reference (prototypes included).
+    pub fn set_scalar_reference(&mut self, on: bool) {
+        self.scalar_reference = on;
+        if let Some(top) = &mut self.top {
+            top.blas.iter_mut().for_each(|b| b.set_scalar_reference(on));
+        }
     }
 
     /// Closest hit along `o + t d`, `0 < t < tmax`.
@@ -276,30 +272,37 @@ impl Accel {
     }
 
     fn intersect_two_level(&self, top: &TopLevel, oa: Vec3A, da: Vec3A, tmax: f32) -> Option<Hit> {
-        if top.prims.is_empty() {
+        if top.prims.is_empty() || !da.is_finite() || !oa.is_finite() {
             return None;
         }
         let ray = BvhRay::new(oa, da, 0.0, tmax);
+        let wray = WatertightRay::new(oa, da);
         let mut best: Option<Hit> = None;
-        traverse_closest(&self.bvh, ray, |r, id| match &top.prims[id] {
-            TopPrim::Triangle(tri) => match tri.intersect(oa, da, 0.0, r.tmax) {
-                Some((t, b1, b2)) => {
-                    best = Some(Hit { t, triangle: tri.id, b1, b2, instance: NO_INSTANCE });
-                    t
-                }
-                None => f32::INFINITY,
-            },
-            TopPrim::Instance { index, prototype, to_object } => {
-                let (oo, dd) = (to_object.transform_point3a(oa), to_object.transform_vector3a(da));
-                match top.blas[*prototype as usize].intersect_object(oo, dd, r.tmax) {
-                    Some(mut h) => {
-                        h.instance = *index;
-                        best = Some(h);
-                        h.t
+        traverse_closest(&self.bvh, ray, |r, base, mask| {
+            let mut bound = r.tmax;
+            // Highest slot first with a shrinking bound, as the traversal loop hands them over.
+            let mut bits = mask;
+            while bits != 0 {
+                let i = 31 - bits.leading_zeros();
+                bits &= !(1 << i);
+                match &top.prims[base + i as usize] {
+                    TopPrim::Triangle(tri) => {
+                        if let Some((t, b1, b2)) = tri.intersect(&wray, bound) {
+                            best = Some(Hit { t, triangle: tri.id, b1, b2, instance: NO_INSTANCE });
+                            bound = t;
+                        }
                     }
-                    None => f32::INFINITY,
+                    TopPrim::Instance { index, prototype, to_object } => {
+                        let (oo, dd) = (to_object.transform_point3a(oa), to_object.transform_vector3a(da));
+                        if let Some(mut h) = top.blas[*prototype as usize].intersect_object(oo, dd, bound) {
+                            h.instance = *index;
+                            best = Some(h);
+                            bound = h.t;
+                        }
+                    }
                 }
             }
+            bound
         });
         best
     }
@@ -311,49 +314,81 @@ impl Accel {
             return None;
         }
         let ray = BvhRay::new(oa, da, 0.0, tmax);
-        let mut best: Option<Hit> = None;
-        traverse_closest(&self.bvh, ray, |r, id| {
-            let tri = &self.tris[id];
-            match tri.intersect(oa, da, 0.0, r.tmax) {
-                Some((t, b1, b2)) => {
-                    best = Some(Hit { t, triangle: tri.id, b1, b2, instance: NO_INSTANCE });
-                    t
+        let wray = WatertightRay::new(oa, da);
+        let mut best: Option<(f32, usize, f32, f32)> = None;
+        traverse_closest(&self.bvh, ray, |r, base, mask| {
+            let mut bound = r.tmax;
+            for (start, lanes) in windows(mask) {
+                let hit = if self.scalar_reference {
+                    self.tris.intersect8_scalar(&wray, base + start, lanes, bound)
+                } else {
+                    self.tris.intersect8(&wray, base + start, lanes, bound)
+                };
+                if let Some(h) = hit {
+                    bound = h.0;
+                    best = Some(h);
                 }
-                None => f32::INFINITY,
             }
+            bound
         });
-        best
+        best.map(|(t, slot, b1, b2)| Hit { t, triangle: self.tris.ids[slot], b1, b2, instance: NO_INSTANCE })
+    }
+
+    /// Whether any leaf triangle of the group (`traverse_any`) lies on the ray before `tmax`.
+    #[inline(always)]
+    fn any_in_group(&self, wray: &WatertightRay, base: usize, mask: u32, tmax: f32) -> bool {
+        windows(mask).any(|(start, lanes)| {
+            if self.scalar_reference {
+                self.tris.intersect8_scalar(wray, base + start, lanes, tmax).is_some()
+            } else {
+                self.tris.any8(wray, base + start, lanes, tmax)
+            }
+        })
     }
 
     /// True when anything lies on `o + t d` for `0 < t < tmax`.
     pub fn occluded(&self, o: Vec3, d: Vec3, tmax: f32) -> bool {
+        let (oa, da) = (Vec3A::from(o), Vec3A::from(d));
         if let Some(top) = &self.top {
-            if top.prims.is_empty() {
+            if top.prims.is_empty() || !oa.is_finite() || !da.is_finite() {
                 return false;
             }
-            let (oa, da) = (Vec3A::from(o), Vec3A::from(d));
             let ray = BvhRay::new(oa, da, 0.0, tmax);
-            return traverse_any(&self.bvh, ray, |id| match &top.prims[id] {
-                TopPrim::Triangle(tri) => tri.intersect(oa, da, 0.0, tmax).is_some(),
-                TopPrim::Instance { prototype, to_object, .. } => {
-                    let blas = &top.blas[*prototype as usize];
-                    let (oo, dd) = (to_object.transform_point3a(oa), to_object.transform_vector3a(da));
-                    if blas.tris.is_empty() || !oo.is_finite() || !dd.is_finite() {
-                        return false;
+            let wray = WatertightRay::new(oa, da);
+            return traverse_any(&self.bvh, ray, |base, mask| {
+                let mut bits = mask;
+                while bits != 0 {
+                    let i = 31 - bits.leading_zeros();
+                    bits &= !(1 << i);
+                    let hit = match &top.prims[base + i as usize] {
+                        TopPrim::Triangle(tri) => tri.intersect(&wray, tmax).is_some(),
+                        TopPrim::Instance { prototype, to_object, .. } => {
+                            let blas = &top.blas[*prototype as usize];
+                            let (oo, dd) = (to_object.transform_point3a(oa), to_object.transform_vector3a(da));
+                            if blas.tris.is_empty() || !oo.is_finite() || !dd.is_finite() {
+                                false
+                            } else {
+                                let w = WatertightRay::new(oo, dd);
+                                traverse_any(&blas.bvh, BvhRay::new(oo, dd, 0.0, tmax), |b, m| {
+                                    blas.any_in_group(&w, b, m, tmax)
+                                })
+                            }
+                        }
+                    };
+                    if hit {
+                        return true;
                     }
-                    let r = BvhRay::new(oo, dd, 0.0, tmax);
-                    traverse_any(&blas.bvh, r, |j| blas.tris[j].intersect(oo, dd, 0.0, tmax).is_some())
                 }
+                false
             });
         }
         if let Some(own) = &self.own {
             return own.intersect(o, d, tmax, true).is_some();
         }
-        if self.tris.is_empty() {
+        if self.tris.is_empty() || !oa.is_finite() || !da.is_finite() {
             return false;
         }
-        let (oa, da) = (Vec3A::from(o), Vec3A::from(d));
-        let ray = BvhRay::new(oa, da, 0.0, tmax);
-        traverse_any(&self.bvh, ray, |id| self.tris[id].intersect(oa, da, 0.0, tmax).is_some())
+        let wray = WatertightRay::new(oa, da);
+        traverse_any(&self.bvh, BvhRay::new(oa, da, 0.0, tmax), |base, mask| self.any_in_group(&wray, base, mask, tmax))
     }
 }

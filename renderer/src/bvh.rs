@@ -47,9 +47,7 @@ impl Bounds {
 
 fn tri_bounds(t: &RtTriangle) -> Bounds {
     let mut b = Bounds::EMPTY;
-    b.grow(t.v0);
-    b.grow(t.v0 + t.e1);
-    b.grow(t.v0 + t.e2);
+    t.v.iter().for_each(|&p| b.grow(p));
     b
 }
 
@@ -116,6 +114,7 @@ impl Bvh {
         }
         let (o, d) = (Vec3A::from(o), Vec3A::from(d));
         let inv = Vec3A::ONE / d;
+        let wray = crate::triangle::WatertightRay::new(o, d);
         let mut stack = [0u32; 64];
         let mut sp = 0usize;
         let mut node = 0usize;
@@ -124,7 +123,7 @@ impl Bvh {
             let n = &self.nodes[node];
             if n.count > 0 {
                 for i in n.first as usize..(n.first + n.count) as usize {
-                    if let Some((t, b1, b2)) = self.tris[i].intersect(o, d, 0.0, tmax) {
+                    if let Some((t, b1, b2)) = self.tris[i].intersect(&wray, tmax) {
                         tmax = t;
                         best = Some((t, i, b1, b2));
                         if any {

@@ -62,6 +62,7 @@ pub mod sheen;
 pub mod stats;
 pub mod testing;
 pub mod texture;
+pub mod triangle;
 
 pub use error::{RenderError, SceneError};
 pub use film::{PartialSums, Rect};

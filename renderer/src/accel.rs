@@ -88,21 +88,17 @@ fn traverse_any(bvh: &CwBvh, ray: BvhRay, mut group: impl FnMut(usize, u32) -> b
     hit
 }
 
-/// The windows of at most [`LANES`] consecutive slots that cover the bits of `mask`, highest
-/// first: (first bit, lanes of that window). Taken in this order with a strictly shrinking bound
-/// they pick the hit a one-at-a-time test from the highest slot down picks.
+/// The next window of at most [`LANES`] consecutive slots covering the highest bits of a
+/// non-empty `mask`: (first bit, lanes of that window), its bits taken out of `mask`. Taken
+/// highest first with a strictly shrinking bound, windows pick the hit a one-at-a-time test from
+/// the highest slot down picks.
 #[inline(always)]
-fn windows(mut mask: u32) -> impl Iterator<Item = (usize, u32)> {
-    std::iter::from_fn(move || {
-        if mask == 0 {
-            return None;
-        }
-        let hi = 31 - mask.leading_zeros();
-        let start = hi.saturating_sub(LANES as u32 - 1).max(mask.trailing_zeros());
-        let lanes = (mask >> start) & ((1 << LANES) - 1);
-        mask &= !(((1u32 << LANES) - 1) << start);
-        Some((start as usize, lanes))
-    })
+fn next_window(mask: &mut u32) -> (usize, u32) {
+    let hi = 31 - mask.leading_zeros();
+    let start = hi.saturating_sub(LANES as u32 - 1).max(mask.trailing_zeros());
+    let lanes = (*mask >> start) & ((1 << LANES) - 1);
+    *mask &= !(((1u32 << LANES) - 1) << start);
+    (start as usize, lanes)
 }
 
 /// obvhs's build quality for `n` triangles: "medium" (the best trace speed per build second at
@@ -317,8 +313,9 @@ impl Accel {
         let wray = WatertightRay::new(oa, da);
         let mut best: Option<(f32, usize, f32, f32)> = None;
         traverse_closest(&self.bvh, ray, |r, base, mask| {
-            let mut bound = r.tmax;
-            for (start, lanes) in windows(mask) {
+            let (mut bound, mut mask) = (r.tmax, mask);
+            while mask != 0 {
+                let (start, lanes) = next_window(&mut mask);
                 let hit = if self.scalar_reference {
                     self.tris.intersect8_scalar(&wray, base + start, lanes, bound)
                 } else {
@@ -337,13 +334,19 @@ impl Accel {
     /// Whether any leaf triangle of the group (`traverse_any`) lies on the ray before `tmax`.
     #[inline(always)]
     fn any_in_group(&self, wray: &WatertightRay, base: usize, mask: u32, tmax: f32) -> bool {
-        windows(mask).any(|(start, lanes)| {
-            if self.scalar_reference {
+        let mut mask = mask;
+        while mask != 0 {
+            let (start, lanes) = next_window(&mut mask);
+            let hit = if self.scalar_reference {
                 self.tris.intersect8_scalar(wray, base + start, lanes, tmax).is_some()
             } else {
                 self.tris.any8(wray, base + start, lanes, tmax)
+            };
+            if hit {
+                return true;
             }
-        })
+        }
+        false
     }
 
     /// True when anything lies on `o + t d` for `0 < t < tmax`.

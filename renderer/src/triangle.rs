@@ -199,7 +199,19 @@ impl TriangleSoa {
     /// Whether any of the lanes' slots is hit with `0 < t < tmax`.
     #[inline(always)]
     pub fn any8(&self, r: &WatertightRay, start: usize, lanes: u32, tmax: f32) -> bool {
-        self.intersect8(r, start, lanes, tmax).is_some()
+        #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+        // SAFETY: as in `intersect8`.
+        unsafe {
+            let l = self.lanes_avx2(r, start, lanes, tmax);
+            if l.on_edge != 0 {
+                return self.intersect8_scalar(r, start, lanes, tmax).is_some();
+            }
+            l.hits != 0
+        }
+        #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
+        {
+            self.intersect8_scalar(r, start, lanes, tmax).is_some()
+        }
     }
 
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
@@ -211,6 +223,41 @@ impl TriangleSoa {
         lanes: u32,
         tmax: f32,
     ) -> Option<(f32, usize, f32, f32)> {
+        use std::arch::x86_64::*;
+        let l = self.lanes_avx2(r, start, lanes, tmax);
+        if l.on_edge != 0 {
+            // Rare (a ray within rounding of an edge): the reference answer for the whole group.
+            return self.intersect8_scalar(r, start, lanes, tmax);
+        }
+        if l.hits == 0 {
+            return None;
+        }
+        let mut ts = [0f32; LANES];
+        _mm256_storeu_ps(ts.as_mut_ptr(), l.t);
+        // Highest lane first with a strict comparison: the scalar order.
+        let mut hits = l.hits;
+        let mut best = (f32::INFINITY, LANES);
+        while hits != 0 {
+            let k = 31 - hits.leading_zeros() as usize;
+            hits &= !(1 << k);
+            if best.1 == LANES || ts[k] < best.0 {
+                best = (ts[k], k);
+            }
+        }
+        let (t, k) = best;
+        let mut e1 = [0f32; LANES];
+        let mut e2 = [0f32; LANES];
+        let mut inv = [0f32; LANES];
+        _mm256_storeu_ps(e1.as_mut_ptr(), l.e1);
+        _mm256_storeu_ps(e2.as_mut_ptr(), l.e2);
+        _mm256_storeu_ps(inv.as_mut_ptr(), l.inv);
+        Some((t, start + k, e1[k] * inv[k], e2[k] * inv[k]))
+    }
+
+    /// The watertight test on eight slots at once, lane by lane as `RtTriangle::intersect`.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[inline(always)]
+    unsafe fn lanes_avx2(&self, r: &WatertightRay, start: usize, lanes: u32, tmax: f32) -> Lanes8 {
         use std::arch::x86_64::*;
         let [kx, ky, kz] = r.k;
         let load = |j: usize, k: usize| _mm256_loadu_ps(self.c[3 * j + k].as_ptr().add(start));
@@ -231,13 +278,10 @@ impl TriangleSoa {
         let e2 = cross(a.0, b.1, a.1, b.0);
         let zero = _mm256_setzero_ps();
         let bit = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
-        let active = _mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(lanes as i32), bit), bit);
-        let active = _mm256_castsi256_ps(active);
-        // Lanes with an edge function of exactly 0 take the scalar path (its f64 recomputation).
-        let on_edge = _mm256_or_ps(
-            _mm256_cmp_ps::<_CMP_EQ_OQ>(e0, zero),
-            _mm256_or_ps(_mm256_cmp_ps::<_CMP_EQ_OQ>(e1, zero), _mm256_cmp_ps::<_CMP_EQ_OQ>(e2, zero)),
-        );
+        let active =
+            _mm256_castsi256_ps(_mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(lanes as i32), bit), bit));
+        let eq0 = |e: __m256| _mm256_cmp_ps::<_CMP_EQ_OQ>(e, zero);
+        let on_edge = _mm256_or_ps(eq0(e0), _mm256_or_ps(eq0(e1), eq0(e2)));
         let on_edge = _mm256_movemask_ps(_mm256_and_ps(on_edge, active)) as u32;
         let lt = |e: __m256| _mm256_cmp_ps::<_CMP_LT_OQ>(e, zero);
         let gt = |e: __m256| _mm256_cmp_ps::<_CMP_GT_OQ>(e, zero);
@@ -252,37 +296,23 @@ impl TriangleSoa {
         let inv = _mm256_div_ps(_mm256_set1_ps(1.0), det);
         let t = _mm256_mul_ps(t_scaled, inv);
         let ok = _mm256_andnot_ps(_mm256_and_ps(any_neg, any_pos), active);
-        let ok = _mm256_andnot_ps(_mm256_cmp_ps::<_CMP_EQ_OQ>(det, zero), ok);
+        let ok = _mm256_andnot_ps(eq0(det), ok);
         let ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GT_OQ>(t, zero));
         let ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(t, _mm256_set1_ps(tmax)));
-        if on_edge != 0 {
-            // Rare (a ray within rounding of an edge): the reference answer for the whole group.
-            return self.intersect8_scalar(r, start, lanes, tmax);
-        }
-        let mut hits = _mm256_movemask_ps(ok) as u32;
-        if hits == 0 {
-            return None;
-        }
-        let mut ts = [0f32; LANES];
-        _mm256_storeu_ps(ts.as_mut_ptr(), t);
-        // Highest lane first with a strict comparison: the scalar order.
-        let mut best: Option<(f32, usize)> = None;
-        while hits != 0 {
-            let l = 31 - hits.leading_zeros() as usize;
-            hits &= !(1 << l);
-            if best.is_none_or(|(bt, _)| ts[l] < bt) {
-                best = Some((ts[l], l));
-            }
-        }
-        let (t, l) = best?;
-        let mut e1s = [0f32; LANES];
-        let mut e2s = [0f32; LANES];
-        let mut invs = [0f32; LANES];
-        _mm256_storeu_ps(e1s.as_mut_ptr(), e1);
-        _mm256_storeu_ps(e2s.as_mut_ptr(), e2);
-        _mm256_storeu_ps(invs.as_mut_ptr(), inv);
-        Some((t, start + l, e1s[l] * invs[l], e2s[l] * invs[l]))
+        Lanes8 { hits: _mm256_movemask_ps(ok) as u32, on_edge, t, e1, e2, inv }
     }
+}
+
+/// What [`TriangleSoa::lanes_avx2`] found: the lanes hit (meaningless where `on_edge` is set:
+/// those lanes need the scalar test's f64 recomputation), and per lane t, e1, e2 and 1/det.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+struct Lanes8 {
+    hits: u32,
+    on_edge: u32,
+    t: std::arch::x86_64::__m256,
+    e1: std::arch::x86_64::__m256,
+    e2: std::arch::x86_64::__m256,
+    inv: std::arch::x86_64::__m256,
 }
 
 #[cfg(test)]
@@ -337,6 +367,7 @@ mod tests {
                     h.map(|(t, s, b1, b2)| (t.to_bits(), s, b1.to_bits(), b2.to_bits()))
                 };
                 assert_eq!(bits(a), bits(b), "ray {i} start {start} lanes {lanes:#x}");
+                assert_eq!(soa.any8(&r, start, lanes, tmax), b.is_some(), "ray {i} start {start} lanes {lanes:#x}");
                 compared += 1;
                 hits += a.is_some() as usize;
             }

@@ -238,7 +238,8 @@ impl Bsdf {
         }
         let c = wo.dot(h).abs();
         let mut f = self.base_color * (self.diffuse_scale(c) * INV_PI);
-        if !self.ggx.is_delta() {
+        // A Lambert material (no metal, KHR_materials_specular 0) has no specular lobe: skip GGX.
+        if !self.ggx.is_delta() && (self.metallic > 0.0 || self.specular > 0.0) {
             let s = self.ggx.d(h) * self.ggx.g2(wo, wi) / (4.0 * wo.z * wi.z);
             f += self.specular_tint(c) * s;
         }

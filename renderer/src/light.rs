@@ -163,6 +163,13 @@ impl LightSet {
         self.selection.len()
     }
 
+    /// Makes the light tree's walk evaluate children one at a time (the reference; tests compare).
+    pub fn set_scalar_reference(&mut self, on: bool) {
+        if let Some(tree) = &mut self.tree {
+            tree.set_scalar_reference(on);
+        }
+    }
+
     /// Finite lights (area lights, point and spot lights): what a tree would be built over.
     pub fn finite_count(&self) -> usize {
         self.lights.len() + self.punctual.iter().filter(|p| p.kind != PunctualKind::Directional).count()

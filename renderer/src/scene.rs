@@ -120,6 +120,15 @@ impl Scene {
         Ok(())
     }
 
+    /// Makes the SIMD parts of ray queries and light selection (eight-wide leaf triangles, paired
+    /// light-tree children) run their one-at-a-time reference instead: same images, bit for bit
+    /// (`renderer/tests/watertight.rs` renders every test scene both ways). Lasts until the
+    /// light set or BVH is rebuilt.
+    pub fn set_scalar_reference(&mut self, on: bool) {
+        self.accel.set_scalar_reference(on);
+        self.lights.set_scalar_reference(on);
+    }
+
     /// Attaches the animation data the loader gathered (the scene is posed at time 0).
     pub fn set_animator(&mut self, animator: crate::animation::Animator) {
         self.animator = Some(animator);

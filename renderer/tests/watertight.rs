@@ -9,6 +9,7 @@
 
 use renderer::accel::Accel;
 use renderer::film::Rect;
+use renderer::light::LightSamplerKind;
 use renderer::math::{Vec3, Vec3A};
 use renderer::sampler::hash_unit as u;
 use renderer::triangle::{RtTriangle, WatertightRay};
@@ -112,7 +113,8 @@ fn root() -> &'static Path {
     Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
 }
 
-/// The rule for batching: the eight-wide leaf test changes no bit of any test scene's image.
+/// The rule for batching: the eight-wide leaf test and the paired light-tree walk change no bit
+/// of any test scene's image (with the light sampler each scene's `auto` picks, and the tree forced).
 #[test]
 fn every_test_scene_renders_the_same_bits_with_the_scalar_reference() {
     let scenes = [
@@ -130,9 +132,11 @@ fn every_test_scene_renders_the_same_bits_with_the_scalar_reference() {
         "scenes/animation/moving_light.gltf",
         "scenes/animation/rig.glb",
     ];
-    for rel in scenes {
+    for (rel, light_sampler) in scenes.iter().flat_map(|s| [(*s, LightSamplerKind::Auto), (*s, LightSamplerKind::Tree)])
+    {
         let mut scene = renderer::gltf_loader::load(&root().join(rel)).unwrap_or_else(|e| panic!("{rel}: {e}"));
-        let mut settings = RenderSettings { width: 40, height: 30, spp: 4, seed: 3, ..RenderSettings::default() };
+        let mut settings =
+            RenderSettings { width: 40, height: 30, spp: 4, seed: 3, light_sampler, ..RenderSettings::default() };
         if rel.contains("envlit") || rel.contains("Helmet") || rel.contains("Box") || rel.contains("rig") {
             settings.environment.map = Some("scenes/env/sunset.exr".into());
         }
@@ -140,13 +144,13 @@ fn every_test_scene_renders_the_same_bits_with_the_scalar_reference() {
         scene.set_frame(&settings, 5).unwrap_or_else(|e| panic!("{rel}: {e}"));
         let rect = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
         let simd = render_tile(&scene, &settings, rect, 0..settings.spp);
-        scene.accel.set_scalar_reference(true);
+        scene.set_scalar_reference(true);
         let scalar = render_tile(&scene, &settings, rect, 0..settings.spp);
         let bits = |s: &renderer::film::PartialSums| {
             s.sum_rgb.iter().flat_map(|c| c.iter().map(|v| v.to_bits())).collect::<Vec<u64>>()
         };
         let total: f64 = simd.sum_rgb.iter().flatten().sum();
         assert!(total > 0.0, "{rel}: a black image tests nothing");
-        assert!(bits(&simd) == bits(&scalar), "{rel}: the eight-wide leaf test changed the image");
+        assert!(bits(&simd) == bits(&scalar), "{rel} ({light_sampler:?}): the SIMD paths changed the image");
     }
 }

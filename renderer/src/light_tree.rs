@@ -131,116 +131,131 @@ impl LightBounds {
     }
 }
 
-/// Two sibling bounds as lanes 0 and 1 of four-float vectors, with what `importance` derives
-/// from the bounds alone (centroid, half diagonal, sin θo) computed once, by the same operations.
-/// [`ChildPair::importance`] runs `LightBounds::importance` on both lanes at once (SSE), operation
-/// for operation, so both children's importances are those of the one-at-a-time reference, bit
-/// for bit (a test checks it on random points, normals and bounds).
+/// The bounds below an interior node X, as the eight lanes of vectors: X's two children (lanes 0
+/// and 1) and their children (lanes 2–3 under the first, 4–5 under the second; empty lanes are
+/// zero bounds), with what `importance` derives from bounds alone (centroid, half diagonal,
+/// sin θo) computed once, by the same operations. [`Family::importance`] runs
+/// `LightBounds::importance` on all lanes at once (AVX), operation for operation, so every lane
+/// is the one-at-a-time reference's number, bit for bit (a test checks it on random points,
+/// normals and bounds), and one evaluation serves two levels of the walk: X's choice and its
+/// chosen child's. Kept for the interior nodes at even depth, which is where walks from the
+/// root evaluate: 384 bytes each, between a third and two thirds of the N − 1 interior nodes of
+/// N lights, so 130–260 bytes a light beside the nodes' own ~120.
 #[derive(Clone, Copy, Debug, Default)]
-#[repr(C, align(16))]
-struct ChildPair {
-    c: [[f32; 4]; 3],
-    w: [[f32; 4]; 3],
-    half_diag: [f32; 4],
-    r2: [f32; 4],
-    phi: [f32; 4],
-    cos_o: [f32; 4],
-    sin_o: [f32; 4],
-    cos_e: [f32; 4],
+#[repr(C, align(32))]
+struct Family {
+    c: [[f32; 8]; 3],
+    w: [[f32; 8]; 3],
+    half_diag: [f32; 8],
+    phi: [f32; 8],
+    cos_o: [f32; 8],
+    sin_o: [f32; 8],
+    cos_e: [f32; 8],
     /// All bits set in a two-sided lane.
-    two_sided: [u32; 4],
+    two_sided: [u32; 8],
 }
 
-impl ChildPair {
-    fn new(a: &LightBounds, b: &LightBounds) -> Self {
-        let mut pair = ChildPair::default();
-        for (l, x) in [a, b].into_iter().enumerate() {
+impl Family {
+    fn new(lanes: [Option<&LightBounds>; 6]) -> Self {
+        let mut f = Family::default();
+        for (l, x) in lanes.into_iter().enumerate() {
+            let Some(x) = x else { continue };
             let c = x.centroid();
             let diag = (x.max - x.min).length();
             for k in 0..3 {
-                pair.c[k][l] = c[k];
-                pair.w[k][l] = x.w[k];
+                f.c[k][l] = c[k];
+                f.w[k][l] = x.w[k];
             }
-            pair.half_diag[l] = diag / 2.0;
-            pair.r2[l] = (diag / 2.0) * (diag / 2.0);
-            pair.phi[l] = x.phi;
-            pair.cos_o[l] = x.cos_theta_o;
-            pair.sin_o[l] = safe_sqrt(1.0 - x.cos_theta_o * x.cos_theta_o);
-            pair.cos_e[l] = x.cos_theta_e;
-            pair.two_sided[l] = if x.two_sided { u32::MAX } else { 0 };
+            f.half_diag[l] = diag / 2.0;
+            f.phi[l] = x.phi;
+            f.cos_o[l] = x.cos_theta_o;
+            f.sin_o[l] = safe_sqrt(1.0 - x.cos_theta_o * x.cos_theta_o);
+            f.cos_e[l] = x.cos_theta_e;
+            f.two_sided[l] = if x.two_sided { u32::MAX } else { 0 };
         }
-        pair
+        f
     }
 
-    /// (importance of child a, importance of child b) at `p` (normal `n`): see
-    /// `LightBounds::importance`, whose steps these are, in the same order.
-    #[cfg(target_arch = "x86_64")]
+    /// The importance of every lane's bounds at `p` (normal `n`): see `LightBounds::importance`,
+    /// whose steps these are, in the same order.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[inline]
-    fn importance(&self, p: Vec3, n: Option<Vec3>) -> (f32, f32) {
-        // SAFETY: SSE and SSE2 are part of x86_64; every load reads a 16-byte-aligned [f32; 4].
-        unsafe { self.importance_sse(p, n) }
+    fn importance(&self, p: Vec3, n: Option<Vec3>) -> [f32; 8] {
+        // SAFETY: AVX2 is enabled at compile time; every load reads a 32-byte-aligned [f32; 8].
+        unsafe { self.importance_avx(p, n) }
     }
 
-    #[cfg(target_arch = "x86_64")]
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[inline(always)]
-    unsafe fn importance_sse(&self, p: Vec3, n: Option<Vec3>) -> (f32, f32) {
+    unsafe fn importance_avx(&self, p: Vec3, n: Option<Vec3>) -> [f32; 8] {
         use std::arch::x86_64::*;
-        let ld = |a: &[f32; 4]| _mm_load_ps(a.as_ptr());
-        let splat = _mm_set1_ps;
-        let (zero, one) = (_mm_setzero_ps(), splat(1.0));
-        // safe_sqrt: max(x, 0) first (MAXPS returns its second operand for a NaN, as f32::max does).
-        let safe_sqrt = |x: __m128| _mm_sqrt_ps(_mm_max_ps(x, zero));
-        let select = |m: __m128, a: __m128, b: __m128| _mm_or_ps(_mm_and_ps(m, a), _mm_andnot_ps(m, b));
-        let dot = |ax: __m128, ay: __m128, az: __m128, bx: __m128, by: __m128, bz: __m128| {
-            _mm_add_ps(_mm_add_ps(_mm_mul_ps(ax, bx), _mm_mul_ps(ay, by)), _mm_mul_ps(az, bz))
+        let ld = |a: &[f32; 8]| _mm256_load_ps(a.as_ptr());
+        let splat = _mm256_set1_ps;
+        let (zero, one) = (_mm256_setzero_ps(), splat(1.0));
+        // safe_sqrt: max(x, 0) first (VMAXPS returns its second operand for a NaN, as f32::max does).
+        let safe_sqrt = |x: __m256| _mm256_sqrt_ps(_mm256_max_ps(x, zero));
+        let select = |m: __m256, a: __m256, b: __m256| _mm256_blendv_ps(b, a, m);
+        let dot = |ax: __m256, ay: __m256, az: __m256, bx: __m256, by: __m256, bz: __m256| {
+            _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(ax, bx), _mm256_mul_ps(ay, by)), _mm256_mul_ps(az, bz))
         };
+        let gt = |a: __m256, b: __m256| _mm256_cmp_ps::<_CMP_GT_OQ>(a, b);
         // cos(max(0, θa − θb)) and sin(max(0, θa − θb)).
-        let cos_sub = |sa: __m128, ca: __m128, sb: __m128, cb: __m128| {
-            select(_mm_cmpgt_ps(ca, cb), one, _mm_add_ps(_mm_mul_ps(ca, cb), _mm_mul_ps(sa, sb)))
+        let cos_sub = |sa: __m256, ca: __m256, sb: __m256, cb: __m256| {
+            select(gt(ca, cb), one, _mm256_add_ps(_mm256_mul_ps(ca, cb), _mm256_mul_ps(sa, sb)))
         };
-        let sin_sub = |sa: __m128, ca: __m128, sb: __m128, cb: __m128| {
-            select(_mm_cmpgt_ps(ca, cb), zero, _mm_sub_ps(_mm_mul_ps(sa, cb), _mm_mul_ps(ca, sb)))
+        let sin_sub = |sa: __m256, ca: __m256, sb: __m256, cb: __m256| {
+            select(gt(ca, cb), zero, _mm256_sub_ps(_mm256_mul_ps(sa, cb), _mm256_mul_ps(ca, sb)))
         };
         let (vx, vy, vz) = (
-            _mm_sub_ps(splat(p.x), ld(&self.c[0])),
-            _mm_sub_ps(splat(p.y), ld(&self.c[1])),
-            _mm_sub_ps(splat(p.z), ld(&self.c[2])),
+            _mm256_sub_ps(splat(p.x), ld(&self.c[0])),
+            _mm256_sub_ps(splat(p.y), ld(&self.c[1])),
+            _mm256_sub_ps(splat(p.z), ld(&self.c[2])),
         );
         let dist2 = dot(vx, vy, vz, vx, vy, vz);
-        let d2 = _mm_max_ps(dist2, ld(&self.half_diag));
+        let half_diag = ld(&self.half_diag);
+        let d2 = _mm256_max_ps(dist2, half_diag);
         // normalize_or_zero: v · (1 / |v|) where that reciprocal is finite and positive.
-        let rcp = _mm_div_ps(one, _mm_sqrt_ps(dist2));
-        let abs = |x: __m128| _mm_andnot_ps(splat(-0.0), x);
-        let ok = _mm_and_ps(_mm_cmplt_ps(abs(rcp), splat(f32::INFINITY)), _mm_cmpgt_ps(rcp, zero));
+        let rcp = _mm256_div_ps(one, _mm256_sqrt_ps(dist2));
+        let abs = |x: __m256| _mm256_andnot_ps(splat(-0.0), x);
+        let ok = _mm256_and_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(abs(rcp), splat(f32::INFINITY)), gt(rcp, zero));
         let (wx, wy, wz) = (
-            _mm_and_ps(ok, _mm_mul_ps(vx, rcp)),
-            _mm_and_ps(ok, _mm_mul_ps(vy, rcp)),
-            _mm_and_ps(ok, _mm_mul_ps(vz, rcp)),
+            _mm256_and_ps(ok, _mm256_mul_ps(vx, rcp)),
+            _mm256_and_ps(ok, _mm256_mul_ps(vy, rcp)),
+            _mm256_and_ps(ok, _mm256_mul_ps(vz, rcp)),
         );
         let cos_w = dot(ld(&self.w[0]), ld(&self.w[1]), ld(&self.w[2]), wx, wy, wz);
-        let two_sided = _mm_castsi128_ps(_mm_load_si128(self.two_sided.as_ptr() as *const __m128i));
+        let two_sided = _mm256_castsi256_ps(_mm256_load_si256(self.two_sided.as_ptr() as *const __m256i));
         let cos_w = select(two_sided, abs(cos_w), cos_w);
-        let sin_w = safe_sqrt(_mm_sub_ps(one, _mm_mul_ps(cos_w, cos_w)));
-        let r2 = ld(&self.r2);
-        let cos_b = select(_mm_cmple_ps(dist2, r2), splat(-1.0), safe_sqrt(_mm_sub_ps(one, _mm_div_ps(r2, dist2))));
-        let sin_b = safe_sqrt(_mm_sub_ps(one, _mm_mul_ps(cos_b, cos_b)));
+        let sin_w = safe_sqrt(_mm256_sub_ps(one, _mm256_mul_ps(cos_w, cos_w)));
+        let r2 = _mm256_mul_ps(half_diag, half_diag);
+        let inside = _mm256_cmp_ps::<_CMP_LE_OQ>(dist2, r2);
+        let cos_b = select(inside, splat(-1.0), safe_sqrt(_mm256_sub_ps(one, _mm256_div_ps(r2, dist2))));
+        let sin_b = safe_sqrt(_mm256_sub_ps(one, _mm256_mul_ps(cos_b, cos_b)));
         let (sin_o, cos_o) = (ld(&self.sin_o), ld(&self.cos_o));
         let cos_x = cos_sub(sin_w, cos_w, sin_o, cos_o);
         let sin_x = sin_sub(sin_w, cos_w, sin_o, cos_o);
         let cos_p = cos_sub(sin_x, cos_x, sin_b, cos_b);
-        let lit = _mm_cmpgt_ps(cos_p, ld(&self.cos_e));
-        let mut imp = _mm_div_ps(_mm_mul_ps(ld(&self.phi), cos_p), d2);
+        let lit = gt(cos_p, ld(&self.cos_e));
+        let mut imp = _mm256_div_ps(_mm256_mul_ps(ld(&self.phi), cos_p), d2);
         if let Some(n) = n {
             let cos_i = abs(dot(wx, wy, wz, splat(n.x), splat(n.y), splat(n.z)));
-            let sin_i = safe_sqrt(_mm_sub_ps(one, _mm_mul_ps(cos_i, cos_i)));
-            imp = _mm_mul_ps(imp, cos_sub(sin_i, cos_i, sin_b, cos_b));
+            let sin_i = safe_sqrt(_mm256_sub_ps(one, _mm256_mul_ps(cos_i, cos_i)));
+            imp = _mm256_mul_ps(imp, cos_sub(sin_i, cos_i, sin_b, cos_b));
         }
-        let finite = _mm_cmplt_ps(abs(imp), splat(f32::INFINITY));
-        let imp = _mm_and_ps(_mm_and_ps(lit, finite), _mm_max_ps(imp, zero));
-        let mut out = [0f32; 4];
-        _mm_storeu_ps(out.as_mut_ptr(), imp);
-        (out[0], out[1])
+        let finite = _mm256_cmp_ps::<_CMP_LT_OQ>(abs(imp), splat(f32::INFINITY));
+        let imp = _mm256_and_ps(_mm256_and_ps(lit, finite), _mm256_max_ps(imp, zero));
+        let mut out = [0f32; 8];
+        _mm256_storeu_ps(out.as_mut_ptr(), imp);
+        out
     }
+}
+
+/// Where a decision node's two child importances are found: the family evaluated (node index)
+/// and the first of its two lanes.
+#[derive(Clone, Copy, Debug)]
+struct Lanes {
+    family: u32,
+    first: u8,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -253,9 +268,12 @@ struct Node {
 
 pub struct LightTree {
     nodes: Vec<Node>,
-    /// For each interior node (same index), its two children's bounds laid out for
-    /// [`ChildPair::importance`]: the walk's hot loop (it was 42 % of a 1600-emitter render).
-    pairs: Vec<ChildPair>,
+    /// The families ([`Family`]) of the interior nodes at even depth, and for each node where the
+    /// importances of its children are found: the walk's hot loop (it was 42 % of a 1600-emitter
+    /// render) evaluates one family per two levels.
+    families: Vec<Family>,
+    family_of: Vec<u32>,
+    lanes: Vec<Lanes>,
     /// Evaluate children one at a time with `LightBounds::importance` (the reference the paired
     /// evaluation is held to, bit for bit); off except in tests.
     scalar_reference: bool,
@@ -276,7 +294,9 @@ impl LightTree {
             nodes: Vec::with_capacity(2 * lights.len()),
             leaf_of: vec![0; lights.len()],
             parent: Vec::new(),
-            pairs: Vec::new(),
+            families: Vec::new(),
+            family_of: Vec::new(),
+            lanes: Vec::new(),
             scalar_reference: false,
         };
         let mut idx: Vec<u32> = (0..lights.len() as u32).collect();
@@ -321,15 +341,47 @@ impl LightTree {
             work.push((first, lo, mid));
             work.push((first + 1, mid, hi));
         }
-        tree.pairs = tree
-            .nodes
-            .iter()
-            .map(|n| match n.leaf {
-                true => ChildPair::default(),
-                false => ChildPair::new(&tree.nodes[n.index as usize].bounds, &tree.nodes[n.index as usize + 1].bounds),
-            })
-            .collect();
+        tree.build_families();
         Some(tree)
+    }
+
+    /// Families at the even-depth interior nodes; each interior node's lanes: its own family's
+    /// 0–1 at even depth, else its parent's 2–3 (first child) or 4–5 (second).
+    fn build_families(&mut self) {
+        let mut depth = vec![0u32; self.nodes.len()];
+        // Children are pushed after their parents, so one forward pass sets every depth.
+        for i in 1..self.nodes.len() {
+            depth[i] = depth[self.parent[i] as usize] + 1;
+        }
+        self.family_of = vec![u32::MAX; self.nodes.len()];
+        self.lanes = vec![Lanes { family: u32::MAX, first: 0 }; self.nodes.len()];
+        for i in 0..self.nodes.len() {
+            let node = self.nodes[i];
+            if node.leaf || depth[i] % 2 == 1 {
+                continue;
+            }
+            let kids = [node.index as usize, node.index as usize + 1];
+            let grandkids = |k: usize| {
+                let c = &self.nodes[k];
+                match c.leaf {
+                    true => [None, None],
+                    false => {
+                        [Some(&self.nodes[c.index as usize].bounds), Some(&self.nodes[c.index as usize + 1].bounds)]
+                    }
+                }
+            };
+            let [g0, g1] = grandkids(kids[0]);
+            let [g2, g3] = grandkids(kids[1]);
+            let lanes = [Some(&self.nodes[kids[0]].bounds), Some(&self.nodes[kids[1]].bounds), g0, g1, g2, g3];
+            self.family_of[i] = self.families.len() as u32;
+            self.families.push(Family::new(lanes));
+            self.lanes[i] = Lanes { family: i as u32, first: 0 };
+            for (k, &c) in kids.iter().enumerate() {
+                if !self.nodes[c].leaf {
+                    self.lanes[c] = Lanes { family: i as u32, first: 2 + 2 * k as u8 };
+                }
+            }
+        }
     }
 
     /// Makes the walk evaluate each child alone with `LightBounds::importance` (tests compare).
@@ -337,24 +389,35 @@ impl LightTree {
         self.scalar_reference = on;
     }
 
-    /// The two children's selection probabilities at interior `node` for point `p`.
+    /// The importances of interior `node`'s two children at `p`, by the reference (one at a time).
+    fn child_importances_scalar(&self, node: usize, p: Vec3, n: Option<Vec3>) -> (f32, f32) {
+        let first = self.nodes[node].index as usize;
+        (self.nodes[first].bounds.importance(p, n), self.nodes[first + 1].bounds.importance(p, n))
+    }
+
+    /// The two children's selection probabilities from their importances.
     #[inline]
-    fn child_probabilities(&self, node: usize, p: Vec3, n: Option<Vec3>) -> Option<(f32, f32)> {
-        let (ia, ib) = if self.scalar_reference || cfg!(not(target_arch = "x86_64")) {
-            let first = self.nodes[node].index as usize;
-            (self.nodes[first].bounds.importance(p, n), self.nodes[first + 1].bounds.importance(p, n))
-        } else {
-            #[cfg(target_arch = "x86_64")]
-            {
-                self.pairs[node].importance(p, n)
-            }
-            #[cfg(not(target_arch = "x86_64"))]
-            unreachable!("the paired evaluation is x86_64 only")
-        };
+    fn probabilities((ia, ib): (f32, f32)) -> Option<(f32, f32)> {
         if ia + ib <= 0.0 {
             return None;
         }
         Some((ia / (ia + ib), ib / (ia + ib)))
+    }
+
+    /// The importances of interior `node`'s children at `p`, from its family's evaluation, made
+    /// now or kept in `cache` (family node, lanes) from the level above.
+    #[inline]
+    fn child_importances(&self, node: usize, p: Vec3, n: Option<Vec3>, cache: &mut (u32, [f32; 8])) -> (f32, f32) {
+        #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+        if !self.scalar_reference {
+            let Lanes { family, first } = self.lanes[node];
+            if cache.0 != family {
+                *cache = (family, self.families[self.family_of[family as usize] as usize].importance(p, n));
+            }
+            return (cache.1[first as usize], cache.1[first as usize + 1]);
+        }
+        let _ = cache;
+        self.child_importances_scalar(node, p, n)
     }
 
     /// Chooses a light for point `p`: (light index, probability).
@@ -365,8 +428,9 @@ impl LightTree {
         if node.leaf {
             return (node.bounds.importance(p, n) > 0.0).then_some((node.index as usize, 1.0));
         }
+        let mut cache = (u32::MAX, [0f32; 8]);
         loop {
-            let (pa, _) = self.child_probabilities(at, p, n)?;
+            let (pa, _) = Self::probabilities(self.child_importances(at, p, n, &mut cache))?;
             let child = if u < pa {
                 u = (u / pa).min(1.0 - f32::EPSILON);
                 pmf *= pa;
@@ -392,10 +456,13 @@ impl LightTree {
         }
         let mut pmf = 1.0f32;
         let mut child = leaf;
+        let mut cache = (u32::MAX, [0f32; 8]);
         while self.parent[child as usize] != u32::MAX {
             let parent = self.parent[child as usize];
             let node = &self.nodes[parent as usize];
-            let Some((pa, pb)) = self.child_probabilities(parent as usize, p, n) else { return 0.0 };
+            let Some((pa, pb)) = Self::probabilities(self.child_importances(parent as usize, p, n, &mut cache)) else {
+                return 0.0;
+            };
             pmf *= if child == node.index { pa } else { pb };
             child = parent;
         }
@@ -470,10 +537,10 @@ mod tests {
         assert_eq!(away.pmf(p, Some(Vec3::Y), 0), 1.0);
     }
 
-    /// The paired (SSE) importance of both children equals `LightBounds::importance` of each, bit
+    /// The family (AVX) importance of both children equals `LightBounds::importance` of each, bit
     /// for bit, and so do whole walks (`sample`, `pmf`), over random bounds of every kind.
     #[test]
-    fn paired_importance_equals_one_at_a_time() {
+    fn family_importance_equals_one_at_a_time() {
         let u = crate::sampler::hash_unit;
         let v = |i: u64| Vec3::new(u(i), u(i + 1), u(i + 2)) * 2.0 - 1.0;
         let mut lights = Vec::new();
@@ -505,7 +572,7 @@ mod tests {
                     continue;
                 }
                 let (a, b) = (&tree.nodes[node.index as usize].bounds, &tree.nodes[node.index as usize + 1].bounds);
-                let (pa, pb) = tree.pairs[i].importance(p, n);
+                let (pa, pb) = tree.child_importances(i, p, n, &mut (u32::MAX, [0.0; 8]));
                 let (sa, sb) = (a.importance(p, n), b.importance(p, n));
                 // Equal as numbers (0 and −0 alike) and as bits where non-zero.
                 assert!(pa == sa && (pa == 0.0 || pa.to_bits() == sa.to_bits()), "node {i}: {pa} vs {sa}");

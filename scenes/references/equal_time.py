@@ -23,7 +23,8 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import make_references as mr  # noqa: E402
 
 ROOT = os.path.dirname(mr.ROOT)
-TESSERA = os.path.join(ROOT, "target", "release", "tessera")
+# TESSERA_BIN: another build to measure (e.g. the commit before a change, for before/after figures).
+TESSERA = os.environ.get("TESSERA_BIN") or os.path.join(ROOT, "target", "release", "tessera")
 
 
 def rel_mse(img, ref):

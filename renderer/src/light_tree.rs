@@ -355,9 +355,9 @@ impl LightTree {
         }
         self.family_of = vec![u32::MAX; self.nodes.len()];
         self.lanes = vec![Lanes { family: u32::MAX, first: 0 }; self.nodes.len()];
-        for i in 0..self.nodes.len() {
+        for (i, &d) in depth.iter().enumerate() {
             let node = self.nodes[i];
-            if node.leaf || depth[i] % 2 == 1 {
+            if node.leaf || d % 2 == 1 {
                 continue;
             }
             let kids = [node.index as usize, node.index as usize + 1];

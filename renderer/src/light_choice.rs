@@ -4,10 +4,12 @@
 //! Why a pilot and not a light count: the count says nothing about benefit. Four 1152-triangle
 //! sphere bulbs are 4608 "lights" to a count (the old rule picked the tree, whose walk then made
 //! each sample 2.25–2.7× dearer), yet whether the tree pays for that depends on where the lights
-//! are: on `scenes/veach` (four equal bulbs seen from everywhere) uniform selection reached 1.6× lower
-//! error than the tree at equal time (docs/speed-vs-accuracy/summary.md); on `scenes/sphere_lights`
-//! (four unequal bulbs over a floor) the tree was 1.3× better than uniform and 2.4× better than power
-//! (issue 10, `tessera bench convergence --switches light_sampler`).
+//! are and on what a walk costs: on `scenes/veach` (four equal bulbs seen from everywhere) uniform
+//! selection reached 1.6× lower error than the tree at equal time while a walk cost 2.25× a power
+//! sample (docs/speed-vs-accuracy/summary.md); since the walk evaluates two levels per AVX pass
+//! (1.73×) the tree is 1.37× as efficient there; on `scenes/sphere_lights` (four unequal bulbs over
+//! a floor) the tree was 1.3× better than uniform and 2.4× better than power (issue 10,
+//! `tessera bench convergence --switches light_sampler`).
 //!
 //! The pilot: the first surfaces hit by `PILOT_POINTS` camera rays (stratified over the image; for a
 //! scene seen by no camera ray, area-weighted points on its non-emissive surfaces), and at each
@@ -32,9 +34,11 @@ pub const PILOT_POINTS: u64 = 256;
 /// Light samples per point and candidate.
 pub const PILOT_SAMPLES: u64 = 32;
 /// Extra cost of one tree level relative to a whole path sample with power selection: measured on
-/// `scenes/sphere_lights` (4608 emissive triangles, depth 12.2): a tree sample cost 2.25× a power
-/// sample, (2.25 − 1) / 12.2 ≈ 0.10.
-pub const TREE_LEVEL_COST: f64 = 0.10;
+/// `scenes/sphere_lights` (4608 emissive triangles, depth 12.2) with `tessera bench` (256×192,
+/// 16 spp, medians of 3, three runs each): a tree sample costs 1.73× a power sample (3.87 against
+/// 2.24 Mpaths/s), (1.73 − 1) / 12.2 ≈ 0.06. (It was 2.25× and 0.10 before the walk evaluated a
+/// node's children and grandchildren in one AVX pass, `light_tree::Family`.)
+pub const TREE_LEVEL_COST: f64 = 0.06;
 
 /// A uniform number in [0, 1) from a hash of (stream, index).
 fn rand(stream: u64, i: u64) -> f32 {

@@ -88,17 +88,20 @@ fn traverse_any(bvh: &CwBvh, ray: BvhRay, mut group: impl FnMut(usize, u32) -> b
     hit
 }
 
-/// The next window of at most [`LANES`] consecutive slots covering the highest bits of a
-/// non-empty `mask`: (first bit, lanes of that window), its bits taken out of `mask`. Taken
-/// highest first with a strictly shrinking bound, windows pick the hit a one-at-a-time test from
-/// the highest slot down picks.
+/// The next window for slots `base + i` (the bits i of a non-empty `mask`): the block of
+/// [`LANES`] slots holding the highest one, as (the block's first slot, the lanes of that block
+/// `mask` names), those bits taken out of `mask`. Taken highest first with a strictly shrinking
+/// bound, windows pick the hit a one-at-a-time test from the highest slot down picks.
 #[inline(always)]
-fn next_window(mask: &mut u32) -> (usize, u32) {
-    let hi = 31 - mask.leading_zeros();
-    let start = hi.saturating_sub(LANES as u32 - 1).max(mask.trailing_zeros());
-    let lanes = (*mask >> start) & ((1 << LANES) - 1);
-    *mask &= !(((1u32 << LANES) - 1) << start);
-    (start as usize, lanes)
+fn next_window(base: usize, mask: &mut u32) -> (usize, u32) {
+    let hi = 31 - mask.leading_zeros() as usize;
+    let start = (base + hi) / LANES * LANES;
+    // Bit i of `mask` is slot base + i and lane l of the block is slot start + l, which may lie
+    // below base (start ≥ base − 7): shift in a u64 with LANES spare low bits.
+    let shift = start + LANES - base;
+    let lanes = ((((*mask as u64) << LANES) >> shift) & ((1 << LANES) - 1)) as u32;
+    *mask &= !(((((1u64 << LANES) - 1) << shift) >> LANES) as u32);
+    (start, lanes)
 }
 
 /// obvhs's build quality for `n` triangles: "medium" (the best trace speed per build second at
@@ -315,11 +318,11 @@ impl Accel {
         traverse_closest(&self.bvh, ray, |r, base, mask| {
             let (mut bound, mut mask) = (r.tmax, mask);
             while mask != 0 {
-                let (start, lanes) = next_window(&mut mask);
+                let (start, lanes) = next_window(base, &mut mask);
                 let hit = if self.scalar_reference {
-                    self.tris.intersect8_scalar(&wray, base + start, lanes, bound)
+                    self.tris.intersect8_scalar(&wray, start, lanes, bound)
                 } else {
-                    self.tris.intersect8(&wray, base + start, lanes, bound)
+                    self.tris.intersect8(&wray, start, lanes, bound)
                 };
                 if let Some(h) = hit {
                     bound = h.0;
@@ -336,11 +339,11 @@ impl Accel {
     fn any_in_group(&self, wray: &WatertightRay, base: usize, mask: u32, tmax: f32) -> bool {
         let mut mask = mask;
         while mask != 0 {
-            let (start, lanes) = next_window(&mut mask);
+            let (start, lanes) = next_window(base, &mut mask);
             let hit = if self.scalar_reference {
-                self.tris.intersect8_scalar(wray, base + start, lanes, tmax).is_some()
+                self.tris.intersect8_scalar(wray, start, lanes, tmax).is_some()
             } else {
-                self.tris.any8(wray, base + start, lanes, tmax)
+                self.tris.any8(wray, start, lanes, tmax)
             };
             if hit {
                 return true;
@@ -393,5 +396,31 @@ impl Accel {
         }
         let wray = WatertightRay::new(oa, da);
         traverse_any(&self.bvh, BvhRay::new(oa, da, 0.0, tmax), |base, mask| self.any_in_group(&wray, base, mask, tmax))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Windows cover exactly the slots a group names, block-aligned, highest block first.
+    #[test]
+    fn windows_cover_the_group_block_by_block() {
+        for base in 0..40usize {
+            for k in 0..500u64 {
+                let mask0 = (crate::sampler::hash_u64(k * 131 + base as u64) as u32) & 0x00ff_ffff | 1 << (k % 24);
+                let mut want: Vec<usize> = (0..24).filter(|i| mask0 & (1 << i) != 0).map(|i| base + i).collect();
+                let (mut mask, mut got, mut last) = (mask0, Vec::new(), usize::MAX);
+                while mask != 0 {
+                    let (start, lanes) = next_window(base, &mut mask);
+                    assert!(start.is_multiple_of(LANES) && start < last && lanes != 0, "base {base} mask {mask0:#x}");
+                    last = start;
+                    got.extend((0..LANES).filter(|l| lanes & (1 << l) != 0).map(|l| start + l));
+                }
+                got.sort_unstable();
+                want.sort_unstable();
+                assert_eq!(got, want, "base {base} mask {mask0:#x}");
+            }
+        }
     }
 }

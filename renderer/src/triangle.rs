@@ -111,14 +111,23 @@ fn finish(e0: f32, e1: f32, e2: f32, az: f32, bz: f32, cz: f32, sz: f32, tmax: f
     (t > 0.0 && t < tmax).then_some((t, e1 * inv, e2 * inv))
 }
 
-/// Triangles as nine coordinate arrays (vertex j's axis k at `c[3j + k]`), so eight consecutive
-/// triangles load as nine vectors; with 8 padding entries at the end, any 8 from a valid start can
-/// be loaded. The BVH stores a node's leaf triangles consecutively, which is what makes this pay.
+/// Triangles in blocks of eight slots (slot s in block s/8, lane s%8), each block nine rows of
+/// eight floats (vertex j's axis k in row 3j + k): eight triangles load as nine vectors from 288
+/// contiguous bytes. Contiguous matters: nine separate coordinate arrays made every window touch
+/// nine cache lines far apart, and closest-hit rays/s on a 1.3M-triangle mesh fell 17 % below
+/// one-triangle-at-a-time Möller-Trumbore; a block is 4½ adjacent lines the prefetcher follows.
+/// The BVH stores a node's leaf triangles in consecutive slots, so a node's group spans few blocks.
 #[derive(Clone, Debug, Default)]
 pub struct TriangleSoa {
-    c: [Vec<f32>; 9],
+    blocks: Vec<Block>,
     /// Mesh triangle index of each slot.
     pub ids: Vec<u32>,
+}
+
+#[derive(Clone, Copy, Debug, Default)]
+#[repr(C, align(32))]
+struct Block {
+    rows: [[f32; LANES]; 9],
 }
 
 /// Lanes of [`TriangleSoa::intersect8`].
@@ -127,18 +136,14 @@ pub const LANES: usize = 8;
 impl TriangleSoa {
     pub fn new(tris: impl ExactSizeIterator<Item = RtTriangle>) -> Self {
         let n = tris.len();
-        let mut soa =
-            TriangleSoa { c: std::array::from_fn(|_| Vec::with_capacity(n + LANES)), ids: Vec::with_capacity(n) };
-        for t in tris {
+        let mut soa = TriangleSoa { blocks: vec![Block::default(); n.div_ceil(LANES)], ids: Vec::with_capacity(n) };
+        for (i, t) in tris.enumerate() {
             for j in 0..3 {
                 for k in 0..3 {
-                    soa.c[3 * j + k].push(t.v[j][k]);
+                    soa.blocks[i / LANES].rows[3 * j + k][i % LANES] = t.v[j][k];
                 }
             }
             soa.ids.push(t.id);
-        }
-        for a in &mut soa.c {
-            a.resize(n + LANES, 0.0);
         }
         soa
     }
@@ -154,19 +159,21 @@ impl TriangleSoa {
     /// Slot `i` as one triangle.
     #[inline(always)]
     pub fn get(&self, i: usize) -> RtTriangle {
-        let v = |j: usize| Vec3A::new(self.c[3 * j][i], self.c[3 * j + 1][i], self.c[3 * j + 2][i]);
+        let rows = &self.blocks[i / LANES].rows;
+        let v = |j: usize| Vec3A::new(rows[3 * j][i % LANES], rows[3 * j + 1][i % LANES], rows[3 * j + 2][i % LANES]);
         RtTriangle { v: [v(0), v(1), v(2)], id: self.ids[i] }
     }
 
     /// The closest hit among the slots `start + l` for the lanes l set in `lanes` (bit l), with
-    /// `0 < t < tmax`: (t, slot, b1, b2). Among equal distances the highest slot wins, as when
-    /// the slots are tested one at a time from the highest down with a shrinking `tmax`.
+    /// `0 < t < tmax`: (t, slot, b1, b2). `start` is a block's first slot (a multiple of
+    /// [`LANES`]) and every slot `lanes` names exists. Among equal distances the highest slot
+    /// wins, as when the slots are tested one at a time from the highest down with a shrinking `tmax`.
     #[inline(always)]
     pub fn intersect8(&self, r: &WatertightRay, start: usize, lanes: u32, tmax: f32) -> Option<(f32, usize, f32, f32)> {
-        debug_assert!(lanes < 1 << LANES && start + LANES <= self.c[0].len());
+        debug_assert!(lanes < 1 << LANES && start.is_multiple_of(LANES) && start / LANES < self.blocks.len());
         #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-        // SAFETY: AVX2 is enabled at compile time; every array has `len() + LANES` entries and
-        // `start < len()` (asserted by the caller's slot numbering), so 8 floats from `start` are in bounds.
+        // SAFETY: AVX2 is enabled at compile time; the block is found with a bounds check and
+        // its rows are 32-byte aligned (`Block`'s repr).
         unsafe {
             self.intersect8_avx2(r, start, lanes, tmax)
         }
@@ -260,7 +267,8 @@ impl TriangleSoa {
     unsafe fn lanes_avx2(&self, r: &WatertightRay, start: usize, lanes: u32, tmax: f32) -> Lanes8 {
         use std::arch::x86_64::*;
         let [kx, ky, kz] = r.k;
-        let load = |j: usize, k: usize| _mm256_loadu_ps(self.c[3 * j + k].as_ptr().add(start));
+        let rows = &self.blocks[start / LANES].rows;
+        let load = |j: usize, k: usize| _mm256_load_ps(rows[3 * j + k].as_ptr());
         let (ox, oy, oz) = (_mm256_set1_ps(r.o[0]), _mm256_set1_ps(r.o[1]), _mm256_set1_ps(r.o[2]));
         let (sx, sy) = (_mm256_set1_ps(r.s[0]), _mm256_set1_ps(r.s[1]));
         // As `RtTriangle::intersect`'s `rel`, operation for operation.
@@ -360,7 +368,7 @@ mod tests {
             }
             let r = WatertightRay::new(o.into(), d.into());
             let tmax = if i % 3 == 0 { 1.0 } else { f32::INFINITY };
-            let start = (i as usize * 13) % (soa.len() - LANES);
+            let start = (i as usize * 13) % (soa.len() - LANES) / LANES * LANES;
             for lanes in [0xFF, 0x01, 0x80, 0x5A, (i as u32 * 2654435761) >> 24] {
                 let (a, b) = (soa.intersect8(&r, start, lanes, tmax), soa.intersect8_scalar(&r, start, lanes, tmax));
                 let bits = |h: Option<(f32, usize, f32, f32)>| {

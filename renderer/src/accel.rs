@@ -1,7 +1,7 @@
 //! Ray-triangle intersection over the whole scene: a compressed-wide BVH (CWBVH, 8-wide, SIMD node
 //! tests) built by `obvhs` and traversed by its loop with our 8-wide node test, with triangles
-//! stored in BVH leaf order as coordinate arrays and intersected by our watertight test
-//! (`triangle.rs`), all the leaf triangles a node test reaches eight at a time.
+//! stored in BVH leaf order in blocks of eight and intersected by our watertight test
+//! (`triangle.rs`): the leaf triangles a node test reaches, a block (eight lanes) at a time.
 //!
 //! Instancing makes it two-level: each prototype (a mesh several nodes place) gets its own BVH over
 //! its object-space triangles, built once; the top level holds the world-space triangles and one

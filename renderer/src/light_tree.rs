@@ -274,7 +274,7 @@ pub struct LightTree {
     families: Vec<Family>,
     family_of: Vec<u32>,
     lanes: Vec<Lanes>,
-    /// Evaluate children one at a time with `LightBounds::importance` (the reference the paired
+    /// Evaluate children one at a time with `LightBounds::importance` (the reference the family
     /// evaluation is held to, bit for bit); off except in tests.
     scalar_reference: bool,
     /// For each light: its leaf's node index.
@@ -581,12 +581,12 @@ mod tests {
                 nonzero += (sa > 0.0) as usize + (sb > 0.0) as usize;
             }
             let uu = u(7 * k + 5);
-            let paired = (tree.sample(p, n, uu), (0..300).map(|l| tree.pmf(p, n, l).to_bits()).collect::<Vec<_>>());
+            let family = (tree.sample(p, n, uu), (0..300).map(|l| tree.pmf(p, n, l).to_bits()).collect::<Vec<_>>());
             tree.set_scalar_reference(true);
             let scalar = (tree.sample(p, n, uu), (0..300).map(|l| tree.pmf(p, n, l).to_bits()).collect::<Vec<_>>());
             tree.set_scalar_reference(false);
-            assert_eq!(paired.0.map(|(l, q)| (l, q.to_bits())), scalar.0.map(|(l, q)| (l, q.to_bits())), "point {k}");
-            assert_eq!(paired.1, scalar.1, "point {k}");
+            assert_eq!(family.0.map(|(l, q)| (l, q.to_bits())), scalar.0.map(|(l, q)| (l, q.to_bits())), "point {k}");
+            assert_eq!(family.1, scalar.1, "point {k}");
         }
         assert!(compared > 500_000 && nonzero > compared / 4, "{compared} compared, {nonzero} non-zero");
     }

@@ -120,8 +120,8 @@ impl Scene {
         Ok(())
     }
 
-    /// Makes the SIMD parts of ray queries and light selection (eight-wide leaf triangles, paired
-    /// light-tree children) run their one-at-a-time reference instead: same images, bit for bit
+    /// Makes the SIMD parts of ray queries and light selection (eight-wide leaf triangles, the
+    /// light tree's family evaluation) run their one-at-a-time reference instead: same images, bit for bit
     /// (`renderer/tests/watertight.rs` renders every test scene both ways). Lasts until the
     /// light set or BVH is rebuilt.
     pub fn set_scalar_reference(&mut self, on: bool) {

@@ -14,8 +14,7 @@ use crate::mesh::Mesh;
 use obvhs::cwbvh::CwBvh;
 use obvhs::ray::Ray as BvhRay;
 
-pub use crate::triangle::RtTriangle;
-use crate::triangle::{TriangleSoa, WatertightRay, LANES};
+use crate::triangle::{RtTriangle, TriangleBlocks, WatertightRay, LANES};
 
 #[derive(Clone, Copy, Debug)]
 pub struct Hit {
@@ -133,8 +132,8 @@ crate::named_choices!(AccelKind, "accelerator", { "obvhs" => Self::Obvhs, "own" 
 pub struct Accel {
     bvh: CwBvh,
     /// Triangles in `bvh.primitive_indices` order, so a node's leaf primitives are consecutive slots.
-    tris: TriangleSoa,
-    /// Test leaf triangles one at a time (`TriangleSoa::intersect8_scalar`): the reference the
+    tris: TriangleBlocks,
+    /// Test leaf triangles one at a time (`TriangleBlocks::intersect8_scalar`): the reference the
     /// eight-wide test is held to (same hits, same images), off except in tests.
     scalar_reference: bool,
     own: Option<crate::bvh::Bvh>,
@@ -163,7 +162,7 @@ impl Accel {
             let tris = ids.iter().map(|&i| RtTriangle::new(mesh.vertices(i), i)).collect();
             return Accel {
                 bvh: CwBvh::default(),
-                tris: TriangleSoa::default(),
+                tris: TriangleBlocks::default(),
                 scalar_reference: false,
                 own: Some(crate::bvh::Bvh::build(tris)),
                 top: None,
@@ -184,7 +183,7 @@ impl Accel {
             build_params(prims.len()),
             &mut std::time::Duration::default(),
         );
-        let tris = TriangleSoa::new(
+        let tris = TriangleBlocks::new(
             bvh.primitive_indices.iter().map(|&k| RtTriangle::new(mesh.vertices(ids[k as usize]), ids[k as usize])),
         );
         Accel { bvh, tris, scalar_reference: false, own: None, top: None }

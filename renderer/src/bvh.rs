@@ -2,8 +2,8 @@
 //! Bounding Volume Hierarchies"), traversed with a stack and near-child-first ordering. It exists to
 //! measure `obvhs`'s CWBVH against (`tessera bench --accel own`), and as a fallback with no SIMD.
 
-use crate::accel::RtTriangle;
 use crate::math::{Vec3, Vec3A};
+use crate::triangle::RtTriangle;
 
 #[derive(Clone, Copy, Debug)]
 struct Node {

@@ -1,6 +1,6 @@
 //! The ray–triangle test: watertight (Woop, Benthin & Wald 2013, "Watertight Ray/Triangle
 //! Intersection", JCGT 2(1); the form of pbrt-v4 §6.5.3), one triangle at a time ([`RtTriangle`])
-//! and eight at a time with AVX2 ([`TriangleSoa::intersect8`]).
+//! and eight at a time with AVX2 ([`TriangleBlocks::intersect8`]).
 //!
 //! Why watertight: Möller-Trumbore tests each triangle in its own edge frame, so two triangles
 //! sharing an edge round that edge differently and a ray can slip between them (7 of 10⁶ rays from
@@ -118,7 +118,7 @@ fn finish(e0: f32, e1: f32, e2: f32, az: f32, bz: f32, cz: f32, sz: f32, tmax: f
 /// one-triangle-at-a-time Möller-Trumbore; a block is 4½ adjacent lines the prefetcher follows.
 /// The BVH stores a node's leaf triangles in consecutive slots, so a node's group spans few blocks.
 #[derive(Clone, Debug, Default)]
-pub struct TriangleSoa {
+pub struct TriangleBlocks {
     blocks: Vec<Block>,
     /// Mesh triangle index of each slot.
     pub ids: Vec<u32>,
@@ -130,13 +130,13 @@ struct Block {
     rows: [[f32; LANES]; 9],
 }
 
-/// Lanes of [`TriangleSoa::intersect8`].
+/// Lanes of [`TriangleBlocks::intersect8`].
 pub const LANES: usize = 8;
 
-impl TriangleSoa {
+impl TriangleBlocks {
     pub fn new(tris: impl ExactSizeIterator<Item = RtTriangle>) -> Self {
         let n = tris.len();
-        let mut soa = TriangleSoa { blocks: vec![Block::default(); n.div_ceil(LANES)], ids: Vec::with_capacity(n) };
+        let mut soa = TriangleBlocks { blocks: vec![Block::default(); n.div_ceil(LANES)], ids: Vec::with_capacity(n) };
         for (i, t) in tris.enumerate() {
             for j in 0..3 {
                 for k in 0..3 {
@@ -241,13 +241,14 @@ impl TriangleSoa {
         }
         let mut ts = [0f32; LANES];
         _mm256_storeu_ps(ts.as_mut_ptr(), l.t);
-        // Highest lane first with a strict comparison: the scalar order.
+        // Highest lane first with a strict comparison: the scalar order. (A hit's t is below
+        // tmax, so finite, and the first hit always replaces the infinite start.)
         let mut hits = l.hits;
-        let mut best = (f32::INFINITY, LANES);
+        let mut best = (f32::INFINITY, 0);
         while hits != 0 {
             let k = 31 - hits.leading_zeros() as usize;
             hits &= !(1 << k);
-            if best.1 == LANES || ts[k] < best.0 {
+            if ts[k] < best.0 {
                 best = (ts[k], k);
             }
         }
@@ -311,7 +312,7 @@ impl TriangleSoa {
     }
 }
 
-/// What [`TriangleSoa::lanes_avx2`] found: the lanes hit (meaningless where `on_edge` is set:
+/// What [`TriangleBlocks::lanes_avx2`] found: the lanes hit (meaningless where `on_edge` is set:
 /// those lanes need the scalar test's f64 recomputation), and per lane t, e1, e2 and 1/det.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 struct Lanes8 {
@@ -341,15 +342,19 @@ mod tests {
         for i in 0..400u64 {
             let (a, b, c) = (v3(10 * i), v3(10 * i + 3), v3(10 * i + 6));
             let tri = match i % 5 {
-                0 => [a, b, b],                                         // degenerate
-                1 => [a, b, a + (b - a) * 0.5],                         // collinear
-                2 => [Vec3::ZERO, a, b],                                // many share the origin vertex
-                3 => [tris_last(&tris, i).1, tris_last(&tris, i).0, c], // shares an edge, reversed
+                0 => [a, b, b],                 // degenerate
+                1 => [a, b, a + (b - a) * 0.5], // collinear
+                2 => [Vec3::ZERO, a, b],        // many share the origin vertex
+                3 => {
+                    // Shares an edge with the triangle before it, wound the other way.
+                    let prev: &RtTriangle = &tris[tris.len() - 1];
+                    [prev.v[1].into(), prev.v[0].into(), c]
+                }
                 _ => [a, b, c],
             };
             tris.push(RtTriangle::new(tri, i as u32));
         }
-        let soa = TriangleSoa::new(tris.iter().copied());
+        let soa = TriangleBlocks::new(tris.iter().copied());
         let (mut compared, mut hits) = (0usize, 0usize);
         for i in 0..3000u64 {
             let o = v3(7 * i + 100_000) * 2.0;
@@ -381,10 +386,6 @@ mod tests {
             }
         }
         assert!(compared > 10_000 && hits > 1000, "{compared} groups, {hits} hits");
-    }
-
-    fn tris_last(tris: &[RtTriangle], i: u64) -> (Vec3, Vec3) {
-        tris.last().map_or((v3(i), v3(i + 50)), |t| (t.v[0].into(), t.v[1].into()))
     }
 
     /// The reported distance and barycentrics give back the point: t along the ray equals the

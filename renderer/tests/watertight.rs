@@ -113,7 +113,7 @@ fn root() -> &'static Path {
     Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
 }
 
-/// The rule for batching: the eight-wide leaf test and the paired light-tree walk change no bit
+/// The rule for batching: the eight-wide leaf test and the light tree's family walk change no bit
 /// of any test scene's image (with the light sampler each scene's `auto` picks, and the tree forced).
 #[test]
 fn every_test_scene_renders_the_same_bits_with_the_scalar_reference() {

@@ -55,10 +55,8 @@ fn traverse_closest(bvh: &CwBvh, mut ray: BvhRay, mut group: impl FnMut(&BvhRay,
     let mut state = bvh.new_traversal(ray.direction);
     let mut node;
     obvhs::traverse!(bvh, node, state, crate::cwbvh_node::intersect(node, &ray, state.oct_inv4), {
-        let base = state.primitive_group.x;
-        let mask = state.primitive_group.y | (1 << (state.primitive_id - base));
-        state.primitive_group.y = 0;
-        let t = group(&ray, base as usize, mask);
+        let (base, mask) = take_group(&mut state);
+        let t = group(&ray, base, mask);
         if t < ray.tmax {
             ray.tmax = t;
         }
@@ -75,16 +73,39 @@ fn traverse_any(bvh: &CwBvh, ray: BvhRay, mut group: impl FnMut(usize, u32) -> b
     let mut hit = false;
     'outer: {
         obvhs::traverse!(bvh, node, state, crate::cwbvh_node::intersect(node, &ray, state.oct_inv4), {
-            let base = state.primitive_group.x;
-            let mask = state.primitive_group.y | (1 << (state.primitive_id - base));
-            state.primitive_group.y = 0;
-            if group(base as usize, mask) {
+            let (base, mask) = take_group(&mut state);
+            if group(base, mask) {
                 hit = true;
                 break 'outer;
             }
         });
     }
     hit
+}
+
+/// Inside `obvhs::traverse!`'s primitive block: the primitive it hands over together with the
+/// rest of its node's hit leaf primitives, as (first slot, bits of the slots after it), taken
+/// out of the loop's state so that it moves on to the next node.
+#[inline(always)]
+fn take_group(state: &mut obvhs::cwbvh::Traversal) -> (usize, u32) {
+    let base = state.primitive_group.x;
+    let mask = state.primitive_group.y | (1 << (state.primitive_id - base));
+    state.primitive_group.y = 0;
+    (base as usize, mask)
+}
+
+/// Calls `f` on the bits i of `mask`, highest first (the order the traversal loop hands
+/// primitives over in), until it returns true; returns whether it did.
+#[inline(always)]
+fn any_bit_descending(mut mask: u32, mut f: impl FnMut(usize) -> bool) -> bool {
+    while mask != 0 {
+        let i = 31 - mask.leading_zeros();
+        mask &= !(1 << i);
+        if f(i as usize) {
+            return true;
+        }
+    }
+    false
 }
 
 /// The next window for slots `base + i` (the bits i of a non-empty `mask`): the block of
@@ -279,11 +300,8 @@ impl Accel {
         traverse_closest(&self.bvh, ray, |r, base, mask| {
             let mut bound = r.tmax;
             // Highest slot first with a shrinking bound, as the traversal loop hands them over.
-            let mut bits = mask;
-            while bits != 0 {
-                let i = 31 - bits.leading_zeros();
-                bits &= !(1 << i);
-                match &top.prims[base + i as usize] {
+            any_bit_descending(mask, |i| {
+                match &top.prims[base + i] {
                     TopPrim::Triangle(tri) => {
                         if let Some((t, b1, b2)) = tri.intersect(&wray, bound) {
                             best = Some(Hit { t, triangle: tri.id, b1, b2, instance: NO_INSTANCE });
@@ -299,7 +317,8 @@ impl Accel {
                         }
                     }
                 }
-            }
+                false
+            });
             bound
         });
         best
@@ -361,35 +380,25 @@ impl Accel {
             let ray = BvhRay::new(oa, da, 0.0, tmax);
             let wray = WatertightRay::new(oa, da);
             return traverse_any(&self.bvh, ray, |base, mask| {
-                let mut bits = mask;
-                while bits != 0 {
-                    let i = 31 - bits.leading_zeros();
-                    bits &= !(1 << i);
-                    let hit = match &top.prims[base + i as usize] {
-                        TopPrim::Triangle(tri) => tri.intersect(&wray, tmax).is_some(),
-                        TopPrim::Instance { prototype, to_object, .. } => {
-                            let blas = &top.blas[*prototype as usize];
-                            let (oo, dd) = (to_object.transform_point3a(oa), to_object.transform_vector3a(da));
-                            if blas.tris.is_empty() || !oo.is_finite() || !dd.is_finite() {
-                                false
-                            } else {
-                                let w = WatertightRay::new(oo, dd);
-                                traverse_any(&blas.bvh, BvhRay::new(oo, dd, 0.0, tmax), |b, m| {
-                                    blas.any_in_group(&w, b, m, tmax)
-                                })
-                            }
-                        }
-                    };
-                    if hit {
-                        return true;
-                    }
-                }
-                false
+                any_bit_descending(mask, |i| match &top.prims[base + i] {
+                    TopPrim::Triangle(tri) => tri.intersect(&wray, tmax).is_some(),
+                    TopPrim::Instance { prototype, to_object, .. } => top.blas[*prototype as usize].occluded_object(
+                        to_object.transform_point3a(oa),
+                        to_object.transform_vector3a(da),
+                        tmax,
+                    ),
+                })
             });
         }
         if let Some(own) = &self.own {
             return own.intersect(o, d, tmax, true).is_some();
         }
+        self.occluded_object(oa, da, tmax)
+    }
+
+    /// Whether anything lies on the ray before `tmax` in a one-level BVH (the scene's, or a
+    /// prototype's with the ray in object space), as [`Self::intersect_object`] for closest hits.
+    fn occluded_object(&self, oa: Vec3A, da: Vec3A, tmax: f32) -> bool {
         if self.tris.is_empty() || !oa.is_finite() || !da.is_finite() {
             return false;
         }

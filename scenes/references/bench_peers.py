@@ -38,7 +38,8 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--runs", type=int, default=3)
-    ap.add_argument("--variants", nargs="+", default=["scalar_rgb", "llvm_ad_rgb"])
+    ap.add_argument("--variants", nargs="+", default=["scalar_rgb", "llvm_ad_rgb"],
+                    help='Mitsuba variants to run beside Tessera; "none" for Tessera alone')
     ap.add_argument("--tessera-args", default="", help="extra flags for tessera render (quoted)")
     ap.add_argument("scenes", nargs="*", default=list(mr.SCENES))
     a = ap.parse_args()
@@ -60,7 +61,7 @@ def main():
                 times.append(float(p.stderr.split(" in ")[1].split("s ")[0]))
                 errs.append(rel_mse(np.array(mi.Bitmap(out), dtype=np.float64)[:, :, :3], ref))
             rows.append(("tessera", statistics.median(times), statistics.median(errs)))
-            for variant in a.variants:
+            for variant in (v for v in a.variants if v != "none"):
                 try:
                     mi.set_variant(variant)
                     scene = mi.load_dict(mr.build_scene(os.path.join(mr.ROOT, rel), w, h, 1, tmp, env))

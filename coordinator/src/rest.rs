@@ -192,7 +192,7 @@ async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Va
         let main = b.unpack(&d).map_err(|e| format!("cannot unpack the scene: {e}"))?;
         let strip = |e: String| e.replace(&format!("{}/", d.display()), "");
         let mut scene = renderer::gltf_loader::load(&main).map_err(|e| strip(e.to_string()))?;
-        scene.attach_environment(&env_probe, &d).map_err(|e| strip(e.to_string()))?;
+        scene.attach_environment(&env_probe, &d, true).map_err(|e| strip(e.to_string()))?;
         Ok((scene.cameras.iter().map(|c| c.aspect_ratio).collect(), scene.warnings.clone()))
     })
     .await

@@ -30,11 +30,14 @@ fn build(func: &[f32]) -> Built {
     } else {
         (vec![1.0; n], (0..=n).map(|i| i as f32 / n as f32).collect())
     };
-    let integral = if integral > 0.0 { integral as f32 } else { 1.0 };
+    // An all-zero table samples uniformly (density 1) but reports its true integral, 0: a 2D
+    // table's all-zero row must weigh nothing in the marginal. (It used to report 1, which gave
+    // the rows MIS compensation zeroes out a share of the environment's light samples.)
+    let density_scale = if integral > 0.0 { integral as f32 } else { 1.0 };
     let g = (n / 2).next_power_of_two().min(1 << 20);
     let guide = (0..=g).map(|k| cdf.partition_point(|&c| c <= k as f32 / g as f32) as u32).collect();
-    let entries = (0..=n).map(|i| [cdf[i], if i < n { func[i] / integral } else { 0.0 }]).collect();
-    Built { entries, guide, integral }
+    let entries = (0..=n).map(|i| [cdf[i], if i < n { func[i] / density_scale } else { 0.0 }]).collect();
+    Built { entries, guide, integral: integral as f32 }
 }
 
 /// A 1D table as sampling sees it: `n + 1` entries (CDF at the bin's start, density) and the
@@ -216,6 +219,25 @@ mod tests {
         assert!((d.pdf([0.1, 0.25]) - 1.0 / total).abs() < 1e-5);
         let (uv, p) = d.sample([0.9, 0.9]);
         assert!((p - d.pdf(uv)).abs() < 1e-5);
+    }
+
+    /// A row of zeros gets no samples and density 0, however many rows are zero (MIS compensation
+    /// zeroes whole rows of an environment map). An all-zero row used to enter the marginal with
+    /// weight 1, as if it were uniform: here that row drew 1/(1 + 2/3) = 60 % of the samples.
+    #[test]
+    fn zero_rows_weigh_nothing() {
+        let f = [0.0, 0.0, 0.0, 1.0, 0.0, 1.0];
+        let d = Distribution2D::new(&f, 3, 2);
+        for k in 0..1000 {
+            let u = [crate::sampler::hash_unit(2 * k), crate::sampler::hash_unit(2 * k + 1)];
+            let (uv, p) = d.sample(u);
+            assert!(uv[1] >= 0.5, "a sample in the zero row: {uv:?}");
+            assert!(p > 0.0 && (p - d.pdf(uv)).abs() < 1e-5, "{uv:?}: {p} vs {}", d.pdf(uv));
+        }
+        assert_eq!(d.pdf([0.5, 0.25]), 0.0);
+        // All rows zero: uniform over the square.
+        let z = Distribution2D::new(&[0.0; 6], 3, 2);
+        assert!((z.pdf([0.1, 0.9]) - 1.0).abs() < 1e-6 && (z.pdf([0.9, 0.1]) - 1.0).abs() < 1e-6);
     }
 
     /// The guide table finds what a search of the whole CDF finds, for every u of a fine grid,

@@ -64,9 +64,11 @@ pub fn radiance(
                 let le = env.eval(d);
                 match (settings.integrator, prev) {
                     (_, None) | (IntegratorKind::Bsdf, _) => l += beta * le,
-                    // NEE already sampled the environment, unless its sampling is off.
-                    (IntegratorKind::Nee, Some(_)) => {
-                        if !env.is_sampled() {
+                    // NEE already sampled the environment where it can: where the light pdf is 0
+                    // (sampling off, or directions MIS compensation leaves to BSDF sampling:
+                    // environment.rs) only this path finds it.
+                    (IntegratorKind::Nee, Some((p_prev, n_prev, _))) => {
+                        if scene.lights.environment_pdf(d, p_prev, Some(n_prev)) == 0.0 {
                             l += beta * le;
                         }
                     }

@@ -95,8 +95,9 @@ impl Scene {
     /// `prepare` so that an input added there cannot be forgotten here.
     pub fn prepare_key(settings: &crate::RenderSettings) -> String {
         format!(
-            "{:?} {:?} {:?} {:?} {}x{}",
+            "{:?} {:?} {:?} {:?} {:?} {}x{}",
             settings.environment,
+            settings.integrator,
             settings.light_units,
             settings.light_sampler,
             settings.camera,
@@ -114,7 +115,8 @@ impl Scene {
         base: &std::path::Path,
     ) -> Result<(), crate::RenderError> {
         self.set_light_units(settings.light_units);
-        self.attach_environment(&settings.environment, base)?;
+        let mis = settings.integrator == crate::settings::IntegratorKind::Mis;
+        self.attach_environment(&settings.environment, base, mis)?;
         let view = self.camera(settings.camera).ok().map(|c| (c, settings.width, settings.height));
         self.set_light_sampler_for(settings.light_sampler, view);
         Ok(())
@@ -223,17 +225,24 @@ impl Scene {
         self.lights.set_kind_exact(kind, &self.mesh);
     }
 
-    /// Loads and attaches the environment described by `settings`; `base` resolves a relative map path.
+    /// Loads and attaches the environment described by `settings`; `base` resolves a relative map
+    /// path. `mis_compensation`: the integrator combines light and BSDF samples by MIS, so the
+    /// map's sampling may leave its dim part to BSDF sampling (`Environment::from_texels`).
     pub fn attach_environment(
         &mut self,
         settings: &crate::environment::EnvironmentSettings,
         base: &std::path::Path,
+        mis_compensation: bool,
     ) -> Result<(), crate::RenderError> {
         use crate::environment::Environment;
         let env = match (&settings.map, settings.color) {
-            (Some(map), _) => {
-                Some(Environment::load(&base.join(map), settings.strength, settings.rotate_deg, settings.sampling)?)
-            }
+            (Some(map), _) => Some(Environment::load(
+                &base.join(map),
+                settings.strength,
+                settings.rotate_deg,
+                settings.sampling,
+                mis_compensation,
+            )?),
             (None, Some(c)) => {
                 let c = crate::math::Vec3::from(c) * settings.strength;
                 if !c.is_finite() || c.min_element() < 0.0 {

@@ -91,7 +91,7 @@ fn white_lambert_sphere_vanishes_under_a_uniform_environment() {
         b.look_at(Vec3::new(0.0, 0.0, 4.0), Vec3::ZERO, 35.0);
         let mut scene = b.build();
         let env = EnvironmentSettings { color: Some([1.0, 1.0, 1.0]), sampling, ..Default::default() };
-        scene.attach_environment(&env, std::path::Path::new(".")).unwrap();
+        scene.attach_environment(&env, std::path::Path::new("."), true).unwrap();
         for integrator in [IntegratorKind::Bsdf, IntegratorKind::Nee, IntegratorKind::Mis] {
             let s = RenderSettings { environment: env.clone(), ..settings(integrator, 32) };
             let sums = render_tile(&scene, &s, Rect { x0: 0, y0: 0, width: 24, height: 24 }, 0..s.spp);

@@ -171,8 +171,8 @@ fn environment_sampling_matches_its_pdf() {
     // Bin in the map's own frame (pole = +Y, φ = atan2(z, x)), so the 32×64 chi-square cells are
     // exactly 16×16-texel blocks of the 1024×512 map and the sub-grid hits texel centres: the expected
     // counts are then exact for a piecewise-constant pdf, sun included.
-    for rotate in [0.0f32, 37.0] {
-        let env = Environment::load(&path, 1.0, rotate, true).expect("sunset.exr");
+    for (rotate, mis_compensation) in [(0.0f32, false), (37.0, false), (0.0, true), (37.0, true)] {
+        let env = Environment::load(&path, 1.0, rotate, true, mis_compensation).expect("sunset.exr");
         let (c, s) = (rotate.to_radians().cos(), rotate.to_radians().sin());
         let to_map = move |d: Vec3| Vec3::new(c * d.x - s * d.z, d.y, s * d.x + c * d.z);
         let to_world = move |d: Vec3| Vec3::new(c * d.x + s * d.z, d.y, -s * d.x + c * d.z);
@@ -186,7 +186,7 @@ fn environment_sampling_matches_its_pdf() {
             |i| env.sample(rng(i, 500 + rotate as u64).get_2d(0)).map(|smp| to_chi(to_map(smp.0))),
             |w| env.pdf(to_world(from_chi(w))) as f64,
         );
-        results.push((format!("environment sunset.exr rotated {rotate}°"), r));
+        results.push((format!("environment sunset.exr rotated {rotate}°, MIS compensation {mis_compensation}"), r));
     }
     let uniform = Environment::uniform(Vec3::ONE, true);
     results.push((

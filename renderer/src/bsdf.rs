@@ -131,8 +131,23 @@ impl Bsdf {
         self.coat.is_some() || self.sheen.is_some()
     }
 
+    /// A plain Lambert surface: metallic 0, KHR_materials_specular 0, no transmission, coat or
+    /// sheen (every surface of the Cornell box). The general code gives it base_color/π and the
+    /// cosine pdf through a half vector, two Fresnel terms and a lobe probability that come out
+    /// exactly 1 and 0 there; `eval`, `pdf` and `sample` skip them and return the same numbers,
+    /// bit for bit (a test compares on random directions). The general path was 18 % of a
+    /// Cornell-box render in `perf` (eval 8.8 %, sample 6.6 %, pdf 3.0 %).
+    #[inline]
+    fn is_lambert(&self) -> bool {
+        self.metallic == 0.0 && self.specular == 0.0 && self.transmission == 0.0 && !self.layered()
+    }
+
     /// f(wo, wi) without delta lobes, in the local frame (`wo.z` > 0; `wi.z` < 0 only through glass).
     pub fn eval(&self, wo: Vec3, wi: Vec3) -> Vec3 {
+        if self.is_lambert() {
+            // eval_base's sum, 0 + base_color·(1·1/π), with its signed zeros.
+            return if wo.z <= 0.0 || wi.z <= 0.0 { Vec3::ZERO } else { Vec3::ZERO + self.base_color * INV_PI };
+        }
         if !self.layered() {
             return self.eval_base(wo, wi);
         }
@@ -144,6 +159,9 @@ impl Bsdf {
 
     /// Solid-angle pdf of `sample()` producing `wi` (non-delta part).
     pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
+        if self.is_lambert() {
+            return if wo.z <= 0.0 || wi.z <= 0.0 { 0.0 } else { cosine_hemisphere_pdf(wi.z) };
+        }
         if !self.layered() {
             return self.pdf_base(wo, wi);
         }
@@ -161,6 +179,16 @@ impl Bsdf {
     /// Samples wi given wo. `u_lobe` picks the lobe (coat, sheen, base in that order), `u` the
     /// direction within it.
     pub fn sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
+        if self.is_lambert() {
+            if wo.z <= 0.0 {
+                return None;
+            }
+            let wi = sample_cosine_hemisphere(u);
+            if wi.z <= 0.0 {
+                return None;
+            }
+            return self.finish(wo, wi);
+        }
         if !self.layered() {
             return self.sample_base(wo, u_lobe, u);
         }
@@ -326,6 +354,50 @@ pub(crate) mod tests {
             coat: None,
             sheen: None,
         }
+    }
+
+    /// The Lambert shortcut of `eval`, `pdf` and `sample` gives the general code's numbers bit for
+    /// bit, on both hemispheres, for black to white, any roughness and dielectric F0.
+    #[test]
+    fn lambert_shortcut_equals_the_general_code() {
+        let u = crate::sampler::hash_unit;
+        let dir = |k: u64| {
+            let d = Vec3::new(u(k) * 2.0 - 1.0, u(k + 1) * 2.0 - 1.0, u(k + 2) * 2.0 - 1.0);
+            d.normalize_or_zero()
+        };
+        let mut checked = 0;
+        for m in 0..40u64 {
+            let b = Bsdf {
+                base_color: if m % 10 == 0 { Vec3::ZERO } else { Vec3::new(u(m * 7), u(m * 7 + 1), u(m * 7 + 2)) },
+                ggx: Ggx::from_roughness(if m % 4 == 0 { 0.0 } else { u(m * 7 + 3) }),
+                f0_dielectric: Vec3::splat(0.02 + 0.1 * u(m * 7 + 4)),
+                ..lambert(0.5)
+            };
+            assert!(b.is_lambert());
+            for k in 0..500u64 {
+                let idx = 1000 * m + 10 * k;
+                let (wo, wi) = (dir(idx), dir(idx + 3));
+                assert_eq!(
+                    b.eval(wo, wi).to_array().map(f32::to_bits),
+                    b.eval_base(wo, wi).to_array().map(f32::to_bits)
+                );
+                assert_eq!(b.pdf(wo, wi).to_bits(), b.pdf_base(wo, wi).to_bits());
+                let (ul, uv) = (u(idx + 6), Vec2::new(u(idx + 7), u(idx + 8)));
+                let (a, g) = (b.sample(wo, ul, uv), b.sample_base(wo, ul, uv));
+                assert_eq!(a.is_some(), g.is_some(), "{wo:?}");
+                if let (Some(a), Some(g)) = (a, g) {
+                    assert_eq!(a.wi.to_array().map(f32::to_bits), g.wi.to_array().map(f32::to_bits));
+                    assert_eq!(a.f.to_array().map(f32::to_bits), g.f.to_array().map(f32::to_bits));
+                    assert_eq!((a.pdf.to_bits(), a.delta), (g.pdf.to_bits(), g.delta));
+                    // `finish` takes f and pdf from `eval` and `pdf`: the general ones agree there too.
+                    let wi = a.wi;
+                    assert_eq!(a.f.to_array().map(f32::to_bits), b.eval_base(wo, wi).to_array().map(f32::to_bits));
+                    assert_eq!(a.pdf.to_bits(), b.pdf_base(wo, wi).to_bits());
+                    checked += 1;
+                }
+            }
+        }
+        assert!(checked > 5000, "{checked} samples compared");
     }
 
     pub fn metal(roughness: f32) -> Bsdf {

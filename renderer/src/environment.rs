@@ -168,25 +168,14 @@ impl Environment {
             }
         }
         let mean_luminance = if wsum > 0.0 { (mean / wsum) as f32 } else { 0.0 };
-        let weights: Vec<f32> = peak
-            .iter()
-            .enumerate()
-            .map(|(i, &m)| {
-                let sin_theta = (((i / width) as f32 + 0.5) / height as f32 * PI).sin();
-                if mis_compensation {
-                    (m - mean_luminance).max(0.0) * sin_theta
-                } else {
-                    m * sin_theta
-                }
-            })
-            .collect();
-        // Without compensation (the NEE integrator, which has no BSDF strategy to leave the dim
-        // part to), a small floor keeps every direction's density positive.
-        let weights = if mis_compensation {
-            weights
+        let row_sin = |i: usize| (((i / width) as f32 + 0.5) / height as f32 * PI).sin();
+        let weights: Vec<f32> = if mis_compensation {
+            peak.iter().enumerate().map(|(i, &m)| (m - mean_luminance).max(0.0) * row_sin(i)).collect()
         } else {
+            // Without compensation (the NEE integrator, which has no BSDF strategy to leave the
+            // dim part to), a small floor keeps every direction's density positive.
+            let weights: Vec<f32> = peak.iter().enumerate().map(|(i, &m)| m * row_sin(i)).collect();
             let floor = 1e-3 * weights.iter().map(|&w| w as f64).sum::<f64>() as f32 / weights.len().max(1) as f32;
-            let row_sin = |i: usize| (((i / width) as f32 + 0.5) / height as f32 * PI).sin();
             weights.iter().enumerate().map(|(i, &w)| w + floor.max(1e-12) * row_sin(i)).collect()
         };
         let distribution = (sampling && !uniform).then(|| Distribution2D::new(&weights, width, height));

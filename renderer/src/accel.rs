@@ -94,18 +94,16 @@ fn take_group(state: &mut obvhs::cwbvh::Traversal) -> (usize, u32) {
     (base as usize, mask)
 }
 
-/// Calls `f` on the bits i of `mask`, highest first (the order the traversal loop hands
-/// primitives over in), until it returns true; returns whether it did.
+/// The bits i of `mask`, highest first (the order the traversal loop hands primitives over in).
 #[inline(always)]
-fn any_bit_descending(mut mask: u32, mut f: impl FnMut(usize) -> bool) -> bool {
-    while mask != 0 {
-        let i = 31 - mask.leading_zeros();
-        mask &= !(1 << i);
-        if f(i as usize) {
-            return true;
-        }
-    }
-    false
+fn bits_descending(mut mask: u32) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (mask != 0).then(|| {
+            let i = 31 - mask.leading_zeros();
+            mask &= !(1 << i);
+            i as usize
+        })
+    })
 }
 
 /// The next window for slots `base + i` (the bits i of a non-empty `mask`): the block of
@@ -300,7 +298,7 @@ impl Accel {
         traverse_closest(&self.bvh, ray, |r, base, mask| {
             let mut bound = r.tmax;
             // Highest slot first with a shrinking bound, as the traversal loop hands them over.
-            any_bit_descending(mask, |i| {
+            for i in bits_descending(mask) {
                 match &top.prims[base + i] {
                     TopPrim::Triangle(tri) => {
                         if let Some((t, b1, b2)) = tri.intersect(&wray, bound) {
@@ -317,8 +315,7 @@ impl Accel {
                         }
                     }
                 }
-                false
-            });
+            }
             bound
         });
         best
@@ -380,7 +377,7 @@ impl Accel {
             let ray = BvhRay::new(oa, da, 0.0, tmax);
             let wray = WatertightRay::new(oa, da);
             return traverse_any(&self.bvh, ray, |base, mask| {
-                any_bit_descending(mask, |i| match &top.prims[base + i] {
+                bits_descending(mask).any(|i| match &top.prims[base + i] {
                     TopPrim::Triangle(tri) => tri.intersect(&wray, tmax).is_some(),
                     TopPrim::Instance { prototype, to_object, .. } => top.blas[*prototype as usize].occluded_object(
                         to_object.transform_point3a(oa),

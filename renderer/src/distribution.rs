@@ -34,10 +34,16 @@ fn build(func: &[f32]) -> Built {
     // table's all-zero row must weigh nothing in the marginal. (It used to report 1, which gave
     // the rows MIS compensation zeroes out a share of the environment's light samples.)
     let density_scale = if integral > 0.0 { integral as f32 } else { 1.0 };
-    let g = (n / 2).next_power_of_two().min(1 << 20);
+    let g = guide_size(n);
     let guide = (0..=g).map(|k| cdf.partition_point(|&c| c <= k as f32 / g as f32) as u32).collect();
     let entries = (0..=n).map(|i| [cdf[i], if i < n { func[i] / density_scale } else { 0.0 }]).collect();
     Built { entries, guide, integral: integral as f32 }
+}
+
+/// The guide table's size G for a table of `n` bins (it has G + 1 entries): the power of two
+/// n/2 rounded up to a power of two, at most 2^20.
+fn guide_size(n: usize) -> usize {
+    (n / 2).next_power_of_two().min(1 << 20)
 }
 
 /// A 1D table as sampling sees it: `n + 1` entries (CDF at the bin's start, density) and the
@@ -154,12 +160,13 @@ impl Distribution2D {
         let mut row_entries = Vec::with_capacity(nv * (nu + 1));
         let mut row_guides = Vec::new();
         let mut rows = Vec::with_capacity(nv);
-        let mut guide_len = 0;
+        // Every row has nu bins, so the same guide length.
+        let guide_len = guide_size(nu) + 1;
         let zeros = vec![0.0; nu];
         for v in 0..nv {
             // A short table's missing rows are all zero (uniform), so every row has nu bins.
             let b = build(func.get(v * nu..(v + 1) * nu).unwrap_or(&zeros));
-            guide_len = b.guide.len();
+            debug_assert_eq!(b.guide.len(), guide_len);
             row_entries.extend_from_slice(&b.entries);
             row_guides.extend_from_slice(&b.guide);
             rows.push(b.integral);

@@ -419,26 +419,25 @@ impl LightTree {
 
     /// Chooses a light for point `p`: (light index, probability).
     pub fn sample(&self, p: Vec3, n: Option<Vec3>, mut u: f32) -> Option<(usize, f32)> {
-        let mut at = 0usize;
-        let mut node = &self.nodes[0];
-        let mut pmf = 1.0f32;
-        if node.leaf {
-            return (node.bounds.importance(p, n) > 0.0).then_some((node.index as usize, 1.0));
+        let root = &self.nodes[0];
+        if root.leaf {
+            return (root.bounds.importance(p, n) > 0.0).then_some((root.index as usize, 1.0));
         }
+        let (mut at, mut pmf) = (0usize, 1.0f32);
         let mut cache = (u32::MAX, [0f32; 8]);
         loop {
             let (pa, _) = Self::probabilities(self.child_importances(at, p, n, &mut cache))?;
-            let child = if u < pa {
+            let first = self.nodes[at].index as usize;
+            at = if u < pa {
                 u = (u / pa).min(1.0 - f32::EPSILON);
                 pmf *= pa;
-                node.index as usize
+                first
             } else {
                 u = ((u - pa) / (1.0 - pa)).min(1.0 - f32::EPSILON);
                 pmf *= 1.0 - pa;
-                node.index as usize + 1
+                first + 1
             };
-            at = child;
-            node = &self.nodes[child];
+            let node = &self.nodes[at];
             if node.leaf {
                 return (pmf > 0.0).then_some((node.index as usize, pmf));
             }

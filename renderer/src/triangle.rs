@@ -136,16 +136,16 @@ pub const LANES: usize = 8;
 impl TriangleBlocks {
     pub fn new(tris: impl ExactSizeIterator<Item = RtTriangle>) -> Self {
         let n = tris.len();
-        let mut soa = TriangleBlocks { blocks: vec![Block::default(); n.div_ceil(LANES)], ids: Vec::with_capacity(n) };
+        let mut out = TriangleBlocks { blocks: vec![Block::default(); n.div_ceil(LANES)], ids: Vec::with_capacity(n) };
         for (i, t) in tris.enumerate() {
             for j in 0..3 {
                 for k in 0..3 {
-                    soa.blocks[i / LANES].rows[3 * j + k][i % LANES] = t.v[j][k];
+                    out.blocks[i / LANES].rows[3 * j + k][i % LANES] = t.v[j][k];
                 }
             }
-            soa.ids.push(t.id);
+            out.ids.push(t.id);
         }
-        soa
+        out
     }
 
     pub fn len(&self) -> usize {
@@ -354,7 +354,7 @@ mod tests {
             };
             tris.push(RtTriangle::new(tri, i as u32));
         }
-        let soa = TriangleBlocks::new(tris.iter().copied());
+        let blocks = TriangleBlocks::new(tris.iter().copied());
         let (mut compared, mut hits) = (0usize, 0usize);
         for i in 0..3000u64 {
             let o = v3(7 * i + 100_000) * 2.0;
@@ -373,14 +373,15 @@ mod tests {
             }
             let r = WatertightRay::new(o.into(), d.into());
             let tmax = if i % 3 == 0 { 1.0 } else { f32::INFINITY };
-            let start = (i as usize * 13) % (soa.len() - LANES) / LANES * LANES;
+            let start = (i as usize * 13) % (blocks.len() - LANES) / LANES * LANES;
             for lanes in [0xFF, 0x01, 0x80, 0x5A, (i as u32 * 2654435761) >> 24] {
-                let (a, b) = (soa.intersect8(&r, start, lanes, tmax), soa.intersect8_scalar(&r, start, lanes, tmax));
+                let (a, b) =
+                    (blocks.intersect8(&r, start, lanes, tmax), blocks.intersect8_scalar(&r, start, lanes, tmax));
                 let bits = |h: Option<(f32, usize, f32, f32)>| {
                     h.map(|(t, s, b1, b2)| (t.to_bits(), s, b1.to_bits(), b2.to_bits()))
                 };
                 assert_eq!(bits(a), bits(b), "ray {i} start {start} lanes {lanes:#x}");
-                assert_eq!(soa.any8(&r, start, lanes, tmax), b.is_some(), "ray {i} start {start} lanes {lanes:#x}");
+                assert_eq!(blocks.any8(&r, start, lanes, tmax), b.is_some(), "ray {i} start {start} lanes {lanes:#x}");
                 compared += 1;
                 hits += a.is_some() as usize;
             }

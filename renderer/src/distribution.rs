@@ -104,14 +104,13 @@ impl Table<'_> {
 pub struct Distribution1D {
     entries: Vec<[f32; 2]>,
     guide: Vec<u32>,
-    integral: f32,
 }
 
 impl Distribution1D {
     /// `func` must be non-negative; an all-zero table becomes uniform.
     pub fn new(func: &[f32]) -> Self {
-        let Built { entries, guide, integral } = build(func);
-        Distribution1D { entries, guide, integral }
+        let Built { entries, guide, .. } = build(func);
+        Distribution1D { entries, guide }
     }
 
     fn table(&self) -> Table<'_> {
@@ -124,10 +123,6 @@ impl Distribution1D {
 
     pub fn is_empty(&self) -> bool {
         self.len() == 0
-    }
-
-    pub fn integral(&self) -> f32 {
-        self.integral
     }
 
     /// Returns (x in [0,1), pdf(x), bin).

@@ -138,8 +138,9 @@ impl Environment {
         // Sampling", §5.1). Under MIS, BSDF sampling already finds the map's dim, smooth part well;
         // spending light samples there only dilutes them. Subtracting the mean sends them to what
         // stands out (sun, windows, bright sky). On `scenes/envlit` (a sunset map: brightest texel
-        // channel 6248, mean over texels and channels 0.46) the image's relMSE at 64 spp drops from 4.70e-3 to 1.76e-3 at the same
-        // time (`bench_peers.py --variants none --runs 5 envlit`).
+        // channel 6248, mean over texels and channels 0.46) the image's relMSE at 64 spp drops
+        // from 4.70e-3 to 1.76e-3 at the same time (`bench_peers.py --variants none --runs 5
+        // envlit`).
         //
         // Directions below the mean get density 0, so next-event estimation never samples them and
         // the MIS integrator gives BSDF-sampled hits there full weight (the light pdf is 0). Only

@@ -6,8 +6,8 @@
 //! each sample 2.25–2.7× dearer), yet whether the tree pays for that depends on where the lights
 //! are and on what a walk costs: on `scenes/veach` (four equal bulbs seen from everywhere) uniform
 //! selection reached 1.6× lower error than the tree at equal time while a walk cost 2.25× a power
-//! sample (docs/speed-vs-accuracy/summary.md); since the walk evaluates two levels per AVX pass
-//! (1.73×) the tree is 1.37× as efficient there; on `scenes/sphere_lights` (four unequal bulbs over
+//! sample (docs/speed-vs-accuracy/summary.md); since the walk chooses among eight children per AVX
+//! pass (1.54×) the tree is 2.0× as efficient there; on `scenes/sphere_lights` (four unequal bulbs over
 //! a floor) the tree was 1.3× better than uniform and 2.4× better than power (issue 10,
 //! `tessera bench convergence --switches light_sampler`).
 //!
@@ -25,7 +25,8 @@
 //! Both refinements were measured against the choice that wins at equal time
 //! (`bench_peers.py --variants none --runs 5 --tessera-args "--light-sampler K"`, issue 15). With
 //! independent samples the pilot chose power on `sphere_light` at every image shape tried, where
-//! the tree is 1.9× as efficient (relMSE 1.23e-4 in 0.59 s against 3.54e-4 in 0.39 s). Replicates
+//! the tree is 1.9× as efficient (relMSE 1.23e-4 in 0.59 s against 3.54e-4 in 0.39 s; 2.3× since
+//! the walk chooses among eight children at a time). Replicates
 //! alone fix that but on `veach` score the three within 2 % and choose uniform, power or tree with
 //! the image's shape (the tree is 1.65× as efficient there: relMSE 1.94e-3 in 0.24 s against
 //! 3.92e-3 in 0.19 s): unweighted, NEE's variance on veach is that of the glossy plates'
@@ -49,12 +50,13 @@ pub const PILOT_SAMPLES: u64 = 16;
 /// Independently scrambled replicates per point and candidate: the spread of their means is the
 /// pilot's variance (see `pilot_variance`).
 pub const PILOT_REPLICATES: u64 = 8;
-/// Extra cost of one tree level relative to a whole path sample with power selection: measured on
-/// `scenes/sphere_lights` (4608 emissive triangles, depth 12.2) with `tessera bench` (256×192,
-/// 16 spp, medians of 3, three runs each): a tree sample costs 1.73× a power sample (3.87 against
-/// 2.24 Mpaths/s), (1.73 − 1) / 12.2 ≈ 0.06. (It was 2.25× and 0.10 before the walk evaluated a
-/// node's children and grandchildren in one AVX pass, `light_tree::Family`.)
-pub const TREE_LEVEL_COST: f64 = 0.06;
+/// Extra cost of one tree level (of the binary depth log2 N) relative to a whole path sample with
+/// power selection: measured on `scenes/sphere_lights` (4608 emissive triangles, log2 N = 12.2)
+/// with `tessera bench` (256×192, 16 spp, medians of 3, three runs each): a tree sample costs 1.54×
+/// a power sample (0.209 against 0.136 s), (1.54 − 1) / 12.2 ≈ 0.044. (It was 2.25× and 0.10
+/// before the walk evaluated a node's children and grandchildren in one AVX pass, then 1.73× and
+/// 0.06 until the walk chose among eight children at a time, `light_tree::WideNode`.)
+pub const TREE_LEVEL_COST: f64 = 0.044;
 
 /// A uniform number in [0, 1) from a hash of (stream, index).
 fn rand(stream: u64, i: u64) -> f32 {

@@ -131,16 +131,12 @@ impl LightBounds {
     }
 }
 
-/// The bounds below an interior node X, as the eight lanes of vectors: X's two children (lanes 0
-/// and 1) and their children (lanes 2–3 under the first, 4–5 under the second; empty lanes are
-/// zero bounds), with what `importance` derives from bounds alone (centroid, half diagonal,
-/// sin θo) computed once, by the same operations. [`Family::importance`] runs
-/// `LightBounds::importance` on all lanes at once (AVX), operation for operation, so every lane
-/// is the one-at-a-time reference's number, bit for bit (a test checks it on random points,
-/// normals and bounds), and one evaluation serves two levels of the walk: X's choice and its
-/// chosen child's. Kept for the interior nodes at even depth, which is where walks from the
-/// root evaluate: 384 bytes each, between a third and two thirds of the N − 1 interior nodes of
-/// N lights, so 130–260 bytes a light beside the nodes' own ~120.
+/// The bounds of a wide node's (up to eight) children as the eight lanes of vectors (unused lanes
+/// are zero bounds, whose importance is 0), with what `importance` derives from bounds alone
+/// (centroid, half diagonal, sin θo) computed once, by the same operations. [`Family::importance`]
+/// runs `LightBounds::importance` on all lanes at once (AVX), operation for operation, so every
+/// lane is the one-at-a-time reference's number, bit for bit (a test checks it on random points,
+/// normals and bounds): one evaluation per level of the walk.
 #[derive(Clone, Copy, Debug, Default)]
 #[repr(C, align(32))]
 struct Family {
@@ -156,10 +152,10 @@ struct Family {
 }
 
 impl Family {
-    fn new(lanes: [Option<&LightBounds>; 6]) -> Self {
+    fn new(lanes: &[LightBounds]) -> Self {
+        debug_assert!(lanes.len() <= WIDTH);
         let mut f = Family::default();
-        for (l, x) in lanes.into_iter().enumerate() {
-            let Some(x) = x else { continue };
+        for (l, x) in lanes.iter().enumerate() {
             let c = x.centroid();
             let diag = (x.max - x.min).length();
             for k in 0..3 {
@@ -250,56 +246,100 @@ impl Family {
     }
 }
 
-/// Where a decision node's two child importances are found: the family evaluated (index into
-/// `LightTree::families`) and the first of its two lanes.
-#[derive(Clone, Copy, Debug)]
-struct Lanes {
-    family: u32,
-    first: u8,
-}
+/// Children a node of the walked tree holds: one AVX family of eight lanes.
+const WIDTH: usize = 8;
+/// Marks a child slot that is a light (its index in the low bits), not a node.
+const LIGHT: u32 = 1 << 31;
+/// Deeper than any tree `build` makes (its binary tree over < 2³¹ lights, split at medians, is
+/// at most 32 levels deep, and collapsing only shortens paths); `pmf` keeps one factor per level.
+const MAX_DEPTH: usize = 40;
 
-#[derive(Clone, Copy, Debug)]
-struct Node {
+/// A node of the binary tree `build` splits first, before collapsing it into [`WideNode`]s.
+struct BinaryNode {
     bounds: LightBounds,
     /// Interior: index of the first child (the second follows). Leaf: the light index.
     index: u32,
     leaf: bool,
+    /// Lights below.
+    lights: u32,
+}
+
+/// A node of the tree as walked: up to eight children (lights or nodes), whose bounds are the
+/// lanes of one family, so choosing among them is one AVX evaluation and one pass over eight
+/// numbers. It is the binary tree collapsed three levels at a time (see `collapse`): about
+/// a third of the levels, and no chain of divisions per binary level (a profile of
+/// `scenes/sphere_light`, 2304 emissive triangles, had the binary walk at 35 % of the render,
+/// most of it waiting on `u / p` and `a / (a + b)` one level after another).
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(32))]
+struct WideNode {
+    family: Family,
+    /// `LIGHT | light index` or a node index; slots `count..` are unused.
+    child: [u32; WIDTH],
+    count: u32,
 }
 
 pub struct LightTree {
-    nodes: Vec<Node>,
-    /// The families ([`Family`]) of the interior nodes at even depth, and for each node where the
-    /// importances of its children are found: the walk's hot loop (it was 42 % of a render of
-    /// `scenes/sphere_lights`, 4608 emissive triangles) evaluates one family per two levels.
-    families: Vec<Family>,
-    lanes: Vec<Lanes>,
+    nodes: Vec<WideNode>,
+    /// The children's bounds of each node, for the one-at-a-time reference.
+    child_bounds: Vec<[LightBounds; WIDTH]>,
     /// Evaluate children one at a time with `LightBounds::importance` (the reference the family
     /// evaluation is held to, bit for bit); off except in tests.
     scalar_reference: bool,
-    /// For each light: its leaf's node index.
-    leaf_of: Vec<u32>,
-    /// For each node: its parent (root: u32::MAX).
-    parent: Vec<u32>,
+    /// For each light: its node and slot.
+    leaf_of: Vec<(u32, u8)>,
+    /// For each node: its parent and slot there (root: u32::MAX).
+    parent: Vec<(u32, u8)>,
+}
+
+/// Picks a slot in proportion to `imp` with `u` ∈ [0, 1): (slot, its probability, `u` rescaled
+/// to [0, 1) within the slot's share, so the levels below stay stratified). None when every
+/// importance is 0. The total is summed in slot order, here and in `pmf`, so both see the same
+/// probabilities.
+#[inline]
+fn choose(imp: &[f32; WIDTH], u: f32) -> Option<(usize, f32, f32)> {
+    let total: f32 = imp.iter().sum();
+    if total.is_nan() || total <= 0.0 {
+        return None;
+    }
+    let t = u * total;
+    let (mut acc, mut last) = (0.0f32, None);
+    for (i, &x) in imp.iter().enumerate() {
+        if x > 0.0 {
+            if t < acc + x {
+                return Some((i, x / total, ((t - acc) / x).clamp(0.0, 1.0 - f32::EPSILON)));
+            }
+            acc += x;
+            last = Some(i);
+        }
+    }
+    // Rounding left t at or past the sum: the last slot that has any importance.
+    last.map(|i| (i, imp[i] / total, 1.0 - f32::EPSILON))
 }
 
 impl LightTree {
-    /// Builds the tree over `lights` (light index = position). Splits at the median of the longest
-    /// centroid axis.
+    /// Builds the tree over `lights` (light index = position): a binary tree split at the median
+    /// of the longest centroid axis, collapsed into nodes of up to eight children.
     pub fn build(lights: &[LightBounds]) -> Option<Self> {
-        if lights.is_empty() {
+        if lights.is_empty() || lights.len() >= LIGHT as usize {
             return None;
         }
+        let binary = Self::build_binary(lights);
         let mut tree = LightTree {
-            nodes: Vec::with_capacity(2 * lights.len()),
-            leaf_of: vec![0; lights.len()],
-            parent: Vec::new(),
-            families: Vec::new(),
-            lanes: Vec::new(),
+            nodes: Vec::with_capacity(lights.len() / 4 + 1),
+            child_bounds: Vec::with_capacity(lights.len() / 4 + 1),
             scalar_reference: false,
+            leaf_of: vec![(0, 0); lights.len()],
+            parent: Vec::with_capacity(lights.len() / 4 + 1),
         };
+        tree.collapse(&binary, 0, (u32::MAX, 0));
+        Some(tree)
+    }
+
+    fn build_binary(lights: &[LightBounds]) -> Vec<BinaryNode> {
+        let mut nodes = Vec::with_capacity(2 * lights.len());
         let mut idx: Vec<u32> = (0..lights.len() as u32).collect();
-        tree.nodes.push(Node { bounds: lights[0], index: 0, leaf: true });
-        tree.parent.push(u32::MAX);
+        nodes.push(BinaryNode { bounds: lights[0], index: 0, leaf: true, lights: 1 });
         // (node, range in idx)
         let mut work = vec![(0usize, 0usize, lights.len())];
         while let Some((node, lo, hi)) = work.pop() {
@@ -308,8 +348,7 @@ impl LightTree {
                 b = LightBounds::union(&b, &lights[i as usize]);
             }
             if hi - lo == 1 {
-                tree.nodes[node] = Node { bounds: b, index: idx[lo], leaf: true };
-                tree.leaf_of[idx[lo] as usize] = node as u32;
+                nodes[node] = BinaryNode { bounds: b, index: idx[lo], leaf: true, lights: 1 };
                 continue;
             }
             let (mut cmin, mut cmax) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
@@ -330,55 +369,54 @@ impl LightTree {
             idx[lo..hi].select_nth_unstable_by(mid - lo, |a, b| {
                 lights[*a as usize].centroid()[axis].total_cmp(&lights[*b as usize].centroid()[axis])
             });
-            let first = tree.nodes.len();
+            let first = nodes.len();
             for _ in 0..2 {
-                tree.nodes.push(Node { bounds: b, index: 0, leaf: true });
-                tree.parent.push(node as u32);
+                nodes.push(BinaryNode { bounds: b, index: 0, leaf: true, lights: 1 });
             }
-            tree.nodes[node] = Node { bounds: b, index: first as u32, leaf: false };
+            nodes[node] = BinaryNode { bounds: b, index: first as u32, leaf: false, lights: (hi - lo) as u32 };
             work.push((first, lo, mid));
             work.push((first + 1, mid, hi));
         }
-        tree.build_families();
-        Some(tree)
+        nodes
     }
 
-    /// Families at the even-depth interior nodes; each interior node's lanes: its own family's
-    /// 0–1 at even depth, else its parent's 2–3 (first child) or 4–5 (second).
-    fn build_families(&mut self) {
-        let mut depth = vec![0u32; self.nodes.len()];
-        // Children are pushed after their parents, so one forward pass sets every depth.
-        for i in 1..self.nodes.len() {
-            depth[i] = depth[self.parent[i] as usize] + 1;
+    /// Makes a wide node of binary node `b` (a leaf only when it is the root, one light): its
+    /// children opened, then repeatedly the open entry with the most lights replaced in place by
+    /// its two children, up to eight entries. In-place keeps the children in the binary tree's
+    /// depth-first order, so neighbouring `u` still pick neighbouring lights (what Sobol
+    /// stratifies over the emitters). Returns the new node's index.
+    fn collapse(&mut self, binary: &[BinaryNode], b: usize, parent: (u32, u8)) -> u32 {
+        let mut entries: Vec<usize> = match binary[b].leaf {
+            true => vec![b],
+            false => vec![binary[b].index as usize, binary[b].index as usize + 1],
+        };
+        while entries.len() < WIDTH {
+            let open = entries
+                .iter()
+                .enumerate()
+                .filter(|(_, &e)| !binary[e].leaf)
+                .max_by_key(|(k, &e)| (binary[e].lights, std::cmp::Reverse(*k)));
+            let Some((k, &e)) = open else { break };
+            let first = binary[e].index as usize;
+            entries.splice(k..=k, [first, first + 1]);
         }
-        self.lanes = vec![Lanes { family: u32::MAX, first: 0 }; self.nodes.len()];
-        for (i, &d) in depth.iter().enumerate() {
-            let node = self.nodes[i];
-            if node.leaf || d % 2 == 1 {
-                continue;
-            }
-            let kids = [node.index as usize, node.index as usize + 1];
-            let grandkids = |k: usize| {
-                let c = &self.nodes[k];
-                match c.leaf {
-                    true => [None, None],
-                    false => {
-                        [Some(&self.nodes[c.index as usize].bounds), Some(&self.nodes[c.index as usize + 1].bounds)]
-                    }
-                }
+        let at = self.nodes.len() as u32;
+        let bounds: Vec<LightBounds> = entries.iter().map(|&e| binary[e].bounds).collect();
+        let mut child_bounds = [bounds[0]; WIDTH];
+        child_bounds[..bounds.len()].copy_from_slice(&bounds);
+        self.nodes.push(WideNode { family: Family::new(&bounds), child: [0; WIDTH], count: entries.len() as u32 });
+        self.child_bounds.push(child_bounds);
+        self.parent.push(parent);
+        for (slot, &e) in entries.iter().enumerate() {
+            let child = if binary[e].leaf {
+                self.leaf_of[binary[e].index as usize] = (at, slot as u8);
+                LIGHT | binary[e].index
+            } else {
+                self.collapse(binary, e, (at, slot as u8))
             };
-            let [g0, g1] = grandkids(kids[0]);
-            let [g2, g3] = grandkids(kids[1]);
-            let lanes = [Some(&self.nodes[kids[0]].bounds), Some(&self.nodes[kids[1]].bounds), g0, g1, g2, g3];
-            let family = self.families.len() as u32;
-            self.families.push(Family::new(lanes));
-            self.lanes[i] = Lanes { family, first: 0 };
-            for (k, &c) in kids.iter().enumerate() {
-                if !self.nodes[c].leaf {
-                    self.lanes[c] = Lanes { family, first: 2 + 2 * k as u8 };
-                }
-            }
+            self.nodes[at as usize].child[slot] = child;
         }
+        at
     }
 
     /// Makes the walk evaluate each child alone with `LightBounds::importance` (tests compare).
@@ -386,83 +424,56 @@ impl LightTree {
         self.scalar_reference = on;
     }
 
-    /// The importances of interior `node`'s two children at `p`, by the reference (one at a time).
-    fn child_importances_scalar(&self, node: usize, p: Vec3, n: Option<Vec3>) -> (f32, f32) {
-        let first = self.nodes[node].index as usize;
-        (self.nodes[first].bounds.importance(p, n), self.nodes[first + 1].bounds.importance(p, n))
-    }
-
-    /// The two children's selection probabilities from their importances.
+    /// The importances at `p` of node `at`'s children (0 in unused slots).
     #[inline]
-    fn probabilities((ia, ib): (f32, f32)) -> Option<(f32, f32)> {
-        if ia + ib <= 0.0 {
-            return None;
-        }
-        Some((ia / (ia + ib), ib / (ia + ib)))
-    }
-
-    /// The importances of interior `node`'s children at `p`, from its family's evaluation, made
-    /// now or kept in `cache` (family index, lanes) from the level above.
-    #[inline]
-    fn child_importances(&self, node: usize, p: Vec3, n: Option<Vec3>, cache: &mut (u32, [f32; 8])) -> (f32, f32) {
+    fn importances(&self, at: usize, p: Vec3, n: Option<Vec3>) -> [f32; WIDTH] {
         #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
         if !self.scalar_reference {
-            let Lanes { family, first } = self.lanes[node];
-            if cache.0 != family {
-                *cache = (family, self.families[family as usize].importance(p, n));
-            }
-            return (cache.1[first as usize], cache.1[first as usize + 1]);
+            return self.nodes[at].family.importance(p, n);
         }
-        let _ = cache;
-        self.child_importances_scalar(node, p, n)
+        let mut imp = [0.0; WIDTH];
+        let count = self.nodes[at].count as usize;
+        for (x, b) in imp.iter_mut().zip(&self.child_bounds[at][..count]) {
+            *x = b.importance(p, n);
+        }
+        imp
     }
 
     /// Chooses a light for point `p`: (light index, probability).
     pub fn sample(&self, p: Vec3, n: Option<Vec3>, mut u: f32) -> Option<(usize, f32)> {
-        let root = &self.nodes[0];
-        if root.leaf {
-            return (root.bounds.importance(p, n) > 0.0).then_some((root.index as usize, 1.0));
-        }
         let (mut at, mut pmf) = (0usize, 1.0f32);
-        let mut cache = (u32::MAX, [0f32; 8]);
         loop {
-            let (pa, _) = Self::probabilities(self.child_importances(at, p, n, &mut cache))?;
-            let first = self.nodes[at].index as usize;
-            at = if u < pa {
-                u = (u / pa).min(1.0 - f32::EPSILON);
-                pmf *= pa;
-                first
-            } else {
-                u = ((u - pa) / (1.0 - pa)).min(1.0 - f32::EPSILON);
-                pmf *= 1.0 - pa;
-                first + 1
-            };
-            let node = &self.nodes[at];
-            if node.leaf {
-                return (pmf > 0.0).then_some((node.index as usize, pmf));
+            let (slot, prob, rest) = choose(&self.importances(at, p, n), u)?;
+            pmf *= prob;
+            u = rest;
+            match self.nodes[at].child[slot] {
+                c if c & LIGHT != 0 => return (pmf > 0.0).then_some(((c & !LIGHT) as usize, pmf)),
+                c => at = c as usize,
             }
         }
     }
 
-    /// Probability that `sample(p, n, ·)` picks `light`.
+    /// Probability that `sample(p, n, ·)` picks `light`: the same factors, multiplied in the same
+    /// order (root first), so it is `sample`'s number bit for bit.
     pub fn pmf(&self, p: Vec3, n: Option<Vec3>, light: usize) -> f32 {
-        let Some(&leaf) = self.leaf_of.get(light) else { return 0.0 };
-        if self.nodes[0].leaf {
-            return if self.nodes[0].bounds.importance(p, n) > 0.0 { 1.0 } else { 0.0 };
-        }
-        let mut pmf = 1.0f32;
-        let mut child = leaf;
-        let mut cache = (u32::MAX, [0f32; 8]);
-        while self.parent[child as usize] != u32::MAX {
-            let parent = self.parent[child as usize];
-            let node = &self.nodes[parent as usize];
-            let Some((pa, pb)) = Self::probabilities(self.child_importances(parent as usize, p, n, &mut cache)) else {
+        let Some(&(mut at, mut slot)) = self.leaf_of.get(light) else { return 0.0 };
+        let mut factors = [0f32; MAX_DEPTH];
+        let mut depth = 0;
+        loop {
+            let imp = self.importances(at as usize, p, n);
+            let total: f32 = imp.iter().sum();
+            let x = imp[slot as usize];
+            if total.is_nan() || total <= 0.0 || x <= 0.0 || depth == MAX_DEPTH {
                 return 0.0;
-            };
-            pmf *= if child == node.index { pa } else { pb };
-            child = parent;
+            }
+            factors[depth] = x / total;
+            depth += 1;
+            match self.parent[at as usize] {
+                (u32::MAX, _) => break,
+                (up, s) => (at, slot) = (up, s),
+            }
         }
-        pmf
+        factors[..depth].iter().rev().product()
     }
 }
 
@@ -502,7 +513,7 @@ mod tests {
             let mut counts = vec![0usize; lights.len()];
             for k in 0..m {
                 let (l, pmf) = tree.sample(p, n, (k as f32 + 0.5) / m as f32).unwrap();
-                assert!((pmf - tree.pmf(p, n, l)).abs() <= 1e-5 * pmf.max(1e-3));
+                assert_eq!(pmf.to_bits(), tree.pmf(p, n, l).to_bits(), "sample and pmf agree bit for bit");
                 counts[l] += 1;
             }
             for (l, &c) in counts.iter().enumerate() {
@@ -564,17 +575,17 @@ mod tests {
             let p = if k % 50 == 0 { lights[k as usize % 300].centroid() } else { v(7 * k + 100_000) * 5.0 };
             let n = (k % 3 != 0).then(|| v(7 * k + 200_000).normalize_or(Vec3::Z));
             for (i, node) in tree.nodes.iter().enumerate() {
-                if node.leaf {
-                    continue;
+                let lanes = tree.importances(i, p, n);
+                for (slot, &x) in lanes.iter().enumerate() {
+                    let s = match slot < node.count as usize {
+                        true => tree.child_bounds[i][slot].importance(p, n),
+                        false => 0.0,
+                    };
+                    // Equal as numbers (0 and −0 alike) and as bits where non-zero.
+                    assert!(x == s && (x == 0.0 || x.to_bits() == s.to_bits()), "node {i} slot {slot}: {x} vs {s}");
+                    compared += 1;
+                    nonzero += (s > 0.0) as usize;
                 }
-                let (a, b) = (&tree.nodes[node.index as usize].bounds, &tree.nodes[node.index as usize + 1].bounds);
-                let (pa, pb) = tree.child_importances(i, p, n, &mut (u32::MAX, [0.0; 8]));
-                let (sa, sb) = (a.importance(p, n), b.importance(p, n));
-                // Equal as numbers (0 and −0 alike) and as bits where non-zero.
-                assert!(pa == sa && (pa == 0.0 || pa.to_bits() == sa.to_bits()), "node {i}: {pa} vs {sa}");
-                assert!(pb == sb && (pb == 0.0 || pb.to_bits() == sb.to_bits()), "node {i}: {pb} vs {sb}");
-                compared += 2;
-                nonzero += (sa > 0.0) as usize + (sb > 0.0) as usize;
             }
             let uu = u(7 * k + 5);
             let family = (tree.sample(p, n, uu), (0..300).map(|l| tree.pmf(p, n, l).to_bits()).collect::<Vec<_>>());
@@ -587,11 +598,37 @@ mod tests {
         assert!(compared > 500_000 && nonzero > compared / 4, "{compared} compared, {nonzero} non-zero");
     }
 
-    /// The memory figures `Family`'s doc gives: 384 bytes a family, ~60 a node.
+    /// The memory figures the docs give: 384 bytes a family, 448 a node; and the collapse: every
+    /// light in exactly one slot, 2–8 children a node, and about a third of the binary depth.
     #[test]
-    fn family_and_node_sizes() {
+    fn nodes_hold_every_light_once_in_few_levels() {
         assert_eq!(std::mem::size_of::<Family>(), 384);
-        let node = std::mem::size_of::<Node>();
-        assert!((56..=64).contains(&node), "{node} bytes a node");
+        assert_eq!(std::mem::size_of::<WideNode>(), 448);
+        for n in [2usize, 3, 7, 8, 9, 63, 64, 65, 1000, 2304] {
+            let lights: Vec<LightBounds> = (0..n)
+                .map(|i| {
+                    tri_light(Vec3::new((i as f32 * 0.37).sin() * 5.0, i as f32 * 0.01, (i % 17) as f32), -Vec3::Y, 1.0)
+                })
+                .collect();
+            let tree = LightTree::build(&lights).unwrap();
+            let mut seen = vec![0usize; n];
+            let mut depth = vec![1usize; tree.nodes.len()];
+            for (i, node) in tree.nodes.iter().enumerate() {
+                assert!((2..=WIDTH).contains(&(node.count as usize)), "{n} lights: node {i} has {}", node.count);
+                for (slot, &c) in node.child[..node.count as usize].iter().enumerate() {
+                    if c & LIGHT != 0 {
+                        seen[(c & !LIGHT) as usize] += 1;
+                        assert_eq!(tree.leaf_of[(c & !LIGHT) as usize], (i as u32, slot as u8));
+                    } else {
+                        assert_eq!(tree.parent[c as usize], (i as u32, slot as u8));
+                        depth[c as usize] = depth[i] + 1;
+                    }
+                }
+            }
+            assert!(seen.iter().all(|&s| s == 1), "{n} lights: each in one slot");
+            let max_depth = depth.into_iter().max().unwrap_or(0);
+            let binary_depth = (n as f64).log2().ceil() as usize;
+            assert!(max_depth <= binary_depth.div_ceil(3) + 1, "{n} lights: {max_depth} levels");
+        }
     }
 }

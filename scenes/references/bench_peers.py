@@ -43,6 +43,15 @@ def main():
     ap.add_argument("--tessera-args", default="", help="extra flags for tessera render (quoted)")
     ap.add_argument("scenes", nargs="*", default=list(mr.SCENES))
     a = ap.parse_args()
+    # `--variants llvm_ad_rgb cornell` would otherwise take the scene for a variant (nargs="+" is
+    # greedy) and run every scene: scene names given there are scenes.
+    moved = [v for v in a.variants if v in mr.SCENES]
+    if moved:
+        a.variants = [v for v in a.variants if v not in mr.SCENES] or ["none"]
+        a.scenes = ([s for s in a.scenes if s not in moved] if a.scenes != list(mr.SCENES) else []) + moved
+    unknown = [v for v in a.variants if v != "none" and not v.endswith(("_rgb", "_spectral", "_mono"))]
+    if unknown:
+        ap.error(f"unknown Mitsuba variant(s) {unknown}; scenes are {sorted(mr.SCENES)}")
     summary = []
     for name in a.scenes:
         rel, w, h = mr.SCENES[name]

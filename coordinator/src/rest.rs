@@ -186,13 +186,19 @@ async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Va
     let dir = s.config.data_dir.join("tmp").join(format!("upload-{}", crate::new_id("u")));
     let b = bundle.clone();
     let d = dir.clone();
-    let env_probe =
-        renderer::environment::EnvironmentSettings { map: env_map.clone(), color: None, ..Default::default() };
+    // The probe reads the map to refuse a broken one; it builds no sampling table (sampling off,
+    // so MIS compensation, the `false` below, has nothing to change).
+    let env_probe = renderer::environment::EnvironmentSettings {
+        map: env_map.clone(),
+        color: None,
+        sampling: false,
+        ..Default::default()
+    };
     let loaded = tokio::task::spawn_blocking(move || -> Result<(Vec<Option<f32>>, Vec<String>), String> {
         let main = b.unpack(&d).map_err(|e| format!("cannot unpack the scene: {e}"))?;
         let strip = |e: String| e.replace(&format!("{}/", d.display()), "");
         let mut scene = renderer::gltf_loader::load(&main).map_err(|e| strip(e.to_string()))?;
-        scene.attach_environment(&env_probe, &d, true).map_err(|e| strip(e.to_string()))?;
+        scene.attach_environment(&env_probe, &d, false).map_err(|e| strip(e.to_string()))?;
         Ok((scene.cameras.iter().map(|c| c.aspect_ratio).collect(), scene.warnings.clone()))
     })
     .await

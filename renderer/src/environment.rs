@@ -148,39 +148,42 @@ impl Environment {
         // integrator has no BSDF strategy to leave them to. (It counts BSDF-sampled hits wherever
         // the map's pdf is 0 all the same, `integrator.rs`.) A map with nothing above its mean
         // (uniform) keeps a uniform table (`Distribution2D` of all zeros).
-        let mut mean = 0.0f64;
-        let mut wsum = 0.0f64;
-        let mut peak = vec![0.0f32; width * height];
         // sin θ at each row's centre: the solid angle a texel of the row covers, up to a constant.
         let row_sin: Vec<f32> = (0..height).map(|y| ((y as f32 + 0.5) / height as f32 * PI).sin()).collect();
-        for (y, &sin_theta) in row_sin.iter().enumerate() {
-            for x in 0..width {
-                let l = luminance(texels[y * width + x]);
-                mean += l as f64 * sin_theta as f64;
-                wsum += sin_theta as f64;
+        let lum: Vec<f32> = texels.iter().map(|&t| luminance(t)).collect();
+        let (mut mean, mut wsum) = (0.0f64, 0.0f64);
+        for (i, &l) in lum.iter().enumerate() {
+            let sin_theta = row_sin[i / width];
+            mean += l as f64 * sin_theta as f64;
+            wsum += sin_theta as f64;
+        }
+        let mean_luminance = if wsum > 0.0 { (mean / wsum) as f32 } else { 0.0 };
+        // The table only where it is sampled (a uniform map is sampled without one).
+        let distribution = (sampling && !uniform).then(|| {
+            let sin_of = |i: usize| row_sin[i / width];
+            let peak = |i: usize| {
+                let (x, y) = (i % width, i / width);
                 let mut m = 0.0f32;
                 for dy in -1i64..=1 {
                     let yy = (y as i64 + dy).clamp(0, height as i64 - 1) as usize;
                     for dx in -1i64..=1 {
                         let xx = (x as i64 + dx).rem_euclid(width as i64) as usize;
-                        m = m.max(luminance(texels[yy * width + xx]));
+                        m = m.max(lum[yy * width + xx]);
                     }
                 }
-                peak[y * width + x] = m;
-            }
-        }
-        let mean_luminance = if wsum > 0.0 { (mean / wsum) as f32 } else { 0.0 };
-        let sin_of = |i: usize| row_sin[i / width];
-        let weights: Vec<f32> = if mis_compensation {
-            peak.iter().enumerate().map(|(i, &m)| (m - mean_luminance).max(0.0) * sin_of(i)).collect()
-        } else {
-            // Without compensation (the NEE integrator, which has no BSDF strategy to leave the
-            // dim part to), a small floor keeps every direction's density positive.
-            let weights: Vec<f32> = peak.iter().enumerate().map(|(i, &m)| m * sin_of(i)).collect();
-            let floor = 1e-3 * weights.iter().map(|&w| w as f64).sum::<f64>() as f32 / weights.len().max(1) as f32;
-            weights.iter().enumerate().map(|(i, &w)| w + floor.max(1e-12) * sin_of(i)).collect()
-        };
-        let distribution = (sampling && !uniform).then(|| Distribution2D::new(&weights, width, height));
+                m
+            };
+            let weights: Vec<f32> = if mis_compensation {
+                (0..lum.len()).map(|i| (peak(i) - mean_luminance).max(0.0) * sin_of(i)).collect()
+            } else {
+                // Without compensation (the NEE integrator, which has no BSDF strategy to leave
+                // the dim part to), a small floor keeps every direction's density positive.
+                let weights: Vec<f32> = (0..lum.len()).map(|i| peak(i) * sin_of(i)).collect();
+                let floor = 1e-3 * weights.iter().map(|&w| w as f64).sum::<f64>() as f32 / weights.len().max(1) as f32;
+                weights.iter().enumerate().map(|(i, &w)| w + floor.max(1e-12) * sin_of(i)).collect()
+            };
+            Distribution2D::new(&weights, width, height)
+        });
         Environment { width, height, texels, uniform, rot: (r.cos(), r.sin()), distribution, mean_luminance }
     }
 

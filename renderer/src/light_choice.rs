@@ -26,9 +26,8 @@
 //! (`bench_peers.py --variants none --runs 5 --tessera-args "--light-sampler K"`, issue 15). With
 //! independent samples the pilot chose power on `sphere_light` at every image shape tried, where
 //! the tree is 1.9× as efficient (relMSE 1.23e-4 in 0.59 s against 3.54e-4 in 0.39 s; 2.3× since
-//! the walk chooses among eight children at a time). Replicates
-//! alone fix that but on `veach` score the three within 2 % and choose uniform, power or tree with
-//! the image's shape (the tree is 1.65× as efficient there: relMSE 1.94e-3 in 0.24 s against
+//! the walk chooses among eight children at a time). Replicates alone fix that but on `veach`
+//! score the three within 2 % and choose uniform, power or tree with the image's shape (the tree is 1.65× as efficient there: relMSE 1.94e-3 in 0.24 s against
 //! 3.92e-3 in 0.19 s): unweighted, NEE's variance on veach is that of the glossy plates'
 //! reflections of the bulbs, which BSDF sampling carries in the render whatever the selection. With
 //! the MIS weight the tree scores 1.3–1.6× better there at every shape.
@@ -37,7 +36,7 @@ use crate::bsdf::Bsdf;
 use crate::camera::Camera;
 use crate::light::{LightSamplerKind, LightSet};
 use crate::material::Material;
-use crate::math::{luminance, offset_ray_origin, power_heuristic, Frame, Vec2, Vec3};
+use crate::math::{cosine_hemisphere_pdf, luminance, offset_ray_origin, power_heuristic, Frame, Vec2, Vec3};
 use crate::mesh::Mesh;
 use crate::sampler::dims;
 use crate::scene::Scene;
@@ -170,7 +169,7 @@ fn pilot_variance(
                         let wi = frame.to_local(ls.wi);
                         let (f, bsdf_pdf) = match &pt.bsdf {
                             Some(b) => (luminance(b.eval(wo, wi)) as f64, b.pdf(wo, wi)),
-                            None => (std::f64::consts::FRAC_1_PI, wi.z * std::f32::consts::FRAC_1_PI),
+                            None => (std::f64::consts::FRAC_1_PI, cosine_hemisphere_pdf(wi.z)),
                         };
                         // The render's MIS weight: where BSDF sampling finds the light better (a
                         // glossy reflection of it), NEE's share is small, and so is its variance.

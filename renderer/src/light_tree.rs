@@ -268,7 +268,7 @@ struct BinaryNode {
 /// lanes of one family, so choosing among them is one AVX evaluation and one pass over eight
 /// numbers. It is the binary tree collapsed three levels at a time (see `collapse`): about
 /// a third of the levels, and no chain of divisions per binary level (a profile of
-/// `scenes/sphere_light`, 2304 emissive triangles, had the binary walk at 35 % of the render,
+/// `scenes/sphere_light`, 2208 emissive triangles, had the binary walk at 35 % of the render,
 /// most of it waiting on `u / p` and `a / (a + b)` one level after another).
 #[derive(Clone, Copy, Debug)]
 #[repr(C, align(32))]
@@ -604,7 +604,7 @@ mod tests {
     fn nodes_hold_every_light_once_in_few_levels() {
         assert_eq!(std::mem::size_of::<Family>(), 384);
         assert_eq!(std::mem::size_of::<WideNode>(), 448);
-        for n in [2usize, 3, 7, 8, 9, 63, 64, 65, 1000, 2304] {
+        for n in [2usize, 3, 7, 8, 9, 63, 64, 65, 1000, 2208] {
             let lights: Vec<LightBounds> = (0..n)
                 .map(|i| {
                     tri_light(Vec3::new((i as f32 * 0.37).sin() * 5.0, i as f32 * 0.01, (i % 17) as f32), -Vec3::Y, 1.0)

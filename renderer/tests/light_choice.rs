@@ -28,12 +28,12 @@ fn auto_picks_what_measures_best() {
     // 3.92e-3 in 0.129 s: the tree 1.37× as efficient). With the walk at one level per child
     // (2.25× a power sample) uniform had been better, and the pilot picked it.
     assert_eq!(auto_choice("veach"), LightSamplerKind::Tree);
-    // One 1152-triangle bulb over a floor: the tree (which skips the bulb's far side and keeps
+    // One 2208-triangle bulb over a floor: the tree (which skips the bulb's far side and keeps
     // neighbouring u on neighbouring triangles, so Sobol stratifies over the bulb) is 1.9× as
     // efficient as power (`bench_peers.py --variants none --runs 5 --tessera-args
-    // "--light-sampler K" sphere_light`: relMSE 1.23e-4 in 0.59 s, power 3.54e-4 in 0.39 s; 2.3× with the
-    // eight-wide walk: 1.03e-4 in 0.30 s, power 3.54e-4 in 0.20 s). A
-    // pilot with independent samples saw only a 1.3× variance gain and chose power (issue 15).
+    // "--light-sampler K" sphere_light`: relMSE 1.23e-4 in 0.59 s, power 3.54e-4 in 0.39 s; 2.3×
+    // with the eight-wide walk: 1.03e-4 in 0.30 s, power 3.54e-4 in 0.20 s). A pilot with
+    // independent samples saw only a 1.3× variance gain and chose power (issue 15).
     assert_eq!(auto_choice("sphere_light"), LightSamplerKind::Tree);
     // One emitter: nothing to choose.
     assert_eq!(auto_choice("cornell"), LightSamplerKind::Power);

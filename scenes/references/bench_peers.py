@@ -49,9 +49,10 @@ def main():
     if moved:
         a.variants = [v for v in a.variants if v not in mr.SCENES] or ["none"]
         a.scenes = ([s for s in a.scenes if s not in moved] if a.scenes != list(mr.SCENES) else []) + moved
-    unknown = [v for v in a.variants if v != "none" and not v.endswith(("_rgb", "_spectral", "_mono"))]
+    unknown = [v for v in a.variants if v != "none" and v not in mi.variants()]
     if unknown:
-        ap.error(f"unknown Mitsuba variant(s) {unknown}; scenes are {sorted(mr.SCENES)}")
+        ap.error(f"unknown Mitsuba variant(s) {unknown} (this Mitsuba has {mi.variants()}); "
+                 f"scenes are {sorted(mr.SCENES)}")
     summary = []
     for name in a.scenes:
         rel, w, h = mr.SCENES[name]

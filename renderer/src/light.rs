@@ -11,11 +11,23 @@ use crate::mesh::Mesh;
 use crate::punctual::{PunctualKind, PunctualLight};
 use crate::texture::Texture;
 
+/// An emissive triangle, with what sampling a point on it needs copied out of the mesh: sampling
+/// then reads one 64-byte record instead of the triangle, its three vertices and its material
+/// through four indirections. The light set is rebuilt whenever a frame's pose moves vertices
+/// (`Scene::set_frame`), so the copy never goes stale.
 #[derive(Clone, Copy, Debug)]
 pub struct AreaLight {
+    /// First vertex and the two edges from it (`Mesh::position_normal_uv`'s arithmetic, so a
+    /// sampled point is bit for bit the one the mesh would give).
+    p0: Vec3,
+    e1: Vec3,
+    e2: Vec3,
+    /// Unit winding normal (+Z for a degenerate triangle, as `Mesh::position_normal_uv`).
+    ng: Vec3,
     pub triangle: u32,
     pub area: f32,
     pub two_sided: bool,
+    material: u32,
 }
 
 /// A point sampled on a light, seen from a reference point.
@@ -132,7 +144,19 @@ impl LightSet {
                 continue;
             }
             triangle_light[i] = lights.len() as u32;
-            lights.push(AreaLight { triangle: i as u32, area, two_sided: m.double_sided });
+            let [p0, p1, p2] = mesh.vertices(i as u32);
+            let (e1, e2) = (p1 - p0, p2 - p0);
+            let ng = e1.cross(e2).normalize_or_zero();
+            lights.push(AreaLight {
+                p0,
+                e1,
+                e2,
+                ng: if ng == Vec3::ZERO { Vec3::Z } else { ng },
+                triangle: i as u32,
+                area,
+                two_sided: m.double_sided,
+                material: t.material,
+            });
             power.push(p);
         }
         let punctual: Vec<PunctualLight> =
@@ -342,7 +366,7 @@ impl LightSet {
         }
         let light = &self.lights[idx];
         let b = sample_uniform_triangle(u);
-        let (p, ng, uv) = mesh.position_normal_uv(light.triangle, b.y, b.z);
+        let (p, ng) = (light.p0 + light.e1 * b.y + light.e2 * b.z, light.ng);
         let to = p - reference;
         let dist2 = to.length_squared();
         if !(dist2 > 0.0) || !dist2.is_finite() {
@@ -354,8 +378,12 @@ impl LightSet {
         if cos_l == 0.0 {
             return None;
         }
-        let m = &materials[mesh.triangles[light.triangle as usize].material as usize];
-        let le = emitted(m, textures, ng, uv, -wi);
+        let m = &materials[light.material as usize];
+        let le = if m.emissive_texture.is_some() {
+            emitted(m, textures, ng, mesh.position_normal_uv(light.triangle, b.y, b.z).2, -wi)
+        } else {
+            emitted(m, textures, ng, Default::default(), -wi)
+        };
         let pdf = pmf * dist2 / (cos_l.abs() * light.area);
         if !(pdf > 0.0) || !pdf.is_finite() {
             return None;
@@ -391,5 +419,46 @@ impl LightSet {
     /// The power-proportional selection probability of light `i`.
     pub fn pmf(&self, i: usize) -> f32 {
         self.selection.pmf(i)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testing::{emitter, SceneBuilder};
+
+    /// A light sample is the point the mesh itself gives for the same barycentrics, bit for bit
+    /// (the `AreaLight` record copies the mesh's arithmetic), with the mesh's normal — also after
+    /// the vertices move and the light set is rebuilt, as `Scene::set_frame` does.
+    #[test]
+    fn samples_are_the_meshs_points_bit_for_bit() {
+        let mut b = SceneBuilder::default();
+        let m = b.material(emitter(Vec3::splat(2.0)));
+        b.triangles(
+            &[Vec3::new(-1.0, 2.0, -0.3), Vec3::new(1.3, 2.1, -1.0), Vec3::new(0.2, 1.9, 1.7)],
+            &[[0, 1, 2]],
+            m,
+        );
+        let mut scene = b.build();
+        for pose in 0..2 {
+            if pose == 1 {
+                for p in &mut scene.mesh.positions {
+                    *p = *p * 1.7 + Vec3::new(0.3, -0.2, 0.9);
+                }
+                scene.set_punctual(Vec::new());
+            }
+            let reference = Vec3::new(0.1, -0.5, 0.2);
+            for i in 0..1000u64 {
+                let u = Vec2::new(crate::sampler::hash_unit(2 * i), crate::sampler::hash_unit(2 * i + 1));
+                let ls = scene
+                    .lights
+                    .sample(&scene.mesh, &scene.materials, &scene.textures, reference, None, 0.5, u)
+                    .expect("the triangle faces the reference from either side: two-sided emitter");
+                let bc = sample_uniform_triangle(u);
+                let (p, ng, _) = scene.mesh.position_normal_uv(0, bc.y, bc.z);
+                assert_eq!(ls.p, p, "pose {pose}, sample {i}");
+                assert!(ls.n == ng || ls.n == -ng, "pose {pose}: normal {} vs the mesh's {ng}", ls.n);
+            }
+        }
     }
 }

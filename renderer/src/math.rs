@@ -134,19 +134,47 @@ pub fn cosine_hemisphere_pdf(cos_theta: f32) -> f32 {
     cos_theta.max(0.0) * INV_PI
 }
 
-/// Shirley-Chiu concentric square-to-disk mapping (pbrt-v4 §A.5.1).
+/// Shirley-Chiu concentric square-to-disk mapping (pbrt-v4 §A.5.1). Both wedges need sin and cos
+/// of an angle within π/4 of an axis: θ = (π/4)·(y/x), or π/2 − (π/4)·(x/y) whose cosine and sine
+/// are the sine and cosine of (π/4)·(x/y), so [`sin_cos_quarter`] serves without range reduction.
 #[inline]
 pub fn sample_uniform_disk_concentric(u: Vec2) -> Vec2 {
     let o = 2.0 * u - Vec2::ONE;
     if o.x == 0.0 && o.y == 0.0 {
         return Vec2::ZERO;
     }
-    let (r, theta) = if o.x.abs() > o.y.abs() {
-        (o.x, (PI / 4.0) * (o.y / o.x))
+    if o.x.abs() > o.y.abs() {
+        let (s, c) = sin_cos_quarter((PI / 4.0) * (o.y / o.x));
+        o.x * Vec2::new(c, s)
     } else {
-        (o.y, PI / 2.0 - (PI / 4.0) * (o.x / o.y))
-    };
-    r * Vec2::new(theta.cos(), theta.sin())
+        let (s, c) = sin_cos_quarter((PI / 4.0) * (o.x / o.y));
+        o.y * Vec2::new(s, c)
+    }
+}
+
+/// (sin x, cos x) for |x| ≤ π/4 by the minimax polynomials of Cephes' `sinf`/`cosf` (Moshier
+/// 1989; within about 1 ulp there). libm's `sincosf` handles any argument and showed up as 2.4 %
+/// of a Cornell render's time; sampling only ever asks for small or easily reduced angles.
+#[inline]
+pub fn sin_cos_quarter(x: f32) -> (f32, f32) {
+    let z = x * x;
+    let s = ((-1.951_529_6e-4 * z + 8.332_161e-3) * z - 1.666_665_5e-1) * z * x + x;
+    let c = ((2.443_315_7e-5 * z - 1.388_731_6e-3) * z + 4.166_664_6e-2) * z * z - 0.5 * z + 1.0;
+    (s, c)
+}
+
+/// (sin x, cos x) for 0 ≤ x ≤ 2π (an azimuth): reduced to the nearest multiple of π/2 and
+/// [`sin_cos_quarter`], then rotated by that quadrant.
+#[inline]
+pub fn sin_cos_azimuth(x: f32) -> (f32, f32) {
+    let k = (x * (2.0 / PI)).round();
+    let (s, c) = sin_cos_quarter(x - k * (PI / 2.0));
+    match (k as i32) & 3 {
+        0 => (s, c),
+        1 => (c, -s),
+        2 => (-s, -c),
+        _ => (-c, s),
+    }
 }
 
 /// Uniform barycentrics on a triangle (Heitz 2019, "A Low-Distortion Map Between Triangle and
@@ -167,6 +195,26 @@ pub fn sample_uniform_triangle(u: Vec2) -> Vec3 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The polynomial sine and cosine agree with libm to a few ulp over the sampling ranges
+    /// (the azimuth's quadrant reduction included, at its seams and ends).
+    #[test]
+    fn polynomial_sin_cos_match_libm() {
+        let mut worst = 0.0f32;
+        for i in 0..=100_000 {
+            let x = (i as f32 / 100_000.0 - 0.5) * (PI / 2.0);
+            let (s, c) = sin_cos_quarter(x);
+            worst = worst.max((s - x.sin()).abs()).max((c - x.cos()).abs());
+            let a = i as f32 / 100_000.0 * 2.0 * PI;
+            let (s, c) = sin_cos_azimuth(a);
+            worst = worst.max((s - a.sin()).abs()).max((c - a.cos()).abs());
+        }
+        for a in [0.0, PI / 4.0, PI / 2.0, PI, 1.5 * PI, 2.0 * PI, 7.0 * PI / 4.0, 2.0 * PI - 1e-6] {
+            let (s, c) = sin_cos_azimuth(a);
+            worst = worst.max((s - a.sin()).abs()).max((c - a.cos()).abs());
+        }
+        assert!(worst < 4.0 * f32::EPSILON, "worst absolute error {worst:e}");
+    }
 
     #[test]
     fn frame_is_orthonormal_for_all_normals() {

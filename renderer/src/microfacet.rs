@@ -81,7 +81,8 @@ impl Ggx {
         let phi = 2.0 * PI * u.x;
         let z = (1.0 - u.y) * (1.0 + wo_std.z) - wo_std.z;
         let sin_theta = (1.0 - z * z).clamp(0.0, 1.0).sqrt();
-        let c = Vec3::new(sin_theta * phi.cos(), sin_theta * phi.sin(), z);
+        let (sin_phi, cos_phi) = crate::math::sin_cos_azimuth(phi);
+        let c = Vec3::new(sin_theta * cos_phi, sin_theta * sin_phi, z);
         let h_std = c + wo_std;
         let h = Vec3::new(h_std.x * self.alpha, h_std.y * self.alpha, h_std.z.max(0.0));
         let len = h.length();

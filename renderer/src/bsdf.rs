@@ -14,7 +14,7 @@
 //! `sample()` (flagged `delta`), contributes nothing to `eval()`/`pdf()`, and takes no MIS weight.
 
 use crate::clearcoat::Clearcoat;
-use crate::dielectric::Dielectric;
+use crate::dielectric::{Dielectric, DielectricDirection};
 use crate::math::{cosine_hemisphere_pdf, luminance, reflect, sample_cosine_hemisphere, Vec2, Vec3, INV_PI};
 use crate::microfacet::Ggx;
 use crate::sheen::Sheen;
@@ -144,36 +144,41 @@ impl Bsdf {
 
     /// f(wo, wi) without delta lobes, in the local frame (`wo.z` > 0; `wi.z` < 0 only through glass).
     pub fn eval(&self, wo: Vec3, wi: Vec3) -> Vec3 {
-        if self.is_lambert() {
-            // eval_base's sum, 0 + base_color·(1·1/π), with its signed zeros.
-            return if wo.z <= 0.0 || wi.z <= 0.0 { Vec3::ZERO } else { Vec3::ZERO + self.base_color * INV_PI };
-        }
-        if !self.layered() {
-            return self.eval_base(wo, wi);
-        }
-        let (_, _, _, tc, ts) = self.layers(wo);
-        let coat = self.coat.map_or(0.0, |c| c.eval(wo, wi));
-        let sheen = self.sheen.map_or(Vec3::ZERO, |s| s.eval(wo, wi));
-        Vec3::splat(coat) + tc * (sheen + ts * self.eval_base(wo, wi))
+        self.eval_pdf(wo, wi).0
     }
 
     /// Solid-angle pdf of `sample()` producing `wi` (non-delta part).
     pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
+        self.eval_pdf(wo, wi).1
+    }
+
+    /// [`Self::eval`] and [`Self::pdf`] at once: NEE needs both (the estimate and its MIS weight),
+    /// as does every sample, and the lobes share their half vector, Fresnel term and D.
+    pub fn eval_pdf(&self, wo: Vec3, wi: Vec3) -> (Vec3, f32) {
         if self.is_lambert() {
-            return if wo.z <= 0.0 || wi.z <= 0.0 { 0.0 } else { cosine_hemisphere_pdf(wi.z) };
+            // eval_pdf_base's sum, 0 + base_color·(1·1/π), with its signed zeros.
+            return if wo.z <= 0.0 || wi.z <= 0.0 {
+                (Vec3::ZERO, 0.0)
+            } else {
+                (Vec3::ZERO + self.base_color * INV_PI, cosine_hemisphere_pdf(wi.z))
+            };
         }
         if !self.layered() {
-            return self.pdf_base(wo, wi);
+            return self.eval_pdf_base(wo, wi);
         }
-        let (pc, ps, pb, _, _) = self.layers(wo);
-        let mut p = pb * self.pdf_base(wo, wi);
+        let (pc, ps, pb, tc, ts) = self.layers(wo);
+        let (base_f, base_p) = self.eval_pdf_base(wo, wi);
+        let coat = self.coat.map_or(0.0, |c| c.eval(wo, wi));
+        let sheen = self.sheen.map_or(Vec3::ZERO, |s| s.eval(wo, wi));
+        let f = Vec3::splat(coat) + tc * (sheen + ts * base_f);
+        let mut p = pb * base_p;
         if let Some(c) = self.coat {
             p += pc * c.pdf(wo, wi);
         }
         if let Some(s) = self.sheen {
             p += ps * s.pdf(wo, wi);
         }
-        p
+        (f, p)
     }
 
     /// Samples wi given wo. `u_lobe` picks the lobe (coat, sheen, base in that order), `u` the
@@ -216,24 +221,20 @@ impl Bsdf {
         Some(s)
     }
 
-    /// The base material's f (no coat, no sheen).
-    fn eval_base(&self, wo: Vec3, wi: Vec3) -> Vec3 {
+    /// The base material's f and sampling pdf (no coat, no sheen).
+    fn eval_pdf_base(&self, wo: Vec3, wi: Vec3) -> (Vec3, f32) {
         let g = self.glass_weight();
-        let mut f = if g > 0.0 { self.glass().eval(wo, wi) * g } else { Vec3::ZERO };
+        let (mut f, mut p) = if g > 0.0 {
+            let (f, p) = self.glass().eval_pdf(wo, wi);
+            (f * g, g * p)
+        } else {
+            (Vec3::ZERO, 0.0)
+        };
         if g < 1.0 {
             f += self.eval_opaque(wo, wi);
-        }
-        f
-    }
-
-    /// The base material's sampling pdf.
-    fn pdf_base(&self, wo: Vec3, wi: Vec3) -> f32 {
-        let g = self.glass_weight();
-        let mut p = if g > 0.0 { g * self.glass().pdf(wo, wi) } else { 0.0 };
-        if g < 1.0 {
             p += (1.0 - g) * self.pdf_opaque(wo, wi);
         }
-        p
+        (f, p)
     }
 
     /// Samples the base material. Non-delta samples are finished with the whole BSDF's value and
@@ -241,11 +242,11 @@ impl Bsdf {
     fn sample_base(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
         let g = self.glass_weight();
         if u_lobe < g {
-            let (wi, f, pdf, delta) = self.glass().sample(wo, u_lobe / g, u)?;
-            if delta {
-                return Some(BsdfSample { wi, f: f * g, pdf: pdf * g, delta: true });
-            }
-            return self.finish(wo, wi);
+            // A rough direction is evaluated once, by `finish`, with the whole mixture.
+            return match self.glass().sample_direction(wo, u_lobe / g, u)? {
+                DielectricDirection::Delta { wi, f, p } => Some(BsdfSample { wi, f: f * g, pdf: p * g, delta: true }),
+                DielectricDirection::Rough(wi) => self.finish(wo, wi),
+            };
         }
         // `sample_opaque` finishes its non-delta samples with the full mixture's `eval` and `pdf`
         // already; only a delta (mirror) pick needs the glass share taken out of its probability.
@@ -316,11 +317,11 @@ impl Bsdf {
     }
 
     fn finish(&self, wo: Vec3, wi: Vec3) -> Option<BsdfSample> {
-        let pdf = self.pdf(wo, wi);
+        let (f, pdf) = self.eval_pdf(wo, wi);
         if !(pdf > 0.0) || !pdf.is_finite() {
             return None;
         }
-        Some(BsdfSample { wi, f: self.eval(wo, wi), pdf, delta: false })
+        Some(BsdfSample { wi, f, pdf, delta: false })
     }
 
     /// True when no part of this BSDF can be evaluated for NEE (mirror, smooth glass, or black).
@@ -379,9 +380,9 @@ pub(crate) mod tests {
                 let (wo, wi) = (dir(idx), dir(idx + 3));
                 assert_eq!(
                     b.eval(wo, wi).to_array().map(f32::to_bits),
-                    b.eval_base(wo, wi).to_array().map(f32::to_bits)
+                    b.eval_pdf_base(wo, wi).0.to_array().map(f32::to_bits)
                 );
-                assert_eq!(b.pdf(wo, wi).to_bits(), b.pdf_base(wo, wi).to_bits());
+                assert_eq!(b.pdf(wo, wi).to_bits(), b.eval_pdf_base(wo, wi).1.to_bits());
                 let (ul, uv) = (u(idx + 6), Vec2::new(u(idx + 7), u(idx + 8)));
                 let (a, g) = (b.sample(wo, ul, uv), b.sample_base(wo, ul, uv));
                 assert_eq!(a.is_some(), g.is_some(), "{wo:?}");
@@ -391,8 +392,11 @@ pub(crate) mod tests {
                     assert_eq!((a.pdf.to_bits(), a.delta), (g.pdf.to_bits(), g.delta));
                     // `finish` takes f and pdf from `eval` and `pdf`: the general ones agree there too.
                     let wi = a.wi;
-                    assert_eq!(a.f.to_array().map(f32::to_bits), b.eval_base(wo, wi).to_array().map(f32::to_bits));
-                    assert_eq!(a.pdf.to_bits(), b.pdf_base(wo, wi).to_bits());
+                    assert_eq!(
+                        a.f.to_array().map(f32::to_bits),
+                        b.eval_pdf_base(wo, wi).0.to_array().map(f32::to_bits)
+                    );
+                    assert_eq!(a.pdf.to_bits(), b.eval_pdf_base(wo, wi).1.to_bits());
                     checked += 1;
                 }
             }

@@ -76,42 +76,55 @@ impl Dielectric {
     }
 
     pub fn eval(&self, wo: Vec3, wi: Vec3) -> Vec3 {
-        if self.is_delta() {
-            return Vec3::ZERO;
-        }
-        let Some((wm, reflect, etap)) = self.half_vector(wo, wi) else { return Vec3::ZERO };
-        let f = fresnel_dielectric(wo.dot(wm), self.eta);
-        let d = self.ggx.d(wm);
-        let g = self.ggx.g2(wo, wi);
-        if reflect {
-            return Vec3::splat(d * g * f / (4.0 * wo.z * wi.z).abs());
-        }
-        let denom = wi.dot(wm) + wo.dot(wm) / etap;
-        let denom = denom * denom * wi.z * wo.z;
-        if denom == 0.0 {
-            return Vec3::ZERO;
-        }
-        let ft = d * (1.0 - f) * g * (wi.dot(wm) * wo.dot(wm) / denom).abs() / (etap * etap);
-        self.tint * ft
+        self.eval_pdf(wo, wi).0
     }
 
     pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
+        self.eval_pdf(wo, wi).1
+    }
+
+    /// f(wo, wi) and the pdf of `sample` choosing wi, together: they share the half vector, the
+    /// Fresnel term and D, which NEE (f for the estimate, pdf for its MIS weight) and sampling
+    /// (both for the sample) would otherwise compute twice.
+    pub fn eval_pdf(&self, wo: Vec3, wi: Vec3) -> (Vec3, f32) {
         if self.is_delta() {
-            return 0.0;
+            return (Vec3::ZERO, 0.0);
         }
-        let Some((wm, reflect, etap)) = self.half_vector(wo, wi) else { return 0.0 };
-        let r = fresnel_dielectric(wo.dot(wm), self.eta);
-        let dvis = self.ggx.visible_d(wo, wm);
+        let Some((wm, reflect, etap)) = self.half_vector(wo, wi) else { return (Vec3::ZERO, 0.0) };
+        let f = fresnel_dielectric(wo.dot(wm), self.eta);
+        let d = self.ggx.d(wm);
+        let g = self.ggx.g2(wo, wi);
+        let dvis = self.ggx.visible_d_given(wo, wm, d);
         if reflect {
-            dvis / (4.0 * wo.dot(wm).abs()) * r
-        } else {
-            let denom = wi.dot(wm) + wo.dot(wm) / etap;
-            dvis * (wi.dot(wm).abs() / (denom * denom)) * (1.0 - r)
+            return (Vec3::splat(d * g * f / (4.0 * wo.z * wi.z).abs()), dvis / (4.0 * wo.dot(wm).abs()) * f);
+        }
+        let denom = wi.dot(wm) + wo.dot(wm) / etap;
+        let pdf = dvis * (wi.dot(wm).abs() / (denom * denom)) * (1.0 - f);
+        let denom = denom * denom * wi.z * wo.z;
+        if denom == 0.0 {
+            return (Vec3::ZERO, pdf);
+        }
+        let ft = d * (1.0 - f) * g * (wi.dot(wm) * wo.dot(wm) / denom).abs() / (etap * etap);
+        (self.tint * ft, pdf)
+    }
+
+    /// Samples reflection or transmission in proportion to Fresnel: (wi, f, pdf, delta).
+    pub fn sample(&self, wo: Vec3, uc: f32, u: Vec2) -> Option<DielectricSample> {
+        match self.sample_direction(wo, uc, u)? {
+            DielectricDirection::Delta { wi, f, p } => Some((wi, f, p, true)),
+            DielectricDirection::Rough(wi) => {
+                let (f, pdf) = self.eval_pdf(wo, wi);
+                if !(pdf > 0.0) || !pdf.is_finite() {
+                    return None;
+                }
+                Some((wi, f, pdf, false))
+            }
         }
     }
 
-    /// Samples reflection or transmission in proportion to Fresnel.
-    pub fn sample(&self, wo: Vec3, uc: f32, u: Vec2) -> Option<DielectricSample> {
+    /// The direction `sample` chooses, without evaluating a rough one (a BSDF mixing glass with
+    /// other lobes evaluates the whole mixture there instead).
+    pub fn sample_direction(&self, wo: Vec3, uc: f32, u: Vec2) -> Option<DielectricDirection> {
         if wo.z <= 0.0 {
             return None;
         }
@@ -119,33 +132,31 @@ impl Dielectric {
             let r = fresnel_dielectric(wo.z, self.eta);
             if uc < r {
                 let wi = Vec3::new(-wo.x, -wo.y, wo.z);
-                return Some((wi, Vec3::splat(r), r, true));
+                return Some(DielectricDirection::Delta { wi, f: Vec3::splat(r), p: r });
             }
             let wi = refract(wo, Vec3::Z, self.eta)?;
             let t = 1.0 - r;
-            return Some((wi, self.tint * (t / (self.eta * self.eta)), t, true));
+            return Some(DielectricDirection::Delta { wi, f: self.tint * (t / (self.eta * self.eta)), p: t });
         }
         let wm = self.ggx.sample_visible_normal(wo, u);
         let r = fresnel_dielectric(wo.dot(wm), self.eta);
-        let wi = if uc < r {
+        if uc < r {
             let wi = crate::math::reflect(wo, wm);
-            if wi.z <= 0.0 {
-                return None;
-            }
-            wi
+            (wi.z > 0.0).then_some(DielectricDirection::Rough(wi))
         } else {
             let wi = refract(wo, wm, self.eta)?;
-            if wi.z >= 0.0 {
-                return None;
-            }
-            wi
-        };
-        let pdf = self.pdf(wo, wi);
-        if !(pdf > 0.0) || !pdf.is_finite() {
-            return None;
+            (wi.z < 0.0).then_some(DielectricDirection::Rough(wi))
         }
-        Some((wi, self.eval(wo, wi), pdf, false))
     }
+}
+
+/// What [`Dielectric::sample_direction`] chose.
+#[derive(Clone, Copy, Debug)]
+pub enum DielectricDirection {
+    /// Smooth glass: the mirror or refracted direction, its f (the delta removed) and probability.
+    Delta { wi: Vec3, f: Vec3, p: f32 },
+    /// A direction through a sampled microfacet, for the caller to evaluate.
+    Rough(Vec3),
 }
 
 #[cfg(test)]

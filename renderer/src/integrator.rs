@@ -192,7 +192,7 @@ pub fn radiance(
                 let above = wi.z > 0.0 && ls.wi.dot(ng) > 0.0;
                 let below = bsdf.transmits() && wi.z < 0.0 && ls.wi.dot(ng) < 0.0;
                 if ls.le != Vec3::ZERO && (above || below) {
-                    let f = bsdf.eval(wo, wi);
+                    let (f, bsdf_pdf) = bsdf.eval_pdf(wo, wi);
                     let origin = if above { origin } else { offset_ray_origin(sp.p, -ng) };
                     if f != Vec3::ZERO {
                         *rays += 1;
@@ -229,7 +229,7 @@ pub fn radiance(
                         if visible != Vec3::ZERO {
                             let w = match settings.integrator {
                                 IntegratorKind::Mis if !ls.delta => {
-                                    mis_weight(settings.mis_heuristic, ls.pdf, bsdf.pdf(wo, wi))
+                                    mis_weight(settings.mis_heuristic, ls.pdf, bsdf_pdf)
                                 }
                                 _ => 1.0,
                             };

@@ -168,7 +168,10 @@ fn pilot_variance(
                     Some(ls) if ls.pdf > 0.0 && ls.wi.dot(pt.n) > 0.0 => {
                         let wi = frame.to_local(ls.wi);
                         let (f, bsdf_pdf) = match &pt.bsdf {
-                            Some(b) => (luminance(b.eval(wo, wi)) as f64, b.pdf(wo, wi)),
+                            Some(b) => {
+                                let (f, p) = b.eval_pdf(wo, wi);
+                                (luminance(f) as f64, p)
+                            }
                             None => (std::f64::consts::FRAC_1_PI, cosine_hemisphere_pdf(wi.z)),
                         };
                         // The render's MIS weight: where BSDF sampling finds the light better (a

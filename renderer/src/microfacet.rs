@@ -68,10 +68,16 @@ impl Ggx {
     /// Distribution of visible normals D_wo(h) = G1(wo) max(0, wo·h) D(h) / cos θo.
     #[inline]
     pub fn visible_d(&self, wo: Vec3, h: Vec3) -> f32 {
+        self.visible_d_given(wo, h, self.d(h))
+    }
+
+    /// [`Self::visible_d`] with D(h) already computed (`d`), for callers that also need D.
+    #[inline]
+    pub fn visible_d_given(&self, wo: Vec3, h: Vec3, d: f32) -> f32 {
         if wo.z <= 0.0 {
             return 0.0;
         }
-        self.g1(wo) * wo.dot(h).max(0.0) * self.d(h) / wo.z
+        self.g1(wo) * wo.dot(h).max(0.0) * d / wo.z
     }
 
     /// Samples a visible normal for `wo` (upper hemisphere) with spherical caps (Dupuy & Benyoub 2023).

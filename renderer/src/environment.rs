@@ -210,13 +210,31 @@ impl Environment {
         if self.uniform {
             return self.texels[0];
         }
-        let uv = dir_to_uv(self.to_map(d));
+        self.eval_uv(dir_to_uv(self.to_map(d)))
+    }
+
+    /// [`Self::eval`] and [`Self::pdf`] of one direction, its (u, v) found once (an escaped path
+    /// weighed by MIS needs both; the arctangent and arcsine were a visible share of an
+    /// environment-lit render).
+    pub fn eval_pdf(&self, d: Vec3) -> (Vec3, f32) {
+        if self.uniform {
+            return (self.texels[0], 1.0 / (4.0 * PI));
+        }
+        let dm = self.to_map(d);
+        let uv = dir_to_uv(dm);
+        (self.eval_uv(uv), self.pdf_map(dm, uv))
+    }
+
+    /// The bilinear lookup of [`Self::eval`] at map coordinates `uv` (u in [0, 1), v in [0, 1]).
+    fn eval_uv(&self, uv: Vec2) -> Vec3 {
         let x = uv.x * self.width as f32 - 0.5;
         let y = (uv.y * (self.height - 1) as f32).clamp(0.0, (self.height - 1) as f32);
         let (x0, y0) = (x.floor(), y.floor());
         let (fx, fy) = (x - x0, y - y0);
-        let xa = (x0 as i64).rem_euclid(self.width as i64) as usize;
-        let xb = (xa + 1) % self.width;
+        // x0 is in −1 ..= width − 1 (u < 1); wrap without an integer division (two of them were
+        // most of this function's own time). The `min` only guards a u that rounding put at 1.
+        let xa = if x0 < 0.0 { self.width - 1 } else { (x0 as usize).min(self.width - 1) };
+        let xb = if xa + 1 == self.width { 0 } else { xa + 1 };
         let ya = y0 as usize;
         let yb = (ya + 1).min(self.height - 1);
         let t = |x: usize, y: usize| self.texels[y * self.width + x];
@@ -245,8 +263,8 @@ impl Environment {
         }
         // dω = 2π² sin θ du dv with sin θ (polar) = cos(latitude).
         let pdf = map_pdf / (2.0 * PI * PI * cos_lat);
-        let d = self.to_world(d_map);
-        Some((d, self.eval(d), pdf))
+        // Radiance at the sampled (u, v) itself, not at the direction turned back into (u, v).
+        Some((self.to_world(d_map), self.eval_uv(Vec2::new(uv[0], uv[1])), pdf))
     }
 
     /// Solid-angle pdf of `sample()` producing direction `d`.
@@ -254,13 +272,17 @@ impl Environment {
         if self.uniform {
             return 1.0 / (4.0 * PI);
         }
-        let Some(dist) = &self.distribution else { return 0.0 };
         let dm = self.to_map(d);
+        self.pdf_map(dm, dir_to_uv(dm))
+    }
+
+    /// [`Self::pdf`] of the map direction `dm` at its coordinates `uv`.
+    fn pdf_map(&self, dm: Vec3, uv: Vec2) -> f32 {
+        let Some(dist) = &self.distribution else { return 0.0 };
         let cos_lat = (1.0 - dm.y * dm.y).max(0.0).sqrt();
         if cos_lat <= 0.0 {
             return 0.0;
         }
-        let uv = dir_to_uv(dm);
         dist.pdf([uv.x, uv.y]) / (2.0 * PI * PI * cos_lat)
     }
 }
@@ -307,6 +329,34 @@ mod tests {
         assert!(dir_to_uv(Vec3::Y).y < 1e-6);
         assert!((dir_to_uv(Vec3::X) - Vec2::new(0.5, 0.5)).length() < 1e-6);
         assert!((dir_to_uv(Vec3::Z) - Vec2::new(0.75, 0.5)).length() < 1e-6);
+    }
+
+    /// The wrap in u without integer division reads the texels the modulo arithmetic read, at the
+    /// seam (u = 0, u just below 1, the half texel either side) and everywhere between.
+    #[test]
+    fn bilinear_wrap_equals_the_modulo_lookup() {
+        let (w, h) = (8usize, 5usize);
+        let texels: Vec<Vec3> = (0..w * h).map(|i| Vec3::new(i as f32, (i * i % 13) as f32, 1.0)).collect();
+        let env = Environment::from_texels(w, h, texels.clone(), false, 0.0, false, false);
+        let modulo = |uv: Vec2| {
+            let x = uv.x * w as f32 - 0.5;
+            let y = (uv.y * (h - 1) as f32).clamp(0.0, (h - 1) as f32);
+            let (x0, y0) = (x.floor(), y.floor());
+            let (fx, fy) = (x - x0, y - y0);
+            let xa = (x0 as i64).rem_euclid(w as i64) as usize;
+            let xb = (xa + 1) % w;
+            let (ya, yb) = (y0 as usize, (y0 as usize + 1).min(h - 1));
+            let t = |x: usize, y: usize| texels[y * w + x];
+            (t(xa, ya) * (1.0 - fx) + t(xb, ya) * fx) * (1.0 - fy) + (t(xa, yb) * (1.0 - fx) + t(xb, yb) * fx) * fy
+        };
+        let mut us: Vec<f32> = (0..=400).map(|i| i as f32 / 400.0).filter(|&u| u < 1.0).collect();
+        us.extend([0.0, 1.0 - f32::EPSILON / 2.0, 0.5 / w as f32, 1.0 - 0.5 / w as f32, 1e-9]);
+        for &u in &us {
+            for v in [0.0, 0.1, 0.5, 0.77, 1.0] {
+                let uv = Vec2::new(u, v);
+                assert_eq!(env.eval_uv(uv), modulo(uv), "u {u}, v {v}");
+            }
+        }
     }
 
     #[test]

@@ -61,20 +61,21 @@ pub fn radiance(
                 beta *= Vec3::select(medium.cmpgt(Vec3::ZERO), Vec3::ZERO, Vec3::ONE);
             }
             if let Some(env) = &scene.lights.environment {
-                let le = env.eval(d);
                 match (settings.integrator, prev) {
-                    (_, None) | (IntegratorKind::Bsdf, _) => l += beta * le,
+                    (_, None) | (IntegratorKind::Bsdf, _) => l += beta * env.eval(d),
                     // NEE already sampled the environment where it can: where the light pdf is 0
                     // (sampling off, or directions MIS compensation leaves to BSDF sampling:
                     // environment.rs) only this path finds it.
                     (IntegratorKind::Nee, Some((p_prev, n_prev, _))) => {
-                        if scene.lights.environment_pdf(d, p_prev, Some(n_prev)) == 0.0 {
+                        // (A float pattern: matches a light pdf of ±0.)
+                        if let Some((le, 0.0)) = scene.lights.environment_eval_pdf(d, p_prev, Some(n_prev)) {
                             l += beta * le;
                         }
                     }
                     (IntegratorKind::Mis, Some((p_prev, n_prev, bsdf_pdf))) => {
-                        let light_pdf = scene.lights.environment_pdf(d, p_prev, Some(n_prev));
-                        l += beta * le * mis_weight(settings.mis_heuristic, bsdf_pdf, light_pdf);
+                        if let Some((le, light_pdf)) = scene.lights.environment_eval_pdf(d, p_prev, Some(n_prev)) {
+                            l += beta * le * mis_weight(settings.mis_heuristic, bsdf_pdf, light_pdf);
+                        }
                     }
                 }
             }

@@ -321,12 +321,15 @@ impl LightSet {
         self.selection.is_empty()
     }
 
-    /// The probability that NEE samples the environment from direction `d` (0 when it is not sampled).
-    pub fn environment_pdf(&self, d: Vec3, reference: Vec3, normal: Option<Vec3>) -> f32 {
-        match &self.environment {
-            Some(env) if env.is_sampled() => self.select_pmf(self.environment_index(), reference, normal) * env.pdf(d),
-            _ => 0.0,
+    /// The environment's radiance from direction `d` and the probability that NEE samples it
+    /// there (0 when it is not sampled), with the map looked up once. None without an environment.
+    pub fn environment_eval_pdf(&self, d: Vec3, reference: Vec3, normal: Option<Vec3>) -> Option<(Vec3, f32)> {
+        let env = self.environment.as_ref()?;
+        if !env.is_sampled() {
+            return Some((env.eval(d), 0.0));
         }
+        let (le, pdf) = env.eval_pdf(d);
+        Some((le, self.select_pmf(self.environment_index(), reference, normal) * pdf))
     }
 
     /// Samples a light and a point on it as seen from `reference` (on a surface with `normal`, which

@@ -231,8 +231,9 @@ impl Bsdf {
             (Vec3::ZERO, 0.0)
         };
         if g < 1.0 {
-            f += self.eval_opaque(wo, wi);
-            p += (1.0 - g) * self.pdf_opaque(wo, wi);
+            let (fo, po) = self.eval_pdf_opaque(wo, wi);
+            f += fo;
+            p += (1.0 - g) * po;
         }
         (f, p)
     }
@@ -257,38 +258,33 @@ impl Bsdf {
         Some(s)
     }
 
-    fn eval_opaque(&self, wo: Vec3, wi: Vec3) -> Vec3 {
+    /// The opaque part's f and pdf (diffuse + GGX reflection), sharing the half vector and D.
+    fn eval_pdf_opaque(&self, wo: Vec3, wi: Vec3) -> (Vec3, f32) {
         if wo.z <= 0.0 || wi.z <= 0.0 {
-            return Vec3::ZERO;
+            return (Vec3::ZERO, 0.0);
         }
         let h = (wo + wi).normalize_or_zero();
+        let ps = self.specular_probability(wo.z);
+        let mut pdf = (1.0 - ps) * cosine_hemisphere_pdf(wi.z);
         if h == Vec3::ZERO {
-            return Vec3::ZERO;
+            return (Vec3::ZERO, pdf);
         }
         let c = wo.dot(h).abs();
         let mut f = self.base_color * (self.diffuse_scale(c) * INV_PI);
+        if self.ggx.is_delta() {
+            return (f, pdf);
+        }
+        let d = self.ggx.d(h);
         // A Lambert material (no metal, KHR_materials_specular 0) has no specular lobe: skip GGX.
-        if !self.ggx.is_delta() && (self.metallic > 0.0 || self.specular > 0.0) {
-            let s = self.ggx.d(h) * self.ggx.g2(wo, wi) / (4.0 * wo.z * wi.z);
+        if self.metallic > 0.0 || self.specular > 0.0 {
+            let s = d * self.ggx.g2(wo, wi) / (4.0 * wo.z * wi.z);
             f += self.specular_tint(c) * s;
         }
-        f
-    }
-
-    fn pdf_opaque(&self, wo: Vec3, wi: Vec3) -> f32 {
-        if wo.z <= 0.0 || wi.z <= 0.0 {
-            return 0.0;
+        let woh = wo.dot(h);
+        if ps > 0.0 && woh > 0.0 {
+            pdf += ps * self.ggx.visible_d_given(wo, h, d) / (4.0 * woh);
         }
-        let ps = self.specular_probability(wo.z);
-        let mut pdf = (1.0 - ps) * cosine_hemisphere_pdf(wi.z);
-        if ps > 0.0 && !self.ggx.is_delta() {
-            let h = (wo + wi).normalize_or_zero();
-            let woh = wo.dot(h);
-            if woh > 0.0 {
-                pdf += ps * self.ggx.visible_d(wo, h) / (4.0 * woh);
-            }
-        }
-        pdf
+        (f, pdf)
     }
 
     fn sample_opaque(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {

@@ -386,7 +386,7 @@ pub(crate) mod tests {
                     assert_eq!(a.wi.to_array().map(f32::to_bits), g.wi.to_array().map(f32::to_bits));
                     assert_eq!(a.f.to_array().map(f32::to_bits), g.f.to_array().map(f32::to_bits));
                     assert_eq!((a.pdf.to_bits(), a.delta), (g.pdf.to_bits(), g.delta));
-                    // `finish` takes f and pdf from `eval` and `pdf`: the general ones agree there too.
+                    // `finish` takes f and pdf from `eval_pdf`: the general ones agree there too.
                     let wi = a.wi;
                     assert_eq!(
                         a.f.to_array().map(f32::to_bits),

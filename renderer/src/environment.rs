@@ -218,7 +218,7 @@ impl Environment {
     /// environment-lit render).
     pub fn eval_pdf(&self, d: Vec3) -> (Vec3, f32) {
         if self.uniform {
-            return (self.texels[0], 1.0 / (4.0 * PI));
+            return (self.eval(d), self.pdf(d));
         }
         let dm = self.to_map(d);
         let uv = dir_to_uv(dm);

@@ -22,7 +22,7 @@ pub struct AreaLight {
     p0: Vec3,
     e1: Vec3,
     e2: Vec3,
-    /// Unit winding normal (+Z for a degenerate triangle, as `Mesh::position_normal_uv`).
+    /// Unit winding normal (`Mesh::position_normal_uv`'s).
     ng: Vec3,
     pub triangle: u32,
     pub area: f32,
@@ -146,12 +146,13 @@ impl LightSet {
             triangle_light[i] = lights.len() as u32;
             let [p0, p1, p2] = mesh.vertices(i as u32);
             let (e1, e2) = (p1 - p0, p2 - p0);
-            let ng = e1.cross(e2).normalize_or_zero();
             lights.push(AreaLight {
                 p0,
                 e1,
                 e2,
-                ng: if ng == Vec3::ZERO { Vec3::Z } else { ng },
+                // A positive, finite area makes this a unit vector: `position_normal_uv`'s +Z
+                // fallback for degenerate triangles never applies to a light.
+                ng: e1.cross(e2).normalize_or_zero(),
                 triangle: i as u32,
                 area,
                 two_sided: m.double_sided,
@@ -382,11 +383,12 @@ impl LightSet {
             return None;
         }
         let m = &materials[light.material as usize];
-        let le = if m.emissive_texture.is_some() {
-            emitted(m, textures, ng, mesh.position_normal_uv(light.triangle, b.y, b.z).2, -wi)
-        } else {
-            emitted(m, textures, ng, Default::default(), -wi)
+        // Texture coordinates only matter to a textured emitter; they are the one thing read from the mesh.
+        let uv = match m.emissive_texture {
+            Some(_) => mesh.position_normal_uv(light.triangle, b.y, b.z).2,
+            None => Default::default(),
         };
+        let le = emitted(m, textures, ng, uv, -wi);
         let pdf = pmf * dist2 / (cos_l.abs() * light.area);
         if !(pdf > 0.0) || !pdf.is_finite() {
             return None;

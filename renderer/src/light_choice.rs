@@ -6,9 +6,9 @@
 //! each sample 2.25–2.7× dearer), yet whether the tree pays for that depends on where the lights
 //! are and on what a walk costs: on `scenes/veach` (four equal bulbs seen from everywhere) uniform
 //! selection reached 1.6× lower error than the tree at equal time while a walk cost 2.25× a power
-//! sample (docs/speed-vs-accuracy/summary.md); since the walk chooses among eight children per AVX
-//! pass (1.54×) the tree is 2.0× as efficient there; on `scenes/sphere_lights` (four unequal bulbs over
-//! a floor) the tree was 1.3× better than uniform and 2.4× better than power (issue 10,
+//! sample (docs/speed-vs-accuracy/summary.md); since the walk chooses among eight children per
+//! AVX pass (1.54×) the tree is 2.0× as efficient there; on `scenes/sphere_lights` (four unequal
+//! bulbs over a floor) the tree was 1.3× better than uniform and 2.4× better than power (issue 10,
 //! `tessera bench convergence --switches light_sampler`).
 //!
 //! The pilot: the first surfaces hit by `PILOT_POINTS` camera rays (stratified over the image; for a
@@ -25,12 +25,14 @@
 //! Both refinements were measured against the choice that wins at equal time
 //! (`bench_peers.py --variants none --runs 5 --tessera-args "--light-sampler K"`, issue 15). With
 //! independent samples the pilot chose power on `sphere_light` at every image shape tried, where
-//! the tree is 1.9× as efficient (relMSE 1.23e-4 in 0.59 s against 3.54e-4 in 0.39 s; 2.3× since
-//! the walk chooses among eight children at a time). Replicates alone fix that but on `veach`
-//! score the three within 2 % and choose uniform, power or tree with the image's shape (the tree is 1.65× as efficient there: relMSE 1.94e-3 in 0.24 s against
-//! 3.92e-3 in 0.19 s): unweighted, NEE's variance on veach is that of the glossy plates'
-//! reflections of the bulbs, which BSDF sampling carries in the render whatever the selection. With
-//! the MIS weight the tree scores 1.3–1.6× better there at every shape.
+//! the tree was 1.9× as efficient (relMSE 1.23e-4 in 0.59 s against 3.54e-4 in 0.39 s; 2.2× since
+//! the walk chooses among eight children at a time: 1.03e-4 in 0.622 s against 0.405 s, 2026-11-23).
+//! Replicates alone fix that but on `veach` score the three within 2 % and choose uniform, power
+//! or tree with the image's shape (the tree was 1.65× as efficient there, relMSE 1.94e-3 in 0.24 s
+//! against 3.92e-3 in 0.19 s; now 2.0×, 1.41e-3 in 0.274 s against 0.196 s): unweighted, NEE's
+//! variance on veach is that of the glossy plates' reflections of the bulbs, which BSDF sampling
+//! carries in the render whatever the selection. With the MIS weight the tree scores 1.3–1.6×
+//! better there at every shape.
 
 use crate::bsdf::Bsdf;
 use crate::camera::Camera;

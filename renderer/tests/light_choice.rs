@@ -25,14 +25,15 @@ fn auto_picks_what_measures_best() {
     // Four equal bulbs (1280 triangles) seen from everywhere: with the walk at two levels per AVX
     // pass the tree pays here too (`bench_peers.py --tessera-args "--light-sampler K" veach`, 64
     // spp, medians of 5: relMSE tree 1.94e-3 in 0.192 s, uniform 3.98e-3 in 0.128 s, power
-    // 3.92e-3 in 0.129 s: the tree 1.37× as efficient). With the walk at one level per child
-    // (2.25× a power sample) uniform had been better, and the pilot picked it.
+    // 3.92e-3 in 0.129 s: the tree 1.37× as efficient; 2.0× with the eight-wide walk, 2026-11-23:
+    // 1.41e-3 in 0.274 s, uniform 3.98e-3 in 0.198 s, power 3.92e-3 in 0.196 s). With the walk at
+    // one level per child (2.25× a power sample) uniform had been better, and the pilot picked it.
     assert_eq!(auto_choice("veach"), LightSamplerKind::Tree);
     // One 2208-triangle bulb over a floor: the tree (which skips the bulb's far side and keeps
     // neighbouring u on neighbouring triangles, so Sobol stratifies over the bulb) is 1.9× as
     // efficient as power (`bench_peers.py --variants none --runs 5 --tessera-args
-    // "--light-sampler K" sphere_light`: relMSE 1.23e-4 in 0.59 s, power 3.54e-4 in 0.39 s; 2.3×
-    // with the eight-wide walk: 1.03e-4 in 0.30 s, power 3.54e-4 in 0.20 s). A pilot with
+    // "--light-sampler K" sphere_light`: relMSE 1.23e-4 in 0.59 s, power 3.54e-4 in 0.39 s; 2.2×
+    // with the eight-wide walk, 2026-11-23: 1.03e-4 in 0.622 s, power 3.54e-4 in 0.405 s). A pilot with
     // independent samples saw only a 1.3× variance gain and chose power (issue 15).
     assert_eq!(auto_choice("sphere_light"), LightSamplerKind::Tree);
     // One emitter: nothing to choose.

@@ -1,5 +1,6 @@
 //! Ray-triangle intersection over the whole scene: a compressed-wide BVH (CWBVH, 8-wide, SIMD node
-//! tests) built by `obvhs` and traversed by its loop with our 8-wide node test, with triangles
+//! tests) built by `obvhs`, traversed by our loop (nearest child first, children beyond the
+//! closest hit skipped) with our 8-wide node test, with triangles
 //! stored in BVH leaf order in blocks of eight and intersected by our watertight test
 //! (`triangle.rs`): the leaf triangles a node test reaches, a block (eight lanes) at a time.
 //!
@@ -15,6 +16,7 @@ use obvhs::cwbvh::CwBvh;
 use obvhs::ray::Ray as BvhRay;
 
 use crate::triangle::{RtTriangle, TriangleBlocks, WatertightRay, LANES};
+use std::mem::MaybeUninit;
 
 #[derive(Clone, Copy, Debug)]
 pub struct Hit {
@@ -44,54 +46,171 @@ enum TopPrim {
     Instance { index: u32, prototype: u32, to_object: glam::Affine3A },
 }
 
-/// Closest-hit traversal of `bvh`: obvhs' traversal loop (`obvhs::traverse!`) with the 8-wide
-/// AVX2 node test of [`crate::cwbvh_node`]. The loop hands over a node's hit leaf primitives one
-/// at a time, highest slot first; `group(ray, base, mask)` takes them all at once instead (slots
-/// `base + i` for the bits i of `mask`, at most 24) and returns the closest hit distance among
-/// them (∞ for none), which shortens the ray for the rest of the traversal.
+/// A child the traversal has yet to visit: its node and, for closest hits, the distance at which
+/// the ray enters its box.
+#[derive(Clone, Copy)]
+struct Deferred {
+    node: u32,
+    entry: f32,
+}
+
+/// Deferred children a traversal holds on the call stack. A node defers at most seven children
+/// beyond the one it descends into, so a BVH `depth` levels deep needs at most `7·depth + 1`
+/// entries: this serves every BVH up to 36 levels; a deeper (degenerate) one gets a heap stack
+/// of its own size (`Accel::stack_len`).
+const STACK: usize = 256;
+
+/// obvhs' ray octant code (`CwBvh::new_traversal`): in every byte, bit 2, 1, 0 set for a
+/// non-negative x, y, z direction component. XORed with a child's slot it gives the child's
+/// traversal priority (the node test's hit-mask bit).
 #[inline(always)]
-fn traverse_closest(bvh: &CwBvh, mut ray: BvhRay, mut group: impl FnMut(&BvhRay, usize, u32) -> f32) {
-    use glam::UVec2;
-    let mut state = bvh.new_traversal(ray.direction);
-    let mut node;
-    obvhs::traverse!(bvh, node, state, crate::cwbvh_node::intersect(node, &ray, state.oct_inv4), {
-        let (base, mask) = take_group(&mut state);
-        let t = group(&ray, base, mask);
-        if t < ray.tmax {
-            ray.tmax = t;
+fn octant_inv4(d: Vec3A) -> u32 {
+    (if d.x < 0.0 { 0 } else { 0x0404_0404 })
+        | (if d.y < 0.0 { 0 } else { 0x0202_0202 })
+        | (if d.z < 0.0 { 0 } else { 0x0101_0101 })
+}
+
+/// The node index of the inner child in `slot` of `node`: inner children are stored from
+/// `child_base_idx` in slot order.
+#[inline(always)]
+fn inner_child(node: &obvhs::cwbvh::node::CwBvhNode, slot: u32) -> u32 {
+    node.child_base_idx + (node.imask as u32 & ((1u32 << slot) - 1)).count_ones()
+}
+
+/// Closest-hit traversal of `bvh` with the 8-wide AVX2 node test of [`crate::cwbvh_node`]. At a
+/// node, its hit leaf primitives go to `group(ray, base, mask)` all at once (slots `base + i` for
+/// the bits i of `mask`, at most 24), which returns the closest hit distance among them (∞ for
+/// none) and so shortens the ray; then its hit inner children are deferred nearest on top, each
+/// with its entry distance, and the nearest deferred child the ray still reaches is next.
+///
+/// Why not obvhs' loop (`obvhs::traverse!`, a GPU design): it defers a node's children as one
+/// group in octant order and pops them without their distances, so a child lying wholly beyond a
+/// hit found meanwhile still costs a node test, and children are visited in octant order rather
+/// than by distance. Both test every leaf that can hold the closest hit, so the hits are the same
+/// (a test compares them ray for ray against obvhs' loop).
+#[inline(always)]
+fn traverse_closest(
+    bvh: &CwBvh,
+    stack: &mut [MaybeUninit<Deferred>],
+    mut ray: BvhRay,
+    mut group: impl FnMut(&BvhRay, usize, u32) -> f32,
+) {
+    if bvh.nodes.is_empty() {
+        return;
+    }
+    let oct_inv4 = octant_inv4(ray.direction);
+    let oct = oct_inv4 & 7;
+    let (mut sp, mut current) = (0usize, 0u32);
+    loop {
+        let node = &bvh.nodes[current as usize];
+        let (hits, entry) = crate::cwbvh_node::intersect_entry(node, &ray, oct_inv4);
+        let prims = hits & 0x00ff_ffff;
+        if prims != 0 {
+            let t = group(&ray, node.primitive_base_idx as usize, prims);
+            if t < ray.tmax {
+                ray.tmax = t;
+            }
         }
-    });
+        // Inner children hit: bit 24 + p of the mask is the child in slot p ^ octant. Each is
+        // inserted into this node's run at the top of the stack, farthest deepest.
+        let mut inner = hits >> 24;
+        let run = sp;
+        while inner != 0 && sp < stack.len() {
+            let slot = inner.trailing_zeros() ^ oct;
+            inner &= inner - 1;
+            let d = Deferred { node: inner_child(node, slot), entry: entry[slot as usize] };
+            let mut i = sp;
+            // SAFETY: every entry below `sp` has been written.
+            while i > run && unsafe { stack[i - 1].assume_init() }.entry < d.entry {
+                stack[i] = stack[i - 1];
+                i -= 1;
+            }
+            stack[i] = MaybeUninit::new(d);
+            sp += 1;
+        }
+        // Next: the nearest deferred child that begins before the closest hit so far.
+        loop {
+            if sp == 0 {
+                return;
+            }
+            sp -= 1;
+            // SAFETY: as above.
+            let d = unsafe { stack[sp].assume_init() };
+            if d.entry <= ray.tmax {
+                current = d.node;
+                break;
+            }
+        }
+    }
 }
 
 /// True when `group(base, mask)` reports a hit for some group of primitive slots (as in
-/// [`traverse_closest`]); traversal stops at the first.
+/// [`traverse_closest`]); traversal stops at the first. The ray never shortens, so children are
+/// deferred in octant order and without their distances.
 #[inline(always)]
-fn traverse_any(bvh: &CwBvh, ray: BvhRay, mut group: impl FnMut(usize, u32) -> bool) -> bool {
-    use glam::UVec2;
-    let mut state = bvh.new_traversal(ray.direction);
-    let mut node;
-    let mut hit = false;
-    'outer: {
-        obvhs::traverse!(bvh, node, state, crate::cwbvh_node::intersect(node, &ray, state.oct_inv4), {
-            let (base, mask) = take_group(&mut state);
-            if group(base, mask) {
-                hit = true;
-                break 'outer;
-            }
-        });
+fn traverse_any(
+    bvh: &CwBvh,
+    stack: &mut [MaybeUninit<Deferred>],
+    ray: BvhRay,
+    mut group: impl FnMut(usize, u32) -> bool,
+) -> bool {
+    if bvh.nodes.is_empty() {
+        return false;
     }
-    hit
+    let oct_inv4 = octant_inv4(ray.direction);
+    let oct = oct_inv4 & 7;
+    let (mut sp, mut current) = (0usize, 0u32);
+    loop {
+        let node = &bvh.nodes[current as usize];
+        let hits = crate::cwbvh_node::intersect(node, &ray, oct_inv4);
+        let prims = hits & 0x00ff_ffff;
+        if prims != 0 && group(node.primitive_base_idx as usize, prims) {
+            return true;
+        }
+        let mut inner = hits >> 24;
+        while inner != 0 && sp < stack.len() {
+            let slot = inner.trailing_zeros() ^ oct;
+            inner &= inner - 1;
+            stack[sp] = MaybeUninit::new(Deferred { node: inner_child(node, slot), entry: 0.0 });
+            sp += 1;
+        }
+        if sp == 0 {
+            return false;
+        }
+        sp -= 1;
+        // SAFETY: every entry below `sp` has been written.
+        current = unsafe { stack[sp].assume_init() }.node;
+    }
 }
 
-/// Inside `obvhs::traverse!`'s primitive block: the primitive it hands over together with the
-/// rest of its node's hit leaf primitives, as (first slot, bits of the slots after it), taken
-/// out of the loop's state so that it moves on to the next node.
+/// Runs `f` with a traversal stack of `len` entries: on the call stack when that fits
+/// [`STACK`], else on the heap.
 #[inline(always)]
-fn take_group(state: &mut obvhs::cwbvh::Traversal) -> (usize, u32) {
-    let base = state.primitive_group.x;
-    let mask = state.primitive_group.y | (1 << (state.primitive_id - base));
-    state.primitive_group.y = 0;
-    (base as usize, mask)
+fn with_stack<R>(len: usize, f: impl FnOnce(&mut [MaybeUninit<Deferred>]) -> R) -> R {
+    if len <= STACK {
+        let mut stack: [MaybeUninit<Deferred>; STACK] = [const { MaybeUninit::uninit() }; STACK];
+        f(&mut stack)
+    } else {
+        let mut stack = vec![MaybeUninit::uninit(); len];
+        f(&mut stack)
+    }
+}
+
+/// The traversal stack `bvh` needs: `7·depth + 1` entries for a BVH `depth` levels deep (see
+/// [`STACK`]).
+fn stack_len(bvh: &CwBvh) -> usize {
+    let mut deepest = 0;
+    let mut todo = if bvh.nodes.is_empty() { vec![] } else { vec![(0u32, 1usize)] };
+    while let Some((n, d)) = todo.pop() {
+        deepest = deepest.max(d);
+        let node = &bvh.nodes[n as usize];
+        for slot in 0..8 {
+            if node.imask & (1 << slot) != 0 {
+                todo.push((inner_child(node, slot), d + 1));
+            }
+        }
+    }
+    7 * deepest + 1
 }
 
 /// The bits i of `mask`, highest first (the order the traversal loop hands primitives over in).
@@ -150,6 +269,8 @@ crate::named_choices!(AccelKind, "accelerator", { "obvhs" => Self::Obvhs, "own" 
 #[derive(Default)]
 pub struct Accel {
     bvh: CwBvh,
+    /// The traversal stack `bvh` needs ([`stack_len`]).
+    stack_len: usize,
     /// Triangles in `bvh.primitive_indices` order, so a node's leaf primitives are consecutive slots.
     tris: TriangleBlocks,
     /// Test leaf triangles one at a time (`TriangleBlocks::intersect8_scalar`): the reference the
@@ -181,6 +302,7 @@ impl Accel {
             let tris = ids.iter().map(|&i| RtTriangle::new(mesh.vertices(i), i)).collect();
             return Accel {
                 bvh: CwBvh::default(),
+                stack_len: 0,
                 tris: TriangleBlocks::default(),
                 scalar_reference: false,
                 own: Some(crate::bvh::Bvh::build(tris)),
@@ -205,7 +327,7 @@ impl Accel {
         let tris = TriangleBlocks::new(
             bvh.primitive_indices.iter().map(|&k| RtTriangle::new(mesh.vertices(ids[k as usize]), ids[k as usize])),
         );
-        Accel { bvh, tris, scalar_reference: false, own: None, top: None }
+        Accel { stack_len: stack_len(&bvh), bvh, tris, scalar_reference: false, own: None, top: None }
     }
 
     /// After an animation moved instances or world vertices: a new top level over the prototype
@@ -260,7 +382,7 @@ impl Accel {
             obvhs::cwbvh::builder::build_cwbvh(&boxes, obvhs::BvhBuildParams::medium_build(), &mut Default::default());
         // Leaf order, so a leaf's primitives sit together.
         let prims = bvh.primitive_indices.iter().map(|&i| prims[i as usize]).collect();
-        Accel { bvh, top: Some(Box::new(TopLevel { prims, blas })), ..Accel::default() }
+        Accel { stack_len: stack_len(&bvh), bvh, top: Some(Box::new(TopLevel { prims, blas })), ..Accel::default() }
     }
 
     /// Makes every leaf triangle test the one-at-a-time reference (prototypes included).
@@ -295,28 +417,30 @@ impl Accel {
         let ray = BvhRay::new(oa, da, 0.0, tmax);
         let wray = WatertightRay::new(oa, da);
         let mut best: Option<Hit> = None;
-        traverse_closest(&self.bvh, ray, |r, base, mask| {
-            let mut bound = r.tmax;
-            // Highest slot first with a shrinking bound, as the traversal loop hands them over.
-            for i in bits_descending(mask) {
-                match &top.prims[base + i] {
-                    TopPrim::Triangle(tri) => {
-                        if let Some((t, b1, b2)) = tri.intersect(&wray, bound) {
-                            best = Some(Hit { t, triangle: tri.id, b1, b2, instance: NO_INSTANCE });
-                            bound = t;
+        with_stack(self.stack_len, |stack| {
+            traverse_closest(&self.bvh, stack, ray, |r, base, mask| {
+                let mut bound = r.tmax;
+                // Highest slot first with a shrinking bound, as the traversal loop hands them over.
+                for i in bits_descending(mask) {
+                    match &top.prims[base + i] {
+                        TopPrim::Triangle(tri) => {
+                            if let Some((t, b1, b2)) = tri.intersect(&wray, bound) {
+                                best = Some(Hit { t, triangle: tri.id, b1, b2, instance: NO_INSTANCE });
+                                bound = t;
+                            }
                         }
-                    }
-                    TopPrim::Instance { index, prototype, to_object } => {
-                        let (oo, dd) = (to_object.transform_point3a(oa), to_object.transform_vector3a(da));
-                        if let Some(mut h) = top.blas[*prototype as usize].intersect_object(oo, dd, bound) {
-                            h.instance = *index;
-                            best = Some(h);
-                            bound = h.t;
+                        TopPrim::Instance { index, prototype, to_object } => {
+                            let (oo, dd) = (to_object.transform_point3a(oa), to_object.transform_vector3a(da));
+                            if let Some(mut h) = top.blas[*prototype as usize].intersect_object(oo, dd, bound) {
+                                h.instance = *index;
+                                best = Some(h);
+                                bound = h.t;
+                            }
                         }
                     }
                 }
-            }
-            bound
+                bound
+            })
         });
         best
     }
@@ -330,21 +454,23 @@ impl Accel {
         let ray = BvhRay::new(oa, da, 0.0, tmax);
         let wray = WatertightRay::new(oa, da);
         let mut best: Option<(f32, usize, f32, f32)> = None;
-        traverse_closest(&self.bvh, ray, |r, base, mask| {
-            let (mut bound, mut mask) = (r.tmax, mask);
-            while mask != 0 {
-                let (start, lanes) = next_window(base, &mut mask);
-                let hit = if self.scalar_reference {
-                    self.tris.intersect8_scalar(&wray, start, lanes, bound)
-                } else {
-                    self.tris.intersect8(&wray, start, lanes, bound)
-                };
-                if let Some(h) = hit {
-                    bound = h.0;
-                    best = Some(h);
+        with_stack(self.stack_len, |stack| {
+            traverse_closest(&self.bvh, stack, ray, |r, base, mask| {
+                let (mut bound, mut mask) = (r.tmax, mask);
+                while mask != 0 {
+                    let (start, lanes) = next_window(base, &mut mask);
+                    let hit = if self.scalar_reference {
+                        self.tris.intersect8_scalar(&wray, start, lanes, bound)
+                    } else {
+                        self.tris.intersect8(&wray, start, lanes, bound)
+                    };
+                    if let Some(h) = hit {
+                        bound = h.0;
+                        best = Some(h);
+                    }
                 }
-            }
-            bound
+                bound
+            })
         });
         best.map(|(t, slot, b1, b2)| Hit { t, triangle: self.tris.ids[slot], b1, b2, instance: NO_INSTANCE })
     }
@@ -376,14 +502,13 @@ impl Accel {
             }
             let ray = BvhRay::new(oa, da, 0.0, tmax);
             let wray = WatertightRay::new(oa, da);
-            return traverse_any(&self.bvh, ray, |base, mask| {
-                bits_descending(mask).any(|i| match &top.prims[base + i] {
-                    TopPrim::Triangle(tri) => tri.intersect(&wray, tmax).is_some(),
-                    TopPrim::Instance { prototype, to_object, .. } => top.blas[*prototype as usize].occluded_object(
-                        to_object.transform_point3a(oa),
-                        to_object.transform_vector3a(da),
-                        tmax,
-                    ),
+            return with_stack(self.stack_len, |stack| {
+                traverse_any(&self.bvh, stack, ray, |base, mask| {
+                    bits_descending(mask).any(|i| match &top.prims[base + i] {
+                        TopPrim::Triangle(tri) => tri.intersect(&wray, tmax).is_some(),
+                        TopPrim::Instance { prototype, to_object, .. } => top.blas[*prototype as usize]
+                            .occluded_object(to_object.transform_point3a(oa), to_object.transform_vector3a(da), tmax),
+                    })
                 })
             });
         }
@@ -400,13 +525,88 @@ impl Accel {
             return false;
         }
         let wray = WatertightRay::new(oa, da);
-        traverse_any(&self.bvh, BvhRay::new(oa, da, 0.0, tmax), |base, mask| self.any_in_group(&wray, base, mask, tmax))
+        with_stack(self.stack_len, |stack| {
+            traverse_any(&self.bvh, stack, BvhRay::new(oa, da, 0.0, tmax), |base, mask| {
+                self.any_in_group(&wray, base, mask, tmax)
+            })
+        })
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// obvhs' own traversal loop (`obvhs::traverse!`, as Tessera used it before its own loop) with
+    /// one leaf triangle at a time and a shrinking bound: the reference for [`traverse_closest`].
+    fn obvhs_closest(a: &Accel, o: Vec3A, d: Vec3A, tmax: f32) -> Option<(f32, u32)> {
+        use glam::UVec2;
+        let mut ray = BvhRay::new(o, d, 0.0, tmax);
+        let wray = WatertightRay::new(o, d);
+        let mut state = a.bvh.new_traversal(ray.direction);
+        let mut node;
+        let mut best = None;
+        obvhs::traverse!(a.bvh, node, state, crate::cwbvh_node::intersect(node, &ray, state.oct_inv4), {
+            let slot = state.primitive_id as usize;
+            if let Some((t, _, _)) = a.tris.get(slot).intersect(&wray, ray.tmax) {
+                ray.tmax = t;
+                best = Some((t, a.tris.ids[slot]));
+            }
+        });
+        best
+    }
+
+    /// The distance-ordered loop with its culling finds the hit obvhs' loop finds, ray for ray (the
+    /// same distance to the bit and the same triangle, or a triangle the ray hits at that same
+    /// distance: a ray through a shared edge), also with the heap stack a deep BVH gets; any-hit
+    /// queries agree with the closest hit.
+    #[test]
+    fn own_traversal_finds_the_hits_of_obvhs_loop() {
+        let mut b = crate::testing::SceneBuilder::default();
+        let m = b.material(crate::testing::lambert(Vec3::splat(0.5)));
+        b.sphere(Vec3::ZERO, 6.0, 3, true, m);
+        for k in 0..12u64 {
+            let u = |j: u64| crate::sampler::hash_unit(16 * k + j);
+            let c = Vec3::new(u(0), u(1), u(2)) * 6.0 - 3.0;
+            b.sphere(c, 0.2 + u(3), 2 + (k % 3) as u32, false, m);
+        }
+        let mut accel = Accel::build(&b.mesh);
+        assert!(accel.bvh.nodes.len() > 20 && accel.stack_len > 8, "{} nodes", accel.bvh.nodes.len());
+        let (mut hits, mut culled_paths) = (0usize, 0usize);
+        for heap in [false, true] {
+            if heap {
+                accel.stack_len = STACK + 1;
+            }
+            for i in 0..20_000u64 {
+                let u = |j: u64| crate::sampler::hash_unit(8 * i + j);
+                let o = Vec3A::new(u(0), u(1), u(2)) * 8.0 - 4.0;
+                let d = Vec3A::new(u(3), u(4), u(5)) * 2.0 - 1.0;
+                if d.length_squared() == 0.0 {
+                    continue;
+                }
+                let tmax = if i % 4 == 0 { 3.0 * u(6) } else { f32::INFINITY };
+                let want = obvhs_closest(&accel, o, d, tmax);
+                let got = accel.intersect(o.into(), d.into(), tmax);
+                match (want, got) {
+                    (None, None) => {}
+                    (Some((t, tri)), Some(h)) => {
+                        hits += 1;
+                        assert_eq!(t.to_bits(), h.t.to_bits(), "ray {i}: t {t} vs {}", h.t);
+                        if tri != h.triangle {
+                            let slot = accel.tris.ids.iter().position(|&x| x == h.triangle).unwrap();
+                            let again = accel.tris.get(slot).intersect(&WatertightRay::new(o, d), f32::INFINITY);
+                            assert_eq!(again.map(|x| x.0.to_bits()), Some(t.to_bits()), "ray {i}: triangle");
+                            culled_paths += 1;
+                        }
+                    }
+                    other => panic!("ray {i} (heap stack {heap}): {other:?}"),
+                }
+                assert_eq!(accel.occluded(o.into(), d.into(), tmax), want.is_some(), "ray {i} (heap stack {heap})");
+            }
+        }
+        eprintln!("{hits} hits, {culled_paths} ties on shared edges");
+        assert!(hits > 20_000, "the test rays must hit ({hits})");
+    }
 
     /// Windows cover exactly the slots a group names, block-aligned, highest block first.
     #[test]

@@ -23,6 +23,15 @@ const NODE_TMIN: f32 = 0.0001;
 /// primitive bits in the low 24 bits, inner children's bits in the high 8 at their octant slot).
 #[inline(always)]
 pub fn intersect(node: &CwBvhNode, ray: &Ray, oct_inv4: u32) -> u32 {
+    intersect_entry(node, ray, oct_inv4).0
+}
+
+/// [`intersect`] and each child's entry distance (lane = child slot; meaningful for the children
+/// hit): the near end of the ray's overlap with the child's box, no less than obvhs' lower bound.
+/// A closest-hit traversal keeps it with a child it defers, and skips the child if the ray has
+/// meanwhile been cut shorter than that.
+#[inline(always)]
+pub fn intersect_entry(node: &CwBvhNode, ray: &Ray, oct_inv4: u32) -> (u32, [f32; 8]) {
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     // SAFETY: AVX2 is enabled at compile time (the cfg above); every load reads 8 bytes of an
     // `[u8; 8]` field of `node`.
@@ -31,13 +40,14 @@ pub fn intersect(node: &CwBvhNode, ray: &Ray, oct_inv4: u32) -> u32 {
     }
     #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
     {
-        node.intersect_ray(ray, oct_inv4)
+        // Entry distance 0: a deferred child is never skipped (the result is the same).
+        (node.intersect_ray(ray, oct_inv4), [0.0; 8])
     }
 }
 
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[inline(always)]
-unsafe fn intersect_avx2(node: &CwBvhNode, ray: &Ray, oct_inv4: u32) -> u32 {
+unsafe fn intersect_avx2(node: &CwBvhNode, ray: &Ray, oct_inv4: u32) -> (u32, [f32; 8]) {
     use glam::Vec3A;
     use std::arch::x86_64::*;
 
@@ -68,7 +78,9 @@ unsafe fn intersect_avx2(node: &CwBvhNode, ray: &Ray, oct_inv4: u32) -> u32 {
     let x = _mm_or_si128(_mm256_castsi256_si128(bits), _mm256_extracti128_si256::<1>(bits));
     let x = _mm_or_si128(x, _mm_shuffle_epi32::<0b01_00_11_10>(x));
     let x = _mm_or_si128(x, _mm_shuffle_epi32::<0b10_11_00_01>(x));
-    _mm_cvtsi128_si32(x) as u32
+    let mut entry = [0f32; 8];
+    _mm256_storeu_ps(entry.as_mut_ptr(), tmin);
+    (_mm_cvtsi128_si32(x) as u32, entry)
 }
 
 #[cfg(test)]

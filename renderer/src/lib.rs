@@ -63,6 +63,7 @@ pub mod stats;
 pub mod testing;
 pub mod texture;
 pub mod triangle;
+pub mod wide_node;
 
 pub use error::{RenderError, SceneError};
 pub use film::{PartialSums, Rect};

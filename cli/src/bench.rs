@@ -22,7 +22,9 @@ pub struct BenchArgs {
     pub flags: RenderFlags,
     #[arg(long)]
     pub threads: Option<usize>,
-    /// Ray-query structure: obvhs (CWBVH, default) or own (binned-SAH BVH2, for comparison).
+    /// Ray-query structure: obvhs (CWBVH, nodes decompressed up to 65 536 triangles; default),
+    /// obvhs-compressed (CWBVH with compressed nodes at every size) or own (binned-SAH BVH2); the
+    /// last two for comparison.
     #[arg(long, default_value = "obvhs")]
     pub accel: renderer::accel::AccelKind,
 }
@@ -35,7 +37,7 @@ pub enum BenchKind {
     /// load, BVH build, memory and a short render.
     Scale(crate::scale::ScaleArgs),
     /// The ray-query engine alone on one thread: BVH build time and closest-hit / occlusion
-    /// Mrays/s for incoherent rays inside a dense icosphere, for both accelerators (`--dump`
+    /// Mrays/s for incoherent rays inside a dense icosphere, for each accelerator (`--dump`
     /// writes the workload for scenes/references/bench_embree.py).
     Rays(crate::rays::RaysArgs),
 }

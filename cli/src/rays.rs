@@ -1,6 +1,6 @@
 //! `tessera bench rays`: the ray-query engine alone, on one thread — BVH build time, closest-hit
-//! and occlusion rays per second for incoherent rays on a dense mesh — for both accelerators
-//! (obvhs' CWBVH and the own BVH2), so they can be set beside Embree on the same workload
+//! and occlusion rays per second for incoherent rays on a dense mesh — for each accelerator
+//! (obvhs' CWBVH with decompressed and with compressed nodes, and the own BVH2), so they can be set beside Embree on the same workload
 //! (`scenes/references/bench_embree.py` reads what `--dump` writes and runs Embree 4 on it).
 //!
 //! The workload is the one the per-core-speed issue names: rays starting at random points inside
@@ -82,9 +82,9 @@ pub fn run(a: RaysArgs) -> Result<()> {
         a.rays,
         a.runs
     );
-    println!("{:<8} {:>10} {:>16} {:>16}", "accel", "build s", "closest Mrays/s", "occluded Mrays/s");
+    println!("{:<16} {:>10} {:>16} {:>16}", "accel", "build s", "closest Mrays/s", "occluded Mrays/s");
     let mut closest_t: Vec<f32> = Vec::new();
-    for kind in [AccelKind::Obvhs, AccelKind::Own] {
+    for kind in [AccelKind::Obvhs, AccelKind::ObvhsCompressed, AccelKind::Own] {
         let t = Instant::now();
         let accel = Accel::build_with(&mesh, kind);
         let build = t.elapsed().as_secs_f64();
@@ -111,8 +111,8 @@ pub fn run(a: RaysArgs) -> Result<()> {
         }
         let lost = ts.iter().filter(|t| !t.is_finite()).count();
         println!(
-            "{:<8} {:>10.3} {:>16.3} {:>16.3}{}",
-            format!("{kind:?}").to_lowercase(),
+            "{:<16} {:>10.3} {:>16.3} {:>16.3}{}",
+            kind.name(),
             build,
             median(closest),
             median(occluded),

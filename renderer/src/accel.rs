@@ -310,9 +310,12 @@ fn build_params(n: usize) -> obvhs::BvhBuildParams {
 pub const LARGE_BUILD: usize = 4_000_000;
 
 /// Up to this many primitives a BVH's nodes are decompressed ([`WideNode`]: 256 bytes a node
-/// against 80, for node tests 7–17 % faster); above, the compressed nodes keep memory down
-/// (at 10⁷ triangles the difference would be some 110 MB).
-pub const WIDE_NODES_UP_TO: usize = LARGE_BUILD;
+/// against 80). Small BVHs stay in cache either way and the shorter node test wins; large ones
+/// miss cache, and three times the bytes a node costs more than the test saves. `tessera bench
+/// rays` on this 2-core EPYC (512 KiB L2 a core), wide against compressed, closest / occluded
+/// Mrays/s, medians of three runs: 5 120 triangles +11 % / +16 %, 20 480 +8 % / +9 %, 81 920
+/// 0 % / +2 %, 327 680 −15 % / −19 % (2026-11-23).
+pub const WIDE_NODES_UP_TO: usize = 65_536;
 
 /// `bvh` with its nodes taken out and decompressed when it holds at most `wide_up_to`
 /// primitives ([`WIDE_NODES_UP_TO`]), else unchanged with no wide nodes.
@@ -325,15 +328,43 @@ fn decompress(mut bvh: CwBvh, primitives: usize, wide_up_to: usize) -> (CwBvh, V
     (bvh, wide)
 }
 
-/// Which BVH answers ray queries. Both give the same hits; `Own` is kept to measure `Obvhs` against.
+/// Which BVH answers ray queries. All give the same hits; `ObvhsCompressed` and `Own` are kept to
+/// measure `Obvhs` against.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum AccelKind {
+    /// obvhs' CWBVH, nodes decompressed up to [`WIDE_NODES_UP_TO`] primitives (the default).
     #[default]
     Obvhs,
+    /// obvhs' CWBVH with its compressed nodes at every size.
+    ObvhsCompressed,
+    /// Our binned-SAH BVH2.
     Own,
 }
 
-crate::named_choices!(AccelKind, "accelerator", { "obvhs" => Self::Obvhs, "own" => Self::Own });
+impl AccelKind {
+    /// Up to how many primitives this kind's BVHs traverse decompressed nodes.
+    fn wide_up_to(self) -> usize {
+        match self {
+            AccelKind::ObvhsCompressed => 0,
+            _ => WIDE_NODES_UP_TO,
+        }
+    }
+
+    /// The name `FromStr` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            AccelKind::Obvhs => "obvhs",
+            AccelKind::ObvhsCompressed => "obvhs-compressed",
+            AccelKind::Own => "own",
+        }
+    }
+}
+
+crate::named_choices!(AccelKind, "accelerator", {
+    "obvhs" => Self::Obvhs,
+    "obvhs-compressed" => Self::ObvhsCompressed,
+    "own" => Self::Own,
+});
 
 #[derive(Default)]
 pub struct Accel {
@@ -342,6 +373,8 @@ pub struct Accel {
     bvh: CwBvh,
     /// `bvh`'s nodes decompressed ([`WideNode`]), or empty.
     wide: Vec<WideNode>,
+    /// What was asked for (kept for [`Accel::rebuild_top`]).
+    kind: AccelKind,
     /// The traversal stack `bvh` needs ([`stack_len`]).
     stack_len: usize,
     /// Triangles in `bvh.primitive_indices` order, so a node's leaf primitives are consecutive slots.
@@ -364,9 +397,11 @@ impl Accel {
             if kind == AccelKind::Own {
                 tracing::warn!("the own BVH has no instancing: using obvhs for this instanced scene");
             }
-            return Self::build_two_level(mesh);
+            return Self::build_two_level(mesh, kind);
         }
-        Self::build_triangles(mesh, (0..mesh.triangles.len() as u32).collect(), kind, WIDE_NODES_UP_TO)
+        let mut a = Self::build_triangles(mesh, (0..mesh.triangles.len() as u32).collect(), kind, kind.wide_up_to());
+        a.kind = kind;
+        a
     }
 
     /// A one-level BVH over the triangles `ids` of `mesh` (as they are stored).
@@ -376,6 +411,7 @@ impl Accel {
             return Accel {
                 bvh: CwBvh::default(),
                 wide: Vec::new(),
+                kind,
                 stack_len: 0,
                 tris: TriangleBlocks::default(),
                 scalar_reference: false,
@@ -403,29 +439,29 @@ impl Accel {
             bvh.primitive_indices.iter().map(|&k| RtTriangle::new(mesh.vertices(ids[k as usize]), ids[k as usize])),
         );
         let (bvh, wide) = decompress(bvh, prims.len(), wide_up_to);
-        Accel { stack_len, bvh, wide, tris, scalar_reference: false, own: None, top: None }
+        Accel { stack_len, bvh, wide, kind, tris, scalar_reference: false, own: None, top: None }
     }
 
     /// After an animation moved instances or world vertices: a new top level over the prototype
     /// BVHs already built (they do not change), or a whole new BVH for a scene without instances.
     pub fn rebuild_top(&mut self, mesh: &Mesh) {
         match self.top.take() {
-            Some(top) => *self = Self::top_level(mesh, top.blas),
-            None => *self = Self::build(mesh),
+            Some(top) => *self = Self::top_level(mesh, top.blas, self.kind),
+            None => *self = Self::build_with(mesh, self.kind),
         }
     }
 
     /// Prototype BVHs, then a top level over the world triangles and the instances' world boxes.
-    fn build_two_level(mesh: &Mesh) -> Self {
+    fn build_two_level(mesh: &Mesh, kind: AccelKind) -> Self {
         let blas: Vec<Accel> = mesh
             .prototypes
             .iter()
-            .map(|r| Self::build_triangles(mesh, r.clone().collect(), AccelKind::Obvhs, WIDE_NODES_UP_TO))
+            .map(|r| Self::build_triangles(mesh, r.clone().collect(), AccelKind::Obvhs, kind.wide_up_to()))
             .collect();
-        Self::top_level(mesh, blas)
+        Self::top_level(mesh, blas, kind)
     }
 
-    fn top_level(mesh: &Mesh, blas: Vec<Accel>) -> Self {
+    fn top_level(mesh: &Mesh, blas: Vec<Accel>, kind: AccelKind) -> Self {
         let world: Vec<u32> = (0..mesh.triangles.len() as u32)
             .filter(|&i| mesh.triangles[i as usize].flags & crate::mesh::flags::OBJECT_SPACE == 0)
             .collect();
@@ -459,8 +495,8 @@ impl Accel {
         // Leaf order, so a leaf's primitives sit together.
         let prims: Vec<TopPrim> = bvh.primitive_indices.iter().map(|&i| prims[i as usize]).collect();
         let stack_len = stack_len(&bvh);
-        let (bvh, wide) = decompress(bvh, prims.len(), WIDE_NODES_UP_TO);
-        Accel { stack_len, bvh, wide, top: Some(Box::new(TopLevel { prims, blas })), ..Accel::default() }
+        let (bvh, wide) = decompress(bvh, prims.len(), kind.wide_up_to());
+        Accel { stack_len, bvh, wide, kind, top: Some(Box::new(TopLevel { prims, blas })), ..Accel::default() }
     }
 
     /// [`traverse_closest`] over this BVH's nodes, wide or compressed.

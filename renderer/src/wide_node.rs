@@ -1,6 +1,6 @@
 //! A BVH8 node whose eight child boxes are plain `f32` planes: obvhs' compressed node
-//! ([`CwBvhNode`], Ylitie et al. 2017) decompressed once after the build, for the scenes whose
-//! nodes fit memory three times over (see [`crate::accel`]).
+//! ([`CwBvhNode`], Ylitie et al. 2017) decompressed once after the build, for BVHs small enough
+//! that three times the bytes still stay in cache (`accel::WIDE_NODES_UP_TO`).
 //!
 //! Why: traversal is a chain of dependent node tests, so a node test's latency is what a ray
 //! waits for. The compressed test widens each plane byte to a float and rescales it (load,

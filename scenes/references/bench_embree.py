@@ -6,7 +6,7 @@
     python3 scenes/references/bench_embree.py [--level 8] [--rays 1000000] [--runs 5]
 
 Runs `tessera bench rays --dump DIR` (icosphere of 20·4^level triangles, incoherent rays from
-inside it; Tessera's build time and Mrays/s for obvhs' CWBVH and the own BVH2), then loads the
+inside it; Tessera's build time and Mrays/s for obvhs' CWBVH, wide and compressed nodes, and the own BVH2), then loads the
 dumped vertices and rays into Embree 4 through embreex (rtcIntersect1 / rtcOccluded1 per ray in
 embreex's Cython loop, one thread) and prints Embree's build time and Mrays/s beside Tessera's,
 with their ratio. It also checks that both engines found the same hits: the closest-hit distances
@@ -47,7 +47,7 @@ def main():
         tess = {}
         for line in out.stdout.splitlines():
             f = line.split()
-            if f and f[0] in ("obvhs", "own"):
+            if f and f[0] in ("obvhs", "obvhs-compressed", "own"):
                 tess[f[0]] = (float(f[1]), float(f[2]), float(f[3]))
         verts = np.fromfile(os.path.join(tmp, "vertices.f32"), dtype="<f4").reshape(-1, 3, 3)
         orig = np.fromfile(os.path.join(tmp, "origins.f32"), dtype="<f4").reshape(-1, 3)
@@ -72,16 +72,16 @@ def main():
             closest.append(len(orig) / s / 1e6)
             occluded.append(len(orig) / s_occ / 1e6)
     emb = (build, statistics.median(closest), statistics.median(occluded))
-    print(f"{'embree 4':<8} {emb[0]:>10.3f} {emb[1]:>16.3f} {emb[2]:>16.3f}")
+    print(f"{'embree 4':<16} {emb[0]:>10.3f} {emb[1]:>16.3f} {emb[2]:>16.3f}")
 
     t_emb = np.asarray(res["tfar"], dtype=np.float64)
     hit = np.asarray(res["primID"]) >= 0
     bad = ~hit | (np.abs(t_emb - t_tess) > 1e-4 * np.maximum(t_emb, 1e-3))
     print(f"hits agree: {len(orig) - bad.sum()} of {len(orig)} rays (closest t within 1e-4 relative)")
-    for k in ("obvhs", "own"):
+    for k in ("obvhs", "obvhs-compressed", "own"):
         if k in tess:
             b, c, o = tess[k]
-            print(f"tessera {k:<6} over embree: build time {b / emb[0]:.2f}x, closest-hit rays/s {c / emb[1]:.2f}x, "
+            print(f"tessera {k:<16} over embree: build time {b / emb[0]:.2f}x, closest-hit rays/s {c / emb[1]:.2f}x, "
                   f"occlusion rays/s {o / emb[2]:.2f}x")
     if bad.sum() > 0:
         i = np.flatnonzero(bad)[:5]

@@ -32,6 +32,101 @@ pub struct RaysArgs {
     /// folder: vertices.f32 (triangles × 3 × xyz), origins.f32, directions.f32, t_closest.f32.
     #[arg(long)]
     pub dump: Option<PathBuf>,
+    /// A glTF scene instead of the icosphere, with a path tracer's kind of rays: each starts just
+    /// off a random point of a random triangle (area-weighted), the closest-hit ray in a
+    /// cosine-distributed direction on the side the triangle faces, the occlusion ray toward a
+    /// random point of another random triangle, stopping just short of it.
+    #[arg(long, conflicts_with = "dump")]
+    pub scene: Option<PathBuf>,
+}
+
+/// The `--scene` workload: one origin per ray, its closest-hit direction, and its occlusion ray's
+/// direction and length.
+struct SurfaceRays {
+    origins: Vec<Vec3>,
+    dirs: Vec<Vec3>,
+    shadow: Vec<(Vec3, f32)>,
+}
+
+fn surface_rays(mesh: &Mesh, n: u32) -> Result<SurfaceRays> {
+    let u = renderer::sampler::hash_unit;
+    let areas: Vec<f32> = (0..mesh.triangles.len() as u32).map(|i| mesh.area(i)).collect();
+    let cdf: Vec<f64> = areas
+        .iter()
+        .scan(0.0f64, |acc, &a| {
+            *acc += a as f64;
+            Some(*acc)
+        })
+        .collect();
+    let total = cdf.last().copied().unwrap_or(0.0);
+    anyhow::ensure!(total > 0.0, "the scene has no triangle with an area");
+    let pick = |x: f32| cdf.partition_point(|&c| c < x as f64 * total).min(cdf.len() - 1) as u32;
+    let point = |tri: u32, a: f32, b: f32| {
+        let [p0, p1, p2] = mesh.vertices(tri);
+        let (a, b) = if a + b > 1.0 { (1.0 - a, 1.0 - b) } else { (a, b) };
+        p0 + (p1 - p0) * a + (p2 - p0) * b
+    };
+    let (mut origins, mut dirs, mut shadow) = (Vec::new(), Vec::new(), Vec::new());
+    for i in 0..n as u64 {
+        let k = 16 * i;
+        let tri = pick(u(k));
+        let [p0, p1, p2] = mesh.vertices(tri);
+        let ng = (p1 - p0).cross(p2 - p0).normalize_or_zero();
+        let o = renderer::math::offset_ray_origin(point(tri, u(k + 1), u(k + 2)), ng);
+        let local = renderer::math::sample_cosine_hemisphere(renderer::math::Vec2::new(u(k + 3), u(k + 4)));
+        let d = renderer::math::Frame::from_normal(ng).to_world(local);
+        let target = point(pick(u(k + 5)), u(k + 6), u(k + 7));
+        let to = target - o;
+        let len = to.length();
+        origins.push(o);
+        dirs.push(d);
+        shadow.push(if len > 0.0 { (to / len, len * (1.0 - 1e-3)) } else { (Vec3::Z, 0.0) });
+    }
+    Ok(SurfaceRays { origins, dirs, shadow })
+}
+
+/// `bench rays --scene`: Mrays/s of each accelerator on [`surface_rays`].
+fn run_scene(a: &RaysArgs, path: &Path) -> Result<()> {
+    let scene = renderer::gltf_loader::load(path).with_context(|| format!("cannot load {}", path.display()))?;
+    let mesh = &scene.mesh;
+    let SurfaceRays { origins, dirs, shadow } = surface_rays(mesh, a.rays)?;
+    println!(
+        "{}: {} triangles | {} rays off its surfaces | 1 thread | median of {} runs",
+        path.display(),
+        mesh.triangles.len(),
+        a.rays,
+        a.runs
+    );
+    println!("{:<16} {:>10} {:>16} {:>16}", "accel", "build s", "closest Mrays/s", "occluded Mrays/s");
+    for kind in [AccelKind::Obvhs, AccelKind::ObvhsCompressed, AccelKind::Own] {
+        let t = Instant::now();
+        let accel = Accel::build_with(mesh, kind);
+        let build = t.elapsed().as_secs_f64();
+        let (mut closest, mut occluded) = (Vec::new(), Vec::new());
+        let mut hits = 0usize;
+        for run in 0..=a.runs {
+            let t = Instant::now();
+            hits =
+                origins.iter().zip(&dirs).filter(|(o, d)| accel.intersect(**o, **d, f32::INFINITY).is_some()).count();
+            let secs = t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            let blocked = origins.iter().zip(&shadow).filter(|(o, (d, len))| accel.occluded(**o, *d, *len)).count();
+            let secs_occ = t.elapsed().as_secs_f64();
+            if run > 0 {
+                closest.push(origins.len() as f64 / secs / 1e6);
+                occluded.push(origins.len() as f64 / secs_occ / 1e6);
+            }
+            std::hint::black_box(blocked);
+        }
+        println!(
+            "{:<16} {:>10.3} {:>16.3} {:>16.3}  ({hits} closest hits)",
+            kind.name(),
+            build,
+            median(closest),
+            median(occluded)
+        );
+    }
+    Ok(())
 }
 
 /// The workload's rays: origins uniform in the ball of radius 0.5, directions uniform on the
@@ -68,6 +163,9 @@ fn write_f32s(path: &Path, values: impl Iterator<Item = f32>) -> Result<()> {
 }
 
 pub fn run(a: RaysArgs) -> Result<()> {
+    if let Some(path) = &a.scene {
+        return run_scene(&a, path);
+    }
     let (positions, faces) = renderer::testing::icosphere(a.level);
     let mesh = Mesh {
         triangles: faces.iter().map(|&v| Triangle { v, material: 0, flags: 0 }).collect(),

@@ -1,5 +1,5 @@
-//! The `tessera` command's local features end to end: budgets on `tessera render` and
-//! `tessera bench convergence`.
+//! The `tessera` command's local features end to end: budgets on `tessera render`,
+//! `tessera bench convergence` and `tessera bench rays --scene`.
 
 use std::process::Command;
 use tessera_tests::*;
@@ -121,4 +121,26 @@ fn render_frames_writes_a_sequence_identical_to_single_frames() {
     }
     let (ok, _, err) = tessera(&["render", scene.as_str(), "--frames", "5-1", "-o", "x.exr"], &tmp);
     assert!(!ok && err.contains("settings.frames"), "{err}");
+}
+
+/// `bench rays --scene`: a row per accelerator, every one finding the same closest hits on a
+/// real scene; a missing scene is an error naming it, not a panic.
+#[test]
+fn bench_rays_on_a_scene_compares_the_accelerators() {
+    let tmp = temp_dir("cli-bench-rays");
+    let scene = repo_root().join("scenes/glass/glass.gltf");
+    let (ok, stdout, err) =
+        tessera(&["bench", "rays", "--scene", scene.to_str().unwrap(), "--rays", "2000", "--runs", "1"], &tmp);
+    assert!(ok, "{err}");
+    let hits: Vec<&str> = ["obvhs ", "obvhs-compressed ", "own "]
+        .iter()
+        .map(|k| {
+            let row = stdout.lines().find(|l| l.starts_with(k)).unwrap_or_else(|| panic!("no {k} row: {stdout}"));
+            row.rsplit('(').next().unwrap_or_default()
+        })
+        .collect();
+    assert!(hits[0].contains("closest hits") && !hits[0].starts_with("0 "), "{stdout}");
+    assert_eq!(hits[0], hits[1], "{stdout}");
+    let (ok, _, err) = tessera(&["bench", "rays", "--scene", "missing.gltf", "--rays", "10"], &tmp);
+    assert!(!ok && err.contains("missing.gltf"), "{err}");
 }

@@ -3,9 +3,10 @@
 //! (obvhs' CWBVH with decompressed and with compressed nodes, and the own BVH2), so they can be set beside Embree on the same workload
 //! (`scenes/references/bench_embree.py` reads what `--dump` writes and runs Embree 4 on it).
 //!
-//! The workload is the one the per-core-speed issue names: rays starting at random points inside
-//! a subdivided unit icosphere (level 8: 1 310 720 triangles) in uniformly random directions, so
-//! every ray hits and neighbouring rays share nothing.
+//! The default workload is the one the per-core-speed issue names: rays starting at random points
+//! inside a subdivided unit icosphere (level 8: 1 310 720 triangles) in uniformly random
+//! directions, so every ray hits and neighbouring rays share nothing. `--scene` takes a glTF
+//! scene instead, with rays leaving its surfaces as a path tracer's bounce and shadow rays do.
 
 use crate::bench::median;
 use anyhow::{Context, Result};

@@ -84,7 +84,7 @@ fn inner_child(node: &impl TraversalNode, slot: u32) -> u32 {
 trait TraversalNode {
     /// The hit mask in obvhs' format and each child's entry distance by slot (see
     /// [`crate::cwbvh_node::intersect_entry`]).
-    fn test(&self, ray: &BvhRay, o_inv: Vec3A, oct_inv4: u32) -> (u32, [f32; 8]);
+    fn test(&self, ray: &BvhRay, inv_far: Vec3A, oct_inv4: u32) -> (u32, [f32; 8]);
     fn child_base(&self) -> u32;
     fn primitive_base(&self) -> u32;
     fn imask(&self) -> u32;
@@ -111,8 +111,8 @@ impl TraversalNode for CwBvhNode {
 
 impl TraversalNode for WideNode {
     #[inline(always)]
-    fn test(&self, ray: &BvhRay, o_inv: Vec3A, oct_inv4: u32) -> (u32, [f32; 8]) {
-        self.intersect(ray, o_inv, oct_inv4)
+    fn test(&self, ray: &BvhRay, inv_far: Vec3A, oct_inv4: u32) -> (u32, [f32; 8]) {
+        self.intersect(ray, inv_far, oct_inv4)
     }
     #[inline(always)]
     fn child_base(&self) -> u32 {
@@ -151,11 +151,11 @@ fn traverse_closest<N: TraversalNode>(
     }
     let oct_inv4 = octant_inv4(ray.direction);
     let oct = oct_inv4 & 7;
-    let o_inv = ray.origin * ray.inv_direction;
+    let inv_far = crate::wide_node::far_inverse(&ray);
     let (mut sp, mut current) = (0usize, 0u32);
     loop {
         let node = &nodes[current as usize];
-        let (hits, entry) = node.test(&ray, o_inv, oct_inv4);
+        let (hits, entry) = node.test(&ray, inv_far, oct_inv4);
         let prims = hits & 0x00ff_ffff;
         if prims != 0 {
             let t = group(&ray, node.primitive_base() as usize, prims);
@@ -211,11 +211,11 @@ fn traverse_any<N: TraversalNode>(
     }
     let oct_inv4 = octant_inv4(ray.direction);
     let oct = oct_inv4 & 7;
-    let o_inv = ray.origin * ray.inv_direction;
+    let inv_far = crate::wide_node::far_inverse(&ray);
     let (mut sp, mut current) = (0usize, 0u32);
     loop {
         let node = &nodes[current as usize];
-        let hits = node.test(&ray, o_inv, oct_inv4).0;
+        let hits = node.test(&ray, inv_far, oct_inv4).0;
         let prims = hits & 0x00ff_ffff;
         if prims != 0 && group(node.primitive_base() as usize, prims) {
             return true;
@@ -313,8 +313,8 @@ pub const LARGE_BUILD: usize = 4_000_000;
 /// against 80). Small BVHs stay in cache either way and the shorter node test wins; large ones
 /// miss cache, and three times the bytes a node costs more than the test saves. `tessera bench
 /// rays` on this 2-core EPYC (512 KiB L2 a core), wide against compressed, closest / occluded
-/// Mrays/s, medians of three runs: 5 120 triangles +11 % / +16 %, 20 480 +8 % / +9 %, 81 920
-/// 0 % / +2 %, 327 680 −15 % / −19 % (2026-11-23).
+/// Mrays/s, medians of three runs: 5 120 triangles +13 % / +17 %, 20 480 +4 % / +7 %, 81 920
+/// −11 % / −4 %, 327 680 +1 % / −1 % (2026-11-23; an earlier round gave −15 % / −19 % there).
 pub const WIDE_NODES_UP_TO: usize = 65_536;
 
 /// `bvh` with its nodes taken out and decompressed when it holds at most `wide_up_to`

@@ -76,7 +76,8 @@ fn octant_inv4(d: Vec3A) -> u32 {
 /// `child_base_idx` in slot order.
 #[inline(always)]
 fn inner_child(node: &impl TraversalNode, slot: u32) -> u32 {
-    node.child_base() + (node.imask() & ((1u32 << slot) - 1)).count_ones()
+    let (child_base, _, imask) = node.links();
+    child_base + (imask & ((1u32 << slot) - 1)).count_ones()
 }
 
 /// What the traversal loops need of a node: its test and where its children are. Implemented by
@@ -85,9 +86,8 @@ trait TraversalNode {
     /// The hit mask in obvhs' format and each child's entry distance by slot (see
     /// [`crate::cwbvh_node::intersect_entry`]).
     fn test(&self, ray: &BvhRay, inv_far: Vec3A, oct_inv4: u32) -> (u32, [f32; 8]);
-    fn child_base(&self) -> u32;
-    fn primitive_base(&self) -> u32;
-    fn imask(&self) -> u32;
+    /// obvhs' `(child_base_idx, primitive_base_idx, imask)`.
+    fn links(&self) -> (u32, u32, u32);
 }
 
 impl TraversalNode for CwBvhNode {
@@ -96,16 +96,8 @@ impl TraversalNode for CwBvhNode {
         crate::cwbvh_node::intersect_entry(self, ray, oct_inv4)
     }
     #[inline(always)]
-    fn child_base(&self) -> u32 {
-        self.child_base_idx
-    }
-    #[inline(always)]
-    fn primitive_base(&self) -> u32 {
-        self.primitive_base_idx
-    }
-    #[inline(always)]
-    fn imask(&self) -> u32 {
-        self.imask as u32
+    fn links(&self) -> (u32, u32, u32) {
+        (self.child_base_idx, self.primitive_base_idx, self.imask as u32)
     }
 }
 
@@ -115,20 +107,12 @@ impl TraversalNode for WideNode {
         self.intersect(ray, inv_far, oct_inv4)
     }
     #[inline(always)]
-    fn child_base(&self) -> u32 {
-        self.child_base_idx
-    }
-    #[inline(always)]
-    fn primitive_base(&self) -> u32 {
-        self.primitive_base_idx
-    }
-    #[inline(always)]
-    fn imask(&self) -> u32 {
-        self.imask
+    fn links(&self) -> (u32, u32, u32) {
+        (self.child_base_idx, self.primitive_base_idx, self.imask)
     }
 }
 
-/// Closest-hit traversal of `bvh` with the 8-wide AVX2 node test of [`crate::cwbvh_node`]. At a
+/// Closest-hit traversal of a BVH's `nodes` (compressed or wide, each tested 8 children at once). At a
 /// node, its hit leaf primitives go to `group(ray, base, mask)` all at once (slots `base + i` for
 /// the bits i of `mask`, at most 24), which returns the closest hit distance among them (∞ for
 /// none) and so shortens the ray; then its hit inner children are deferred nearest on top, each
@@ -158,7 +142,7 @@ fn traverse_closest<N: TraversalNode>(
         let (hits, entry) = node.test(&ray, inv_far, oct_inv4);
         let prims = hits & 0x00ff_ffff;
         if prims != 0 {
-            let t = group(&ray, node.primitive_base() as usize, prims);
+            let t = group(&ray, node.links().1 as usize, prims);
             if t < ray.tmax {
                 ray.tmax = t;
             }
@@ -217,7 +201,7 @@ fn traverse_any<N: TraversalNode>(
         let node = &nodes[current as usize];
         let hits = node.test(&ray, inv_far, oct_inv4).0;
         let prims = hits & 0x00ff_ffff;
-        if prims != 0 && group(node.primitive_base() as usize, prims) {
+        if prims != 0 && group(node.links().1 as usize, prims) {
             return true;
         }
         let mut inner = hits >> 24;

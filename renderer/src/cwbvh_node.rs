@@ -92,30 +92,8 @@ mod tests {
     /// misses) gives the same hit mask as obvhs' own test.
     #[test]
     fn hit_masks_equal_obvhs_on_every_visited_node() {
-        let (p, f) = crate::testing::icosphere(4);
-        let mut tris: Vec<obvhs::triangle::Triangle> = f
-            .iter()
-            .map(|t| obvhs::triangle::Triangle {
-                v0: p[t[0] as usize].into(),
-                v1: p[t[1] as usize].into(),
-                v2: p[t[2] as usize].into(),
-            })
-            .collect();
         // A second, offset and flattened shell so nodes have mixed leaf and inner children.
-        let shell: Vec<_> = tris
-            .iter()
-            .map(|t| obvhs::triangle::Triangle {
-                v0: t.v0 * Vec3A::new(3.0, 0.5, 2.0) + 0.3,
-                v1: t.v1 * Vec3A::new(3.0, 0.5, 2.0) + 0.3,
-                v2: t.v2 * Vec3A::new(3.0, 0.5, 2.0) + 0.3,
-            })
-            .collect();
-        tris.extend(shell);
-        let bvh = obvhs::cwbvh::builder::build_cwbvh_from_tris(
-            &tris,
-            obvhs::BvhBuildParams::medium_build(),
-            &mut Default::default(),
-        );
+        let bvh = crate::testing::icosphere_cwbvh(4, |v| v, true);
         let u = crate::sampler::hash_unit;
         let (mut nodes_checked, mut hits) = (0usize, 0usize);
         for i in 0..4000u64 {

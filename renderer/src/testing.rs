@@ -211,3 +211,20 @@ pub fn furnace(inner: Material) -> Scene {
     b.look_at(Vec3::new(0.0, 0.0, 4.0), Vec3::ZERO, 35.0);
     b.build()
 }
+
+/// obvhs' CWBVH ("medium" build, as `Accel` builds it) over an icosphere of `level` mapped
+/// through `place` — and, with `shell`, a second copy stretched and offset to (3, 0.5, 2)·p + 0.3,
+/// so nodes have both leaf and inner children. For the node-test tests.
+pub fn icosphere_cwbvh(level: u32, place: impl Fn(glam::Vec3A) -> glam::Vec3A, shell: bool) -> obvhs::cwbvh::CwBvh {
+    let (p, f) = icosphere(level);
+    let tri = |t: &[u32; 3], m: &dyn Fn(glam::Vec3A) -> glam::Vec3A| obvhs::triangle::Triangle {
+        v0: m(place(p[t[0] as usize].into())),
+        v1: m(place(p[t[1] as usize].into())),
+        v2: m(place(p[t[2] as usize].into())),
+    };
+    let mut tris: Vec<obvhs::triangle::Triangle> = f.iter().map(|t| tri(t, &|v| v)).collect();
+    if shell {
+        tris.extend(f.iter().map(|t| tri(t, &|v| v * glam::Vec3A::new(3.0, 0.5, 2.0) + 0.3)));
+    }
+    obvhs::cwbvh::builder::build_cwbvh_from_tris(&tris, obvhs::BvhBuildParams::medium_build(), &mut Default::default())
+}

@@ -10,9 +10,9 @@
 //!
 //! Robustness: a distance is `(plane − o) · (1/d)`, the subtraction first. Precomputing `o · 1/d`
 //! to make it one fused multiply-subtract (Embree's fast path) cancels catastrophically when the
-//! origin is far from the world origin and close to the plane, and made grazing shadow rays visit
-//! spurious nodes (`bench rays --scene` on sphere_light: occluded rays 21 % slower than the
-//! compressed nodes). The far distances use `1/d · (1 + 4γ₃)` (pbrt-v4 `Bounds3::IntersectP`
+//! origin is far from the world origin and close to the plane (a test here lost 370 of 17 605
+//! boxes that way), and grazing shadow rays were slower with it (`bench rays --scene` on
+//! sphere_light: occluded rays 21 % slower than the compressed nodes). The far distances use `1/d · (1 + 4γ₃)` (pbrt-v4 `Bounds3::IntersectP`
 //! scales them by 1 + 2γ₃, after Ize 2013; the extra margin covers rounding the scaled inverse):
 //! rounding can then only widen a box's interval, never lose a box the ray touches.
 //!
@@ -218,29 +218,7 @@ mod tests {
     /// and every child the compressed test (obvhs' boxes) hits, the decompressed boxes hit too.
     #[test]
     fn simd_equals_reference_and_contains_the_compressed_boxes() {
-        let (p, f) = crate::testing::icosphere(4);
-        let mut tris: Vec<obvhs::triangle::Triangle> = f
-            .iter()
-            .map(|t| obvhs::triangle::Triangle {
-                v0: p[t[0] as usize].into(),
-                v1: p[t[1] as usize].into(),
-                v2: p[t[2] as usize].into(),
-            })
-            .collect();
-        let shell: Vec<_> = tris
-            .iter()
-            .map(|t| obvhs::triangle::Triangle {
-                v0: t.v0 * Vec3A::new(3.0, 0.5, 2.0) + 0.3,
-                v1: t.v1 * Vec3A::new(3.0, 0.5, 2.0) + 0.3,
-                v2: t.v2 * Vec3A::new(3.0, 0.5, 2.0) + 0.3,
-            })
-            .collect();
-        tris.extend(shell);
-        let bvh = obvhs::cwbvh::builder::build_cwbvh_from_tris(
-            &tris,
-            obvhs::BvhBuildParams::medium_build(),
-            &mut Default::default(),
-        );
+        let bvh = crate::testing::icosphere_cwbvh(4, |v| v, true);
         let wide: Vec<WideNode> = bvh.nodes.iter().map(WideNode::from_compressed).collect();
         let u = crate::sampler::hash_unit;
         let (mut checked, mut hits) = (0usize, 0usize);
@@ -278,21 +256,7 @@ mod tests {
     /// never lose it. The one-FMA form `plane·1/d − o·1/d` fails this (370 of 17 605 lost).
     #[test]
     fn boxes_far_from_the_origin_are_never_lost_to_rounding() {
-        let (p, f) = crate::testing::icosphere(3);
-        let offset = Vec3A::new(5000.0, -3000.0, 7000.0);
-        let tris: Vec<obvhs::triangle::Triangle> = f
-            .iter()
-            .map(|t| obvhs::triangle::Triangle {
-                v0: Vec3A::from(p[t[0] as usize]) * 3.0 + offset,
-                v1: Vec3A::from(p[t[1] as usize]) * 3.0 + offset,
-                v2: Vec3A::from(p[t[2] as usize]) * 3.0 + offset,
-            })
-            .collect();
-        let bvh = obvhs::cwbvh::builder::build_cwbvh_from_tris(
-            &tris,
-            obvhs::BvhBuildParams::medium_build(),
-            &mut Default::default(),
-        );
+        let bvh = crate::testing::icosphere_cwbvh(3, |v| v * 3.0 + Vec3A::new(5000.0, -3000.0, 7000.0), false);
         let wide: Vec<WideNode> = bvh.nodes.iter().map(WideNode::from_compressed).collect();
         let u = crate::sampler::hash_unit;
         let (mut crossings, mut lost) = (0usize, 0usize);

@@ -47,14 +47,21 @@ pub fn radiance(
     // Without it, paths inside glass were killed with probability 1 − 1/η² = 56 % at ior 1.5 and
     // the survivors came back out 2.25× brighter: fireflies.
     let mut eta_scale = 1.0f32;
+    // Whether a bounce draws its light-sampling set (NEE; the stochastic-transparency bits share it).
+    let draws_light_set =
+        (settings.integrator != IntegratorKind::Bsdf && !scene.lights.is_empty()) || scene.has_transparency();
     loop {
         *rays += 1;
+        // The bounce's two 4D sets, drawn before its ray is traced although only the vertex it
+        // finds uses them: they do not depend on the hit, and each is a chain of hashes that
+        // (measured) costs less here, where it can run while the traversal waits on memory, than
+        // after it, where the shading waits on it. A path that ends at this hit wastes them.
+        let base = dims::BOUNCE_BASE + dims::BOUNCE_STRIDE * depth;
+        let u_bsdf = sampler.get_4d((base + dims::BSDF_DIR) / 4);
+        let u_light = if draws_light_set { sampler.get_4d((base + dims::LIGHT_POS) / 4) } else { [0.0; 4] };
         // Per-bounce random bits for stochastic (BLEND) transparency, only drawn when it can matter.
-        let transparency_seed = if scene.has_transparency() {
-            sampler.get_1d(dims::BOUNCE_BASE + dims::BOUNCE_STRIDE * depth + dims::SPARE).to_bits()
-        } else {
-            0
-        };
+        let transparency_seed =
+            if scene.has_transparency() { u_light[(dims::SPARE % 4) as usize].to_bits() } else { 0 };
         let Some(hit) = scene.intersect_surface(o, d, transparency_seed) else {
             if medium != Vec3::ZERO {
                 // An absorbing medium that never ends (an open mesh): nothing gets out.
@@ -176,15 +183,11 @@ pub fn radiance(
         if sp.ng.dot(wo_world) < 0.0 {
             bsdf.eta = 1.0 / bsdf.eta;
         }
-        let base = dims::BOUNCE_BASE + dims::BOUNCE_STRIDE * depth;
-        // The two 4D sets of this bounce, each evaluated once.
-        let u_bsdf = sampler.get_4d((base + dims::BSDF_DIR) / 4);
         let origin = offset_ray_origin(sp.p, ng);
         // The other side is only needed by rays that go through the surface (glass).
 
         // Next-event estimation.
         if settings.integrator != IntegratorKind::Bsdf && !scene.lights.is_empty() && !bsdf.is_delta_only() {
-            let u_light = sampler.get_4d((base + dims::LIGHT_POS) / 4);
             let u_sel = u_light[(dims::LIGHT_SELECT % 4) as usize];
             let u = Vec2::new(u_light[(dims::LIGHT_POS % 4) as usize], u_light[(dims::LIGHT_POS % 4 + 1) as usize]);
             if let Some(ls) = scene.lights.sample(mesh, materials, textures, sp.p, Some(ns), u_sel, u) {

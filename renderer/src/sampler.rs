@@ -55,9 +55,7 @@ impl PixelSample {
             SamplerKind::Sobol => {
                 // sobol_burley supports 2^16 samples per seed: higher blocks get a fresh seed.
                 let block = self.index >> 16;
-                let seed = hash_u32(
-                    self.pixel_seed ^ hash_u32(set.wrapping_mul(0x9e37_79b9) ^ block.wrapping_mul(0x85eb_ca6b)),
-                );
+                let seed = hash_u32(self.pixel_seed ^ set_hash(set, block));
                 sobol_4d(self.index & 0xffff, seed)
             }
             SamplerKind::Independent => {
@@ -107,6 +105,24 @@ pub fn sobol_4d(index: u32, seed: u32) -> [f32; 4] {
     let scramble: Int4 = [s ^ 0x912f_69ba, s ^ 0x174f_18ab, s ^ 0x691e_72ca, s ^ 0xb40c_c1b8].into();
     owen_scramble_int4_rev(sobol, hash_int4(scramble)).reverse_bits().to_f32_norm()
 }
+
+/// `hash_u32(set · 0x9e3779b9 ⊕ block · 0x85ebca6b)`, the part of a 4D set's seed shared by every
+/// pixel: read from a table for the first [`SET_HASHES`] sets of block 0 (every sample below 2^16
+/// and every bounce below 127), computed otherwise. Each `get_4d` is a chain of three hashes
+/// before its scramble can start; the table takes one off the chain.
+#[inline]
+fn set_hash(set: u32, block: u32) -> u32 {
+    match SET_HASH_TABLE.get(set as usize) {
+        Some(&h) if block == 0 => h,
+        _ => hash_u32(set.wrapping_mul(0x9e37_79b9) ^ block.wrapping_mul(0x85eb_ca6b)),
+    }
+}
+
+/// Sets [`set_hash`] tabulates.
+const SET_HASHES: usize = 256;
+
+static SET_HASH_TABLE: std::sync::LazyLock<[u32; SET_HASHES]> =
+    std::sync::LazyLock::new(|| std::array::from_fn(|set| hash_u32((set as u32).wrapping_mul(0x9e37_79b9))));
 
 /// Sobol dimensions 0–3 of each value of the reversed index's bits 16–23 (`[0]`) and 24–31 (`[1]`).
 static SOBOL_BYTE_TABLES: std::sync::LazyLock<Box<[[[u32; 4]; 256]; 2]>> = std::sync::LazyLock::new(|| {
@@ -194,6 +210,18 @@ mod tests {
     }
 
     use super::*;
+
+    /// The tabulated set hashes are the formula's, inside the table and past it, in block 0
+    /// and in later blocks (samples from 2^16 on).
+    #[test]
+    fn set_hash_table_equals_the_formula() {
+        for block in 0..3u32 {
+            for set in 0..SET_HASHES as u32 + 40 {
+                let formula = hash_u32(set.wrapping_mul(0x9e37_79b9) ^ block.wrapping_mul(0x85eb_ca6b));
+                assert_eq!(set_hash(set, block), formula, "set {set} block {block}");
+            }
+        }
+    }
 
     #[test]
     fn values_are_in_unit_interval_and_pure() {

@@ -56,11 +56,40 @@ impl Camera {
     /// Primary ray direction (unit) through film position `film` in pixels, (0,0) = top-left corner.
     #[inline]
     pub fn ray_direction(&self, film: Vec2, width: u32, height: u32) -> Vec3 {
-        let tan_half = (self.yfov * 0.5).tan();
-        let aspect = width as f32 / height as f32;
-        let x = (2.0 * film.x / width as f32 - 1.0) * tan_half * aspect;
-        let y = (1.0 - 2.0 * film.y / height as f32) * tan_half;
-        (self.forward + self.right * x + self.up * y).normalize()
+        self.raster(width, height).direction(film)
+    }
+
+    /// [`Self::ray_direction`] for many rays of one image: the field of view's tangent (a libm
+    /// call) and the aspect ratio taken once.
+    pub fn raster(&self, width: u32, height: u32) -> Raster {
+        Raster {
+            camera: *self,
+            tan_half: (self.yfov * 0.5).tan(),
+            aspect: width as f32 / height as f32,
+            width: width as f32,
+            height: height as f32,
+        }
+    }
+}
+
+/// A camera seen through an image of a given size (see [`Camera::raster`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Raster {
+    camera: Camera,
+    tan_half: f32,
+    aspect: f32,
+    width: f32,
+    height: f32,
+}
+
+impl Raster {
+    /// The unit direction through film position `film` (pixels from the top-left corner).
+    #[inline]
+    pub fn direction(&self, film: Vec2) -> Vec3 {
+        let c = &self.camera;
+        let x = (2.0 * film.x / self.width - 1.0) * self.tan_half * self.aspect;
+        let y = (1.0 - 2.0 * film.y / self.height) * self.tan_half;
+        (c.forward + c.right * x + c.up * y).normalize()
     }
 }
 

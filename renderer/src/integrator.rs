@@ -186,6 +186,12 @@ pub fn radiance(
         let origin = offset_ray_origin(sp.p, ng);
         // The other side is only needed by rays that go through the surface (glass).
 
+        // BSDF sampling for the next segment, done before next-event estimation although used
+        // after it: it does not depend on NEE's result, and here its chain of square roots and
+        // divisions runs while the shadow ray's traversal waits on memory.
+        let u_dir = Vec2::new(u_bsdf[(dims::BSDF_DIR % 4) as usize], u_bsdf[(dims::BSDF_DIR % 4 + 1) as usize]);
+        let next = bsdf.sample(wo, u_bsdf[(dims::BSDF_LOBE % 4) as usize], u_dir);
+
         // Next-event estimation.
         if settings.integrator != IntegratorKind::Bsdf && !scene.lights.is_empty() && !bsdf.is_delta_only() {
             let u_sel = u_light[(dims::LIGHT_SELECT % 4) as usize];
@@ -244,9 +250,7 @@ pub fn radiance(
             }
         }
 
-        // BSDF sampling for the next segment.
-        let u_dir = Vec2::new(u_bsdf[(dims::BSDF_DIR % 4) as usize], u_bsdf[(dims::BSDF_DIR % 4 + 1) as usize]);
-        let Some(bs) = bsdf.sample(wo, u_bsdf[(dims::BSDF_LOBE % 4) as usize], u_dir) else { break };
+        let Some(bs) = next else { break };
         let wi_world = frame.to_world(bs.wi);
         let transmitted = bs.wi.z < 0.0;
         if (wi_world.dot(ng) <= 0.0) != transmitted || wi_world.dot(ng) == 0.0 {

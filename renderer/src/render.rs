@@ -107,8 +107,11 @@ pub fn render_tile_counted(
     let camera = scene
         .camera(settings.camera)
         .unwrap_or_else(|_| crate::camera::Camera::framing(scene.bounds.0, scene.bounds.1));
-    let (w, h) = (settings.width, settings.height);
-    let pixels: Vec<([f64; 3], f64, u32)> = (0..rect.pixels())
+    let raster = camera.raster(settings.width, settings.height);
+    // Per pixel: its sums, its sample count, and the rays traced and non-finite samples met, which
+    // go to the shared counters once per tile (not once per pixel: two threads adding to the same
+    // atomics pass its cache line back and forth).
+    let pixels: Vec<([f64; 3], f64, u32, u64, u64)> = (0..rect.pixels())
         .into_par_iter()
         .map(|i| {
             let x = rect.x0 + (i as u32 % rect.width);
@@ -120,7 +123,7 @@ pub fn render_tile_counted(
                 let sampler = PixelSample::new(settings.sampler, settings.seed, (x, y), s);
                 let film = Vec2::new(x as f32 + 0.5, y as f32 + 0.5)
                     + filter_offset(settings.filter, sampler.get_2d(dims::FILM));
-                let d = camera.ray_direction(film, w, h);
+                let d = raster.direction(film);
                 let mut l = radiance(scene, settings, camera.origin, d, &sampler, &mut rays);
                 if !l.is_finite() {
                     bad += 1;
@@ -133,19 +136,22 @@ pub fn render_tile_counted(
                 let y = crate::math::luminance(l) as f64;
                 lum_sq += y * y;
             }
-            counters.rays.fetch_add(rays, Ordering::Relaxed);
-            counters.samples.fetch_add(samples.len() as u64, Ordering::Relaxed);
-            if bad > 0 {
-                counters.nonfinite.fetch_add(bad, Ordering::Relaxed);
-            }
-            (rgb, lum_sq, samples.len() as u32)
+            (rgb, lum_sq, samples.len() as u32, rays, bad)
         })
         .collect();
     let mut out = PartialSums::new(rect);
-    for (i, (rgb, lsq, n)) in pixels.into_iter().enumerate() {
+    let (mut rays, mut bad) = (0u64, 0u64);
+    for (i, (rgb, lsq, n, r, b)) in pixels.into_iter().enumerate() {
         out.sum_rgb[i] = rgb;
         out.sum_lum_sq[i] = lsq;
         out.count[i] = n;
+        rays += r;
+        bad += b;
+    }
+    counters.rays.fetch_add(rays, Ordering::Relaxed);
+    counters.samples.fetch_add(samples.len() as u64 * rect.pixels() as u64, Ordering::Relaxed);
+    if bad > 0 {
+        counters.nonfinite.fetch_add(bad, Ordering::Relaxed);
     }
     out
 }

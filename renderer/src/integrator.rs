@@ -57,8 +57,11 @@ pub fn radiance(
         // (measured) costs less here, where it can run while the traversal waits on memory, than
         // after it, where the shading waits on it. A path that ends at this hit wastes them.
         let base = dims::BOUNCE_BASE + dims::BOUNCE_STRIDE * depth;
-        let u_bsdf = sampler.get_4d((base + dims::BSDF_DIR) / 4);
-        let u_light = if draws_light_set { sampler.get_4d((base + dims::LIGHT_POS) / 4) } else { [0.0; 4] };
+        let (u_bsdf, u_light) = if draws_light_set {
+            sampler.get_4d_pair((base + dims::BSDF_DIR) / 4, (base + dims::LIGHT_POS) / 4)
+        } else {
+            (sampler.get_4d((base + dims::BSDF_DIR) / 4), [0.0; 4])
+        };
         // Per-bounce random bits for stochastic (BLEND) transparency, only drawn when it can matter.
         let transparency_seed =
             if scene.has_transparency() { u_light[(dims::SPARE % 4) as usize].to_bits() } else { 0 };

@@ -68,6 +68,23 @@ impl PixelSample {
         }
     }
 
+    /// [`Self::get_4d`] of two sets at once, the same numbers bit for bit: for Sobol the two
+    /// scrambles run as the eight lanes of one AVX2 evaluation ([`sobol_4d_pair`]) instead of two
+    /// four-lane ones, and the reversed index is shared. A bounce draws its BSDF and light sets
+    /// together.
+    #[inline]
+    pub fn get_4d_pair(&self, set_a: u32, set_b: u32) -> ([f32; 4], [f32; 4]) {
+        match self.kind {
+            SamplerKind::Sobol => {
+                let block = self.index >> 16;
+                let seed_a = hash_u32(self.pixel_seed ^ set_hash(set_a, block));
+                let seed_b = hash_u32(self.pixel_seed ^ set_hash(set_b, block));
+                sobol_4d_pair(self.index & 0xffff, seed_a, seed_b)
+            }
+            SamplerKind::Independent => (self.get_4d(set_a), self.get_4d(set_b)),
+        }
+    }
+
     /// Uniform number in [0, 1) for dimension `dim`.
     #[inline]
     pub fn get_1d(&self, dim: u32) -> f32 {
@@ -104,6 +121,85 @@ pub fn sobol_4d(index: u32, seed: u32) -> [f32; 4] {
     let s = seed.wrapping_mul(0x9c8f_2d3b);
     let scramble: Int4 = [s ^ 0x912f_69ba, s ^ 0x174f_18ab, s ^ 0x691e_72ca, s ^ 0xb40c_c1b8].into();
     owen_scramble_int4_rev(sobol, hash_int4(scramble)).reverse_bits().to_f32_norm()
+}
+
+/// [`sobol_4d`] for two seeds: `(sobol_4d(index, seed_a), sobol_4d(index, seed_b))` bit for bit.
+/// The per-seed index scramble and table lookups stay scalar; the scramble of the eight
+/// dimensions, their bit reversal and the conversion to floats are the crate's `Int4` operations
+/// (`hash_int4`, `owen_scramble_int4_rev`, `Int4::reverse_bits`, `Int4::to_f32_norm`), written out
+/// on eight lanes. A test compares it with two `sobol_4d` calls over every index.
+#[inline]
+pub fn sobol_4d_pair(index: u32, seed_a: u32, seed_b: u32) -> ([f32; 4], [f32; 4]) {
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    {
+        use sobol_burley::parts::{hash, owen_scramble_rev};
+        debug_assert!(index < 1 << 16);
+        let index_rev = index.reverse_bits();
+        let tables = &*SOBOL_BYTE_TABLES;
+        let sobol = |seed: u32| {
+            let rev = owen_scramble_rev(index_rev, hash(seed ^ 0x79c6_8e4a));
+            let (hi, lo) = (tables[1][(rev >> 24) as usize], tables[0][((rev >> 16) & 0xff) as usize]);
+            [hi[0] ^ lo[0], hi[1] ^ lo[1], hi[2] ^ lo[2], hi[3] ^ lo[3]]
+        };
+        let (a, b) = (sobol(seed_a), sobol(seed_b));
+        let (sa, sb) = (seed_a.wrapping_mul(0x9c8f_2d3b), seed_b.wrapping_mul(0x9c8f_2d3b));
+        const C: [u32; 4] = [0x912f_69ba, 0x174f_18ab, 0x691e_72ca, 0xb40c_c1b8];
+        let lanes = [a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3]];
+        let scramble = [sa ^ C[0], sa ^ C[1], sa ^ C[2], sa ^ C[3], sb ^ C[0], sb ^ C[1], sb ^ C[2], sb ^ C[3]];
+        // SAFETY: AVX2 is enabled at compile time; loads and stores are unaligned.
+        let out = unsafe { owen_reverse_to_f32_avx2(lanes, scramble) };
+        ([out[0], out[1], out[2], out[3]], [out[4], out[5], out[6], out[7]])
+    }
+    #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
+    {
+        (sobol_4d(index, seed_a), sobol_4d(index, seed_b))
+    }
+}
+
+/// `owen_scramble_int4_rev(n, hash_int4(scramble)).reverse_bits().to_f32_norm()` of
+/// `sobol_burley::parts` on eight lanes (wrapping multiplies, logical shifts, as `Int4`'s).
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[inline(always)]
+unsafe fn owen_reverse_to_f32_avx2(n: [u32; 8], scramble: [u32; 8]) -> [f32; 8] {
+    use std::arch::x86_64::*;
+    let splat = |x: u32| _mm256_set1_epi32(x as i32);
+    let mul = |a: __m256i, k: __m256i| _mm256_mullo_epi32(a, k);
+    let xor = |a: __m256i, b: __m256i| _mm256_xor_si256(a, b);
+    // hash_int4
+    let mut h = xor(_mm256_loadu_si256(scramble.as_ptr() as *const __m256i), splat(0xe6fe_3beb));
+    h = xor(h, _mm256_srli_epi32::<16>(h));
+    h = mul(h, splat(0x7feb_352d));
+    h = xor(h, _mm256_srli_epi32::<15>(h));
+    h = mul(h, splat(0x846c_a68b));
+    h = xor(h, _mm256_srli_epi32::<16>(h));
+    // owen_scramble_int4_rev(n, h)
+    let mut x = _mm256_loadu_si256(n.as_ptr() as *const __m256i);
+    x = xor(x, mul(x, splat(0x3d20_adea)));
+    x = _mm256_add_epi32(x, h);
+    x = mul(x, _mm256_or_si256(_mm256_srli_epi32::<16>(h), splat(1)));
+    x = xor(x, mul(x, splat(0x0552_6c56)));
+    x = xor(x, mul(x, splat(0x53a2_2864)));
+    // Int4::reverse_bits (swap halves, bytes, nibbles, pairs, bits)
+    let swap = |x: __m256i, mask: u32, shift: __m128i| {
+        let m = splat(mask);
+        _mm256_or_si256(
+            _mm256_and_si256(_mm256_srl_epi32(x, shift), m),
+            _mm256_sll_epi32(_mm256_and_si256(x, m), shift),
+        )
+    };
+    x = swap(x, 0x5555_5555, _mm_cvtsi32_si128(1));
+    x = swap(x, 0x3333_3333, _mm_cvtsi32_si128(2));
+    x = swap(x, 0x0f0f_0f0f, _mm_cvtsi32_si128(4));
+    x = swap(x, 0x00ff_00ff, _mm_cvtsi32_si128(8));
+    x = _mm256_or_si256(_mm256_srli_epi32::<16>(x), _mm256_slli_epi32::<16>(x));
+    // Int4::to_f32_norm
+    let f = _mm256_sub_ps(
+        _mm256_castsi256_ps(_mm256_or_si256(_mm256_srli_epi32::<9>(x), splat(0x3f80_0000))),
+        _mm256_set1_ps(1.0),
+    );
+    let mut out = [0f32; 8];
+    _mm256_storeu_ps(out.as_mut_ptr(), f);
+    out
 }
 
 /// `hash_u32(set · 0x9e3779b9 ⊕ block · 0x85ebca6b)`, the part of a 4D set's seed shared by every
@@ -210,6 +306,30 @@ mod tests {
     }
 
     use super::*;
+
+    /// The paired evaluation is two single ones, bit for bit: every index of a block for a few
+    /// seed pairs, and through `PixelSample` for both kinds, in block 0 and past it.
+    #[test]
+    fn paired_sets_equal_two_single_ones() {
+        let seeds = [(0u32, 1u32), (0xffff_ffff, 0), (hash_u32(7), hash_u32(8)), (0x9e37_79b9, 0x9e37_79b9)];
+        for (a, b) in seeds {
+            for i in 0..1u32 << 16 {
+                let (pa, pb) = sobol_4d_pair(i, a, b);
+                let bits = |v: [f32; 4]| v.map(f32::to_bits);
+                assert_eq!((bits(pa), bits(pb)), (bits(sobol_4d(i, a)), bits(sobol_4d(i, b))), "index {i}");
+            }
+        }
+        for kind in [SamplerKind::Sobol, SamplerKind::Independent] {
+            for index in [0u32, 1, 77, 65_535, 65_536, 200_001] {
+                let s = PixelSample::new(kind, 3, (5, 9), index);
+                for set in [0u32, 1, 2, 9, 254, 255, 256, 300] {
+                    let (a, b) = s.get_4d_pair(set, set + 1);
+                    assert_eq!(a.map(f32::to_bits), s.get_4d(set).map(f32::to_bits));
+                    assert_eq!(b.map(f32::to_bits), s.get_4d(set + 1).map(f32::to_bits));
+                }
+            }
+        }
+    }
 
     /// The tabulated set hashes are the formula's, inside the table and past it, in block 0
     /// and in later blocks (samples from 2^16 on).

@@ -9,8 +9,9 @@ For each scene with a Mitsuba reference (make_references.py) it renders, at the 
 and `--spp`, with `tessera render` (default settings: mis, Sobol; the render time Tessera reports,
 without process start and scene load) and with each Mitsuba variant (path integrator, independent
 sampler, the scene translation of make_references.py; mi.render() timed on a loaded scene after one
-warm-up render, so the LLVM backend's kernel compilation is not counted). Median over --runs runs with
-different seeds. relMSE against the reference: mean over pixels and channels of (x − ref)² / (ref² +
+warm-up render, so the LLVM backend's kernel compilation is not counted). The runs alternate between
+Tessera and each peer, so a noisy machine's slow spells fall on all of them. Median over --runs runs
+with different seeds. relMSE against the reference: mean over pixels and channels of (x − ref)² / (ref² +
 0.01). Efficiency = 1 / (relMSE · seconds): equal efficiency means equal error in equal time; the
 ratio column is each renderer's efficiency over Tessera's (above 1: better than Tessera).
 """
@@ -60,8 +61,19 @@ def main():
         ref = np.array(mi.Bitmap(os.path.join(mr.HERE, f"{name}.exr")), dtype=np.float64)[:, :, :3]
         env = mr.ENVIRONMENTS.get(name)
         env_args = ["--env", os.path.join(mr.ROOT, env[0]), "--env-rotate", str(env[1])] if env else []
-        rows = []
         with tempfile.TemporaryDirectory() as tmp:
+            # Every peer's scene is loaded and warmed up first; then the runs alternate, one
+            # Tessera render and one of each peer in turn, so a shared, noisy machine slows all
+            # renderers alike rather than whichever happened to run during a slow spell.
+            peers = []
+            for variant in (v for v in a.variants if v != "none"):
+                try:
+                    mi.set_variant(variant)
+                    scene = mi.load_dict(mr.build_scene(os.path.join(mr.ROOT, rel), w, h, 1, tmp, env))
+                    mi.render(scene, seed=999, spp=a.spp)  # warm-up (JIT compilation for llvm)
+                    peers.append((variant, scene, [], []))
+                except Exception as e:  # a missing libLLVM says so and the others still run
+                    print(f"{name}: {variant} unavailable: {e}", file=sys.stderr)
             times, errs = [], []
             for r in range(a.runs):
                 out = os.path.join(tmp, "t.exr")
@@ -70,23 +82,15 @@ def main():
                                     *a.tessera_args.split()], check=True, stderr=subprocess.PIPE, text=True)
                 times.append(float(p.stderr.split(" in ")[1].split("s ")[0]))
                 errs.append(rel_mse(np.array(mi.Bitmap(out), dtype=np.float64)[:, :, :3], ref))
-            rows.append(("tessera", statistics.median(times), statistics.median(errs)))
-            for variant in (v for v in a.variants if v != "none"):
-                try:
+                for variant, scene, ptimes, perrs in peers:
                     mi.set_variant(variant)
-                    scene = mi.load_dict(mr.build_scene(os.path.join(mr.ROOT, rel), w, h, 1, tmp, env))
-                    mi.render(scene, seed=999, spp=a.spp)  # warm-up (JIT compilation for llvm)
-                except Exception as e:  # a missing libLLVM says so and the others still run
-                    print(f"{name}: {variant} unavailable: {e}", file=sys.stderr)
-                    continue
-                times, errs = [], []
-                for r in range(a.runs):
                     t0 = time.perf_counter()
                     img = np.array(mi.render(scene, seed=1000 + r, spp=a.spp), dtype=np.float64)[:, :, :3]
-                    times.append(time.perf_counter() - t0)
-                    errs.append(rel_mse(img, ref))
-                rows.append((f"mitsuba {variant}", statistics.median(times), statistics.median(errs)))
-                del scene
+                    ptimes.append(time.perf_counter() - t0)
+                    perrs.append(rel_mse(img, ref))
+            rows = [("tessera", statistics.median(times), statistics.median(errs))]
+            rows += [(f"mitsuba {v}", statistics.median(t), statistics.median(e)) for v, _, t, e in peers]
+            del peers
         base = 1.0 / (rows[0][1] * rows[0][2])
         print(f"\n{name} ({w}x{h}, {a.spp} spp, median of {a.runs} runs)")
         print(f"{'renderer':<22} {'seconds':>8} {'Mpaths/s':>9} {'relMSE':>10} {'efficiency':>11} {'vs tessera':>10}")

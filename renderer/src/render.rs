@@ -109,8 +109,8 @@ pub fn render_tile_counted(
         .unwrap_or_else(|_| crate::camera::Camera::framing(scene.bounds.0, scene.bounds.1));
     let raster = camera.raster(settings.width, settings.height);
     // Per pixel: its sums, its sample count, and the rays traced and non-finite samples met, which
-    // go to the shared counters once per tile (not once per pixel: two threads adding to the same
-    // atomics pass its cache line back and forth).
+    // go to the shared counters once per tile rather than once per pixel (threads adding to the
+    // same atomics contend for their cache line).
     let pixels: Vec<([f64; 3], f64, u32, u64, u64)> = (0..rect.pixels())
         .into_par_iter()
         .map(|i| {

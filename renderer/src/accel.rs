@@ -383,13 +383,11 @@ impl Accel {
             }
             return Self::build_two_level(mesh, kind);
         }
-        let mut a = Self::build_triangles(mesh, (0..mesh.triangles.len() as u32).collect(), kind, kind.wide_up_to());
-        a.kind = kind;
-        a
+        Self::build_triangles(mesh, (0..mesh.triangles.len() as u32).collect(), kind)
     }
 
     /// A one-level BVH over the triangles `ids` of `mesh` (as they are stored).
-    fn build_triangles(mesh: &Mesh, ids: Vec<u32>, kind: AccelKind, wide_up_to: usize) -> Self {
+    fn build_triangles(mesh: &Mesh, ids: Vec<u32>, kind: AccelKind) -> Self {
         if kind == AccelKind::Own {
             let tris = ids.iter().map(|&i| RtTriangle::new(mesh.vertices(i), i)).collect();
             return Accel {
@@ -411,7 +409,7 @@ impl Accel {
             })
             .collect();
         if prims.is_empty() {
-            return Accel::default();
+            return Accel { kind, ..Accel::default() };
         }
         let bvh = obvhs::cwbvh::builder::build_cwbvh_from_tris(
             &prims,
@@ -422,7 +420,7 @@ impl Accel {
         let tris = TriangleBlocks::new(
             bvh.primitive_indices.iter().map(|&k| RtTriangle::new(mesh.vertices(ids[k as usize]), ids[k as usize])),
         );
-        let (bvh, wide) = decompress(bvh, prims.len(), wide_up_to);
+        let (bvh, wide) = decompress(bvh, prims.len(), kind.wide_up_to());
         Accel { stack_len, bvh, wide, kind, tris, scalar_reference: false, own: None, top: None }
     }
 
@@ -436,12 +434,11 @@ impl Accel {
     }
 
     /// Prototype BVHs, then a top level over the world triangles and the instances' world boxes.
+    /// The prototypes are obvhs' (the own BVH has no instancing), with `kind`'s node form.
     fn build_two_level(mesh: &Mesh, kind: AccelKind) -> Self {
-        let blas: Vec<Accel> = mesh
-            .prototypes
-            .iter()
-            .map(|r| Self::build_triangles(mesh, r.clone().collect(), AccelKind::Obvhs, kind.wide_up_to()))
-            .collect();
+        let blas_kind = if kind == AccelKind::Own { AccelKind::Obvhs } else { kind };
+        let blas: Vec<Accel> =
+            mesh.prototypes.iter().map(|r| Self::build_triangles(mesh, r.clone().collect(), blas_kind)).collect();
         Self::top_level(mesh, blas, kind)
     }
 
@@ -686,13 +683,13 @@ mod tests {
             b.sphere(c, 0.2 + u(3), 2 + (k % 3) as u32, false, m);
         }
         let all = (0..b.mesh.triangles.len() as u32).collect::<Vec<_>>();
-        // The reference keeps obvhs' compressed nodes (a limit of 0 primitives).
-        let reference = Accel::build_triangles(&b.mesh, all.clone(), AccelKind::Obvhs, 0);
+        // The reference keeps obvhs' compressed nodes.
+        let reference = Accel::build_triangles(&b.mesh, all.clone(), AccelKind::ObvhsCompressed);
         assert!(reference.wide.is_empty() && reference.bvh.nodes.len() > 20 && reference.stack_len > 8);
         let (mut hits, mut ties) = (0usize, 0usize);
         for (wide, heap) in [(false, false), (true, false), (true, true)] {
-            let mut accel =
-                Accel::build_triangles(&b.mesh, all.clone(), AccelKind::Obvhs, if wide { usize::MAX } else { 0 });
+            let kind = if wide { AccelKind::Obvhs } else { AccelKind::ObvhsCompressed };
+            let mut accel = Accel::build_triangles(&b.mesh, all.clone(), kind);
             assert_eq!(accel.wide.is_empty(), !wide);
             if heap {
                 accel.stack_len = STACK + 1;

@@ -86,7 +86,6 @@ unsafe fn intersect_avx2(node: &CwBvhNode, ray: &Ray, oct_inv4: u32) -> (u32, [f
 #[cfg(test)]
 mod tests {
     use super::*;
-    use glam::Vec3A;
 
     /// For a few thousand random rays, every node of a real CWBVH (those the ray hits and those it
     /// misses) gives the same hit mask as obvhs' own test.
@@ -94,39 +93,16 @@ mod tests {
     fn hit_masks_equal_obvhs_on_every_visited_node() {
         // A second, offset and flattened shell so nodes have mixed leaf and inner children.
         let bvh = crate::testing::icosphere_cwbvh(4, |v| v, true);
-        let u = crate::sampler::hash_unit;
         let (mut nodes_checked, mut hits) = (0usize, 0usize);
         for i in 0..4000u64 {
-            let o = Vec3A::new(u(8 * i), u(8 * i + 1), u(8 * i + 2)) * 8.0 - 4.0;
-            // Aimed into the shapes, so most visit nodes they hit.
-            let mut d = Vec3A::new(u(8 * i + 3), u(8 * i + 4), u(8 * i + 5)) * 2.0 - 1.0 - o;
-            // Some rays exactly along an axis or in a plane (zero direction components).
-            match i % 7 {
-                0 => d = Vec3A::new(d.x, 0.0, 0.0),
-                1 => d.y = 0.0,
-                _ => {}
-            }
-            if d.length_squared() == 0.0 {
-                continue;
-            }
-            let tmax = if i % 3 == 0 { 2.0 * u(8 * i + 6) } else { f32::INFINITY };
-            let ray = Ray::new(o, d.normalize(), 0.0, tmax);
+            let Some(ray) = crate::testing::node_test_ray(i) else { continue };
             let oct = bvh.new_traversal(ray.direction).oct_inv4;
-            // Visit every node, hit or not (not just those a closest-hit traversal would reach).
-            let mut stack = vec![0usize];
-            while let Some(n) = stack.pop() {
-                let node = &bvh.nodes[n];
+            // Every node, hit or not (not just those a closest-hit traversal would reach).
+            for (n, node) in bvh.nodes.iter().enumerate() {
                 let ours = intersect(node, &ray, oct);
                 assert_eq!(ours, node.intersect_ray(&ray, oct), "ray {i} node {n}");
                 nodes_checked += 1;
                 hits += (ours != 0) as usize;
-                for child in 0..8u32 {
-                    if node.imask as u32 & (1 << child) != 0 {
-                        // Inner children are stored after child_base_idx in slot order.
-                        let rank = (node.imask as u32 & ((1 << child) - 1)).count_ones();
-                        stack.push((node.child_base_idx + rank) as usize);
-                    }
-                }
             }
         }
         eprintln!("{nodes_checked} nodes, {hits} with hits");

@@ -48,16 +48,18 @@ impl PixelSample {
         PixelSample { kind, pixel_seed, index }
     }
 
+    /// The Sobol seed of 4D set `set` for this pixel and sample. sobol_burley supports 2^16
+    /// samples per seed: higher blocks of samples get a fresh seed.
+    #[inline]
+    fn sobol_seed(&self, set: u32) -> u32 {
+        hash_u32(self.pixel_seed ^ set_hash(set, self.index >> 16))
+    }
+
     /// Dimensions `4·set … 4·set + 3` at once (one SIMD Owen-scrambled Sobol evaluation).
     #[inline]
     pub fn get_4d(&self, set: u32) -> [f32; 4] {
         match self.kind {
-            SamplerKind::Sobol => {
-                // sobol_burley supports 2^16 samples per seed: higher blocks get a fresh seed.
-                let block = self.index >> 16;
-                let seed = hash_u32(self.pixel_seed ^ set_hash(set, block));
-                sobol_4d(self.index & 0xffff, seed)
-            }
+            SamplerKind::Sobol => sobol_4d(self.index & 0xffff, self.sobol_seed(set)),
             SamplerKind::Independent => {
                 // One PCG32 stream per (pixel, sample), seeded by their hash; the 4D set picks the
                 // stream's increment, so sets are independent streams and values within a set are
@@ -75,12 +77,7 @@ impl PixelSample {
     #[inline]
     pub fn get_4d_pair(&self, set_a: u32, set_b: u32) -> ([f32; 4], [f32; 4]) {
         match self.kind {
-            SamplerKind::Sobol => {
-                let block = self.index >> 16;
-                let seed_a = hash_u32(self.pixel_seed ^ set_hash(set_a, block));
-                let seed_b = hash_u32(self.pixel_seed ^ set_hash(set_b, block));
-                sobol_4d_pair(self.index & 0xffff, seed_a, seed_b)
-            }
+            SamplerKind::Sobol => sobol_4d_pair(self.index & 0xffff, self.sobol_seed(set_a), self.sobol_seed(set_b)),
             SamplerKind::Independent => (self.get_4d(set_a), self.get_4d(set_b)),
         }
     }
@@ -110,17 +107,28 @@ impl PixelSample {
 /// (Burley 2020, "Practical Hash-based Owen Scrambling", JCGT 9(4).)
 #[inline]
 pub fn sobol_4d(index: u32, seed: u32) -> [f32; 4] {
-    use sobol_burley::parts::{hash, hash_int4, owen_scramble_int4_rev, owen_scramble_rev, Int4};
+    use sobol_burley::parts::{hash_int4, owen_scramble_int4_rev};
     debug_assert!(index < 1 << 16);
-    let rev = owen_scramble_rev(index.reverse_bits(), hash(seed ^ 0x79c6_8e4a));
+    let sobol = sobol_int4_rev(index.reverse_bits(), seed).into();
+    owen_scramble_int4_rev(sobol, hash_int4(dimension_scrambles(seed).into())).reverse_bits().to_f32_norm()
+}
+
+/// The Sobol points (reversed bits, before the dimensions' scramble) of the Owen-scrambled
+/// reversed index `index_rev` for `seed`: the matrix product by the byte tables.
+#[inline(always)]
+fn sobol_int4_rev(index_rev: u32, seed: u32) -> [u32; 4] {
+    use sobol_burley::parts::{hash, owen_scramble_rev};
+    let rev = owen_scramble_rev(index_rev, hash(seed ^ 0x79c6_8e4a));
     let tables = &*SOBOL_BYTE_TABLES;
-    let hi = tables[1][(rev >> 24) as usize];
-    let lo = tables[0][((rev >> 16) & 0xff) as usize];
-    let sobol: Int4 = [hi[0] ^ lo[0], hi[1] ^ lo[1], hi[2] ^ lo[2], hi[3] ^ lo[3]].into();
-    // The crate's scramble for dimension set 0.
+    let (hi, lo) = (tables[1][(rev >> 24) as usize], tables[0][((rev >> 16) & 0xff) as usize]);
+    [hi[0] ^ lo[0], hi[1] ^ lo[1], hi[2] ^ lo[2], hi[3] ^ lo[3]]
+}
+
+/// The crate's per-dimension scramble values for dimension set 0 (hashed before use).
+#[inline(always)]
+fn dimension_scrambles(seed: u32) -> [u32; 4] {
     let s = seed.wrapping_mul(0x9c8f_2d3b);
-    let scramble: Int4 = [s ^ 0x912f_69ba, s ^ 0x174f_18ab, s ^ 0x691e_72ca, s ^ 0xb40c_c1b8].into();
-    owen_scramble_int4_rev(sobol, hash_int4(scramble)).reverse_bits().to_f32_norm()
+    [s ^ 0x912f_69ba, s ^ 0x174f_18ab, s ^ 0x691e_72ca, s ^ 0xb40c_c1b8]
 }
 
 /// [`sobol_4d`] for two seeds: `(sobol_4d(index, seed_a), sobol_4d(index, seed_b))` bit for bit.
@@ -132,20 +140,12 @@ pub fn sobol_4d(index: u32, seed: u32) -> [f32; 4] {
 pub fn sobol_4d_pair(index: u32, seed_a: u32, seed_b: u32) -> ([f32; 4], [f32; 4]) {
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     {
-        use sobol_burley::parts::{hash, owen_scramble_rev};
         debug_assert!(index < 1 << 16);
         let index_rev = index.reverse_bits();
-        let tables = &*SOBOL_BYTE_TABLES;
-        let sobol = |seed: u32| {
-            let rev = owen_scramble_rev(index_rev, hash(seed ^ 0x79c6_8e4a));
-            let (hi, lo) = (tables[1][(rev >> 24) as usize], tables[0][((rev >> 16) & 0xff) as usize]);
-            [hi[0] ^ lo[0], hi[1] ^ lo[1], hi[2] ^ lo[2], hi[3] ^ lo[3]]
-        };
-        let (a, b) = (sobol(seed_a), sobol(seed_b));
-        let (sa, sb) = (seed_a.wrapping_mul(0x9c8f_2d3b), seed_b.wrapping_mul(0x9c8f_2d3b));
-        const C: [u32; 4] = [0x912f_69ba, 0x174f_18ab, 0x691e_72ca, 0xb40c_c1b8];
+        let (a, b) = (sobol_int4_rev(index_rev, seed_a), sobol_int4_rev(index_rev, seed_b));
+        let (sa, sb) = (dimension_scrambles(seed_a), dimension_scrambles(seed_b));
         let lanes = [a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3]];
-        let scramble = [sa ^ C[0], sa ^ C[1], sa ^ C[2], sa ^ C[3], sb ^ C[0], sb ^ C[1], sb ^ C[2], sb ^ C[3]];
+        let scramble = [sa[0], sa[1], sa[2], sa[3], sb[0], sb[1], sb[2], sb[3]];
         // SAFETY: AVX2 is enabled at compile time; loads and stores are unaligned.
         let out = unsafe { owen_reverse_to_f32_avx2(lanes, scramble) };
         ([out[0], out[1], out[2], out[3]], [out[4], out[5], out[6], out[7]])

@@ -228,3 +228,24 @@ pub fn icosphere_cwbvh(level: u32, place: impl Fn(glam::Vec3A) -> glam::Vec3A, s
     }
     obvhs::cwbvh::builder::build_cwbvh_from_tris(&tris, obvhs::BvhBuildParams::medium_build(), &mut Default::default())
 }
+
+/// Ray `i` of the node-test tests: from a point in [−4, 4]³ aimed at a point of [−1, 1]³ (into
+/// the shapes of [`icosphere_cwbvh`], so most cross boxes), every seventh exactly along x and
+/// the next in the y = 0 plane (zero direction components), every third with a finite `tmax`.
+/// None for a zero direction.
+pub fn node_test_ray(i: u64) -> Option<obvhs::ray::Ray> {
+    use glam::Vec3A;
+    let u = crate::sampler::hash_unit;
+    let o = Vec3A::new(u(8 * i), u(8 * i + 1), u(8 * i + 2)) * 8.0 - 4.0;
+    let mut d = Vec3A::new(u(8 * i + 3), u(8 * i + 4), u(8 * i + 5)) * 2.0 - 1.0 - o;
+    match i % 7 {
+        0 => d = Vec3A::new(d.x, 0.0, 0.0),
+        1 => d.y = 0.0,
+        _ => {}
+    }
+    if d.length_squared() == 0.0 {
+        return None;
+    }
+    let tmax = if i.is_multiple_of(3) { 2.0 * u(8 * i + 6) } else { f32::INFINITY };
+    Some(obvhs::ray::Ray::new(o, d.normalize(), 0.0, tmax))
+}

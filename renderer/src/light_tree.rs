@@ -95,21 +95,36 @@ impl LightBounds {
 
     /// Conservative estimate of the light these bounds can send to `p` (on a surface with normal `n`,
     /// if given): power / distance², reduced by the angle between the cone and `p`.
+    ///
+    /// pbrt-v4's `LightBounds::Importance`, written for a short chain of dependent operations:
+    /// the walk waits on each level's importances before it can pick the next node, so their
+    /// latency, not their count, is what a sample costs (`WideNode`). From d = |p − c| (one square
+    /// root), each quantity is one division away where pbrt takes several steps: cos θw = (w·v)/d
+    /// (pbrt normalises v first, a square root, a division and a dot product in a row),
+    /// cos θb = √(d² − r²)/d (pbrt: √(1 − r²/d²)) and sin θb = r/d (pbrt: √(1 − cos²θb) after it),
+    /// and the power over distance², φ · min(1/d², 2/diagonal) (pbrt's d² is max(d², diagonal/2)),
+    /// is ready before cos θp is, so it costs one multiplication at the end instead of a division.
     pub fn importance(&self, p: Vec3, n: Option<Vec3>) -> f32 {
         let pc = self.centroid();
-        let diag = (self.max - self.min).length();
-        let d2 = (p - pc).length_squared().max(diag / 2.0);
-        let wi = (p - pc).normalize_or_zero();
-        let mut cos_w = self.w.dot(wi);
+        let half_diag = (self.max - self.min).length() / 2.0;
+        let inv_half_diag = 1.0 / half_diag;
+        let v = p - pc;
+        let dist2 = v.length_squared();
+        let len = dist2.sqrt();
+        let rcp = 1.0 / len;
+        // Where v has no direction (p at the centroid, or overflow), normalize_or_zero's 0.
+        let ok = rcp.is_finite() && rcp > 0.0;
+        let along = |x: Vec3| if ok { x.dot(v) / len } else { 0.0 };
+        let phi_d2 = self.phi * (rcp * rcp).min(inv_half_diag);
+        let mut cos_w = along(self.w);
         if self.two_sided {
             cos_w = cos_w.abs();
         }
         let sin_w = safe_sqrt(1.0 - cos_w * cos_w);
-        // Angle subtended by the bounds' bounding sphere as seen from p.
-        let r2 = (diag / 2.0) * (diag / 2.0);
-        let dist2 = (p - pc).length_squared();
-        let cos_b = if dist2 <= r2 { -1.0 } else { safe_sqrt(1.0 - r2 / dist2) };
-        let sin_b = safe_sqrt(1.0 - cos_b * cos_b);
+        // Angle θb subtended by the bounds' bounding sphere (radius r) as seen from p.
+        let inside = dist2 <= half_diag * half_diag;
+        let cos_b = if inside { -1.0 } else { safe_sqrt(dist2 - half_diag * half_diag) / len };
+        let sin_b = if inside { 0.0 } else { (half_diag * rcp).min(1.0) };
         let sin_o = safe_sqrt(1.0 - self.cos_theta_o * self.cos_theta_o);
         let cos_x = cos_sub_clamped(sin_w, cos_w, sin_o, self.cos_theta_o);
         let sin_x = sin_sub_clamped(sin_w, cos_w, sin_o, self.cos_theta_o);
@@ -117,9 +132,9 @@ impl LightBounds {
         if cos_p <= self.cos_theta_e {
             return 0.0;
         }
-        let mut importance = self.phi * cos_p / d2;
+        let mut importance = phi_d2 * cos_p;
         if let Some(n) = n {
-            let cos_i = wi.dot(n).abs();
+            let cos_i = along(n).abs();
             let sin_i = safe_sqrt(1.0 - cos_i * cos_i);
             importance *= cos_sub_clamped(sin_i, cos_i, sin_b, cos_b);
         }
@@ -133,7 +148,7 @@ impl LightBounds {
 
 /// The bounds of a wide node's (up to eight) children as the eight lanes of vectors (unused lanes
 /// are zero bounds, whose importance is 0), with what `importance` derives from bounds alone
-/// (centroid, half diagonal, sin θo) computed once, by the same operations. [`Family::importance`]
+/// (centroid, half diagonal and its reciprocal, sin θo) computed once, by the same operations. [`Family::importance`]
 /// runs `LightBounds::importance` on all lanes at once (AVX), operation for operation, so every
 /// lane is the one-at-a-time reference's number, bit for bit (a test checks it on random points,
 /// normals and bounds): one evaluation per level of the walk.
@@ -143,6 +158,7 @@ struct Family {
     c: [[f32; 8]; 3],
     w: [[f32; 8]; 3],
     half_diag: [f32; 8],
+    inv_half_diag: [f32; 8],
     phi: [f32; 8],
     cos_o: [f32; 8],
     sin_o: [f32; 8],
@@ -163,6 +179,7 @@ impl Family {
                 f.w[k][l] = x.w[k];
             }
             f.half_diag[l] = diag / 2.0;
+            f.inv_half_diag[l] = 1.0 / f.half_diag[l];
             f.phi[l] = x.phi;
             f.cos_o[l] = x.cos_theta_o;
             f.sin_o[l] = safe_sqrt(1.0 - x.cos_theta_o * x.cos_theta_o);
@@ -209,32 +226,30 @@ impl Family {
         );
         let dist2 = dot(vx, vy, vz, vx, vy, vz);
         let half_diag = ld(&self.half_diag);
-        let d2 = _mm256_max_ps(dist2, half_diag);
-        // normalize_or_zero: v · (1 / |v|) where that reciprocal is finite and positive.
-        let rcp = _mm256_div_ps(one, _mm256_sqrt_ps(dist2));
+        let len = _mm256_sqrt_ps(dist2);
+        let rcp = _mm256_div_ps(one, len);
         let abs = |x: __m256| _mm256_andnot_ps(splat(-0.0), x);
         let ok = _mm256_and_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(abs(rcp), splat(f32::INFINITY)), gt(rcp, zero));
-        let (wx, wy, wz) = (
-            _mm256_and_ps(ok, _mm256_mul_ps(vx, rcp)),
-            _mm256_and_ps(ok, _mm256_mul_ps(vy, rcp)),
-            _mm256_and_ps(ok, _mm256_mul_ps(vz, rcp)),
-        );
-        let cos_w = dot(ld(&self.w[0]), ld(&self.w[1]), ld(&self.w[2]), wx, wy, wz);
+        let along = |x: __m256, y: __m256, z: __m256| _mm256_and_ps(ok, _mm256_div_ps(dot(x, y, z, vx, vy, vz), len));
+        // min(x, y) is y when x is NaN, as f32::min is (here x never is: rcp ≥ 0 or ∞).
+        let phi_d2 = _mm256_mul_ps(ld(&self.phi), _mm256_min_ps(_mm256_mul_ps(rcp, rcp), ld(&self.inv_half_diag)));
+        let cos_w = along(ld(&self.w[0]), ld(&self.w[1]), ld(&self.w[2]));
         let two_sided = _mm256_castsi256_ps(_mm256_load_si256(self.two_sided.as_ptr() as *const __m256i));
         let cos_w = select(two_sided, abs(cos_w), cos_w);
         let sin_w = safe_sqrt(_mm256_sub_ps(one, _mm256_mul_ps(cos_w, cos_w)));
         let r2 = _mm256_mul_ps(half_diag, half_diag);
         let inside = _mm256_cmp_ps::<_CMP_LE_OQ>(dist2, r2);
-        let cos_b = select(inside, splat(-1.0), safe_sqrt(_mm256_sub_ps(one, _mm256_div_ps(r2, dist2))));
-        let sin_b = safe_sqrt(_mm256_sub_ps(one, _mm256_mul_ps(cos_b, cos_b)));
+        let cos_b = select(inside, splat(-1.0), _mm256_div_ps(safe_sqrt(_mm256_sub_ps(dist2, r2)), len));
+        // f32::min(NaN, 1) is 1, as VMINPS's second operand.
+        let sin_b = select(inside, zero, _mm256_min_ps(_mm256_mul_ps(half_diag, rcp), one));
         let (sin_o, cos_o) = (ld(&self.sin_o), ld(&self.cos_o));
         let cos_x = cos_sub(sin_w, cos_w, sin_o, cos_o);
         let sin_x = sin_sub(sin_w, cos_w, sin_o, cos_o);
         let cos_p = cos_sub(sin_x, cos_x, sin_b, cos_b);
         let lit = gt(cos_p, ld(&self.cos_e));
-        let mut imp = _mm256_div_ps(_mm256_mul_ps(ld(&self.phi), cos_p), d2);
+        let mut imp = _mm256_mul_ps(phi_d2, cos_p);
         if let Some(n) = n {
-            let cos_i = abs(dot(wx, wy, wz, splat(n.x), splat(n.y), splat(n.z)));
+            let cos_i = abs(along(splat(n.x), splat(n.y), splat(n.z)));
             let sin_i = safe_sqrt(_mm256_sub_ps(one, _mm256_mul_ps(cos_i, cos_i)));
             imp = _mm256_mul_ps(imp, cos_sub(sin_i, cos_i, sin_b, cos_b));
         }
@@ -292,29 +307,46 @@ pub struct LightTree {
     parent: Vec<(u32, u8)>,
 }
 
+/// The running sums of a node's importances, `running[i]` = imp[0] + … + imp[i], added as a
+/// three-step scan (the total is three additions deep, not seven: the walk waits on it at every
+/// level). Each sum only adds non-negative terms to the one before, so they never decrease, and
+/// a slot of importance 0 repeats the sum before it exactly (x + 0 = x): what `choose` relies on.
+/// `choose` and `pmf` both take the total from here, so they see the same probabilities.
+#[inline]
+fn running_sums(imp: &[f32; WIDTH]) -> [f32; WIDTH] {
+    let [x0, x1, x2, x3, x4, x5, x6, x7] = *imp;
+    let (s01, s23, s45, s67) = (x0 + x1, x2 + x3, x4 + x5, x6 + x7);
+    let s03 = s01 + s23;
+    let s46 = s45 + x6;
+    [x0, s01, s01 + x2, s03, s03 + x4, s03 + s45, s03 + s46, s03 + (s45 + s67)]
+}
+
 /// Picks a slot in proportion to `imp` with `u` ∈ [0, 1): (slot, its probability, `u` rescaled
 /// to [0, 1) within the slot's share, so the levels below stay stratified). None when every
-/// importance is 0. The total is summed in slot order, here and in `pmf`, so both see the same
-/// probabilities.
+/// importance is 0.
+///
+/// The slot is the first whose running sum exceeds `t = u · total`, found by counting the running
+/// sums that do not (they rise with the slot, and a slot of importance 0 never adds to them, so
+/// it is never the first to exceed `t`): compares and a count the compiler vectorises, where a loop
+/// that stopped at the slot mispredicted its exit once a level (the walk's slot is random). Same
+/// slot and numbers as that loop over the same sums, bit for bit (`choose_matches_running_search`).
 #[inline]
 fn choose(imp: &[f32; WIDTH], u: f32) -> Option<(usize, f32, f32)> {
-    let total: f32 = imp.iter().sum();
+    let running = running_sums(imp);
+    let total = running[WIDTH - 1];
     if total.is_nan() || total <= 0.0 {
         return None;
     }
     let t = u * total;
-    let (mut acc, mut last) = (0.0f32, None);
-    for (i, &x) in imp.iter().enumerate() {
-        if x > 0.0 {
-            if t < acc + x {
-                return Some((i, x / total, ((t - acc) / x).clamp(0.0, 1.0 - f32::EPSILON)));
-            }
-            acc += x;
-            last = Some(i);
-        }
+    let below: usize = running.iter().map(|&r| (!(t < r)) as usize).sum();
+    if below < WIDTH {
+        let x = imp[below];
+        let before = if below == 0 { 0.0 } else { running[below - 1] };
+        return Some((below, x / total, ((t - before) / x).clamp(0.0, 1.0 - f32::EPSILON)));
     }
     // Rounding left t at or past the sum: the last slot that has any importance.
-    last.map(|i| (i, imp[i] / total, 1.0 - f32::EPSILON))
+    let last = imp.iter().rposition(|&x| x > 0.0)?;
+    Some((last, imp[last] / total, 1.0 - f32::EPSILON))
 }
 
 impl LightTree {
@@ -461,7 +493,7 @@ impl LightTree {
         let mut depth = 0;
         loop {
             let imp = self.importances(at as usize, p, n);
-            let total: f32 = imp.iter().sum();
+            let total = running_sums(&imp)[WIDTH - 1];
             let x = imp[slot as usize];
             if total.is_nan() || total <= 0.0 || x <= 0.0 || depth == MAX_DEPTH {
                 return 0.0;
@@ -521,6 +553,74 @@ mod tests {
                 assert!((f - tree.pmf(p, n, l)).abs() < 2e-3, "light {l}: {f} vs {}", tree.pmf(p, n, l));
             }
         }
+    }
+
+    /// The search `choose` replaced: walk the slots, stop at the first whose running sum exceeds t.
+    pub(super) fn choose_by_search(imp: &[f32; WIDTH], u: f32) -> Option<(usize, f32, f32)> {
+        let running = running_sums(imp);
+        let total = running[WIDTH - 1];
+        if total.is_nan() || total <= 0.0 {
+            return None;
+        }
+        let t = u * total;
+        let mut last = None;
+        for (i, &x) in imp.iter().enumerate() {
+            if x > 0.0 {
+                let before = if i == 0 { 0.0 } else { running[i - 1] };
+                if t < running[i] {
+                    return Some((i, x / total, ((t - before) / x).clamp(0.0, 1.0 - f32::EPSILON)));
+                }
+                last = Some(i);
+            }
+        }
+        last.map(|i| (i, imp[i] / total, 1.0 - f32::EPSILON))
+    }
+
+    /// `choose` picks the slot the running search picks, with the same probability and rescaled
+    /// `u` bit for bit: random importances with zeros, ties, tiny and huge values, and `u` at 0,
+    /// just below 1 and at the slot boundaries.
+    #[test]
+    fn choose_matches_running_search() {
+        let h = crate::sampler::hash_unit;
+        let bits = |r: Option<(usize, f32, f32)>| r.map(|(s, p, u)| (s, p.to_bits(), u.to_bits()));
+        let mut picked = [0usize; WIDTH];
+        for k in 0..200_000u64 {
+            let mut imp = [0f32; WIDTH];
+            for (i, x) in imp.iter_mut().enumerate() {
+                let r = h(k * 16 + i as u64);
+                *x = match (k + i as u64) % 6 {
+                    0 => 0.0,
+                    1 => r * 1e-30,
+                    2 => r * 1e30,
+                    3 => 1.0,
+                    _ => r,
+                };
+            }
+            if k % 97 == 0 {
+                imp = [0.0; WIDTH];
+            }
+            let total = running_sums(&imp)[WIDTH - 1];
+            let u = match k % 5 {
+                0 => 0.0,
+                1 => 1.0 - f32::EPSILON / 2.0,
+                // A slot boundary: t lands on a running sum.
+                2 if total > 0.0 && k % 8 > 0 => running_sums(&imp)[(k % 8) as usize - 1] / total,
+                _ => h(k * 16 + 9),
+            };
+            let running = running_sums(&imp);
+            let sequential: f32 = imp.iter().sum();
+            assert!((running[WIDTH - 1] - sequential).abs() <= 1e-6 * sequential, "{imp:?}: total {running:?}");
+            for i in 1..WIDTH {
+                assert!(running[i] >= running[i - 1], "{imp:?}: running sums {running:?} decrease");
+                assert!(imp[i] > 0.0 || running[i] == running[i - 1], "{imp:?}: a 0 moved the sum {running:?}");
+            }
+            let (got, want) = (choose(&imp, u), choose_by_search(&imp, u));
+            assert_eq!(bits(got), bits(want), "importances {imp:?}, u {u}");
+            if let Some((s, ..)) = got {
+                picked[s] += 1;
+            }
+        }
+        assert!(picked.iter().all(|&c| c > 1000), "every slot picked: {picked:?}");
     }
 
     #[test]
@@ -598,12 +698,12 @@ mod tests {
         assert!(compared > 500_000 && nonzero > compared / 4, "{compared} compared, {nonzero} non-zero");
     }
 
-    /// The memory figures the docs give: 384 bytes a family, 448 a node; and the collapse: every
+    /// The memory figures the docs give: 416 bytes a family, 480 a node; and the collapse: every
     /// light in exactly one slot, 2–8 children a node, and about a third of the binary depth.
     #[test]
     fn nodes_hold_every_light_once_in_few_levels() {
-        assert_eq!(std::mem::size_of::<Family>(), 384);
-        assert_eq!(std::mem::size_of::<WideNode>(), 448);
+        assert_eq!(std::mem::size_of::<Family>(), 416);
+        assert_eq!(std::mem::size_of::<WideNode>(), 480);
         for n in [2usize, 3, 7, 8, 9, 63, 64, 65, 1000, 2208] {
             let lights: Vec<LightBounds> = (0..n)
                 .map(|i| {

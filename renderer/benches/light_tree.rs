@@ -94,7 +94,8 @@ fn main() {
         black_box(chosen);
         let ((s_min, s_med), (p_min, p_med)) = (stats(sample_ns), stats(pmf_ns));
         println!(
-            "{name}: sample {s_min:.1} ns min, {s_med:.1} median; pmf {p_min:.1} ns min, {p_med:.1} median ({REPETITIONS} × {CALLS} calls)"
+            "{name}: sample {s_min:.1} ns min, {s_med:.1} median; pmf {p_min:.1} ns min, {p_med:.1} median \
+             ({REPETITIONS} × {CALLS} calls)"
         );
     }
 }

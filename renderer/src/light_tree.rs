@@ -148,10 +148,10 @@ impl LightBounds {
 
 /// The bounds of a wide node's (up to eight) children as the eight lanes of vectors (unused lanes
 /// are zero bounds, whose importance is 0), with what `importance` derives from bounds alone
-/// (centroid, half diagonal and its reciprocal, sin θo) computed once, by the same operations. [`Family::importance`]
-/// runs `LightBounds::importance` on all lanes at once (AVX), operation for operation, so every
-/// lane is the one-at-a-time reference's number, bit for bit (a test checks it on random points,
-/// normals and bounds): one evaluation per level of the walk.
+/// (centroid, half diagonal and its reciprocal, sin θo) computed once, by the same operations.
+/// [`Family::importance`] runs `LightBounds::importance` on all lanes at once (AVX), operation for
+/// operation, so every lane is the one-at-a-time reference's number, bit for bit (a test checks it
+/// on random points, normals and bounds): one evaluation per level of the walk.
 #[derive(Clone, Copy, Debug, Default)]
 #[repr(C, align(32))]
 struct Family {
@@ -556,7 +556,7 @@ mod tests {
     }
 
     /// The search `choose` replaced: walk the slots, stop at the first whose running sum exceeds t.
-    pub(super) fn choose_by_search(imp: &[f32; WIDTH], u: f32) -> Option<(usize, f32, f32)> {
+    fn choose_by_search(imp: &[f32; WIDTH], u: f32) -> Option<(usize, f32, f32)> {
         let running = running_sums(imp);
         let total = running[WIDTH - 1];
         if total.is_nan() || total <= 0.0 {
@@ -599,17 +599,17 @@ mod tests {
             if k % 97 == 0 {
                 imp = [0.0; WIDTH];
             }
-            let total = running_sums(&imp)[WIDTH - 1];
+            let running = running_sums(&imp);
+            let total = running[WIDTH - 1];
             let u = match k % 5 {
                 0 => 0.0,
                 1 => 1.0 - f32::EPSILON / 2.0,
                 // A slot boundary: t lands on a running sum.
-                2 if total > 0.0 && k % 8 > 0 => running_sums(&imp)[(k % 8) as usize - 1] / total,
+                2 if total > 0.0 && k % 8 > 0 => running[(k % 8) as usize - 1] / total,
                 _ => h(k * 16 + 9),
             };
-            let running = running_sums(&imp);
             let sequential: f32 = imp.iter().sum();
-            assert!((running[WIDTH - 1] - sequential).abs() <= 1e-6 * sequential, "{imp:?}: total {running:?}");
+            assert!((total - sequential).abs() <= 1e-6 * sequential, "{imp:?}: total {running:?}");
             for i in 1..WIDTH {
                 assert!(running[i] >= running[i - 1], "{imp:?}: running sums {running:?} decrease");
                 assert!(imp[i] > 0.0 || running[i] == running[i - 1], "{imp:?}: a 0 moved the sum {running:?}");
@@ -698,8 +698,8 @@ mod tests {
         assert!(compared > 500_000 && nonzero > compared / 4, "{compared} compared, {nonzero} non-zero");
     }
 
-    /// The memory figures the docs give: 416 bytes a family, 480 a node; and the collapse: every
-    /// light in exactly one slot, 2–8 children a node, and about a third of the binary depth.
+    /// The node sizes (416 bytes a family, 480 a node); and the collapse: every light in exactly
+    /// one slot, 2–8 children a node, and about a third of the binary depth.
     #[test]
     fn nodes_hold_every_light_once_in_few_levels() {
         assert_eq!(std::mem::size_of::<Family>(), 416);

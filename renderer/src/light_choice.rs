@@ -56,7 +56,11 @@ pub const PILOT_REPLICATES: u64 = 8;
 /// with `tessera bench` (256×192, 16 spp, medians of 3, three runs each): a tree sample costs 1.54×
 /// a power sample (0.209 against 0.136 s), (1.54 − 1) / 12.2 ≈ 0.044. (It was 2.25× and 0.10
 /// before the walk evaluated a node's children and grandchildren in one AVX pass, then 1.73× and
-/// 0.06 until the walk chose among eight children at a time, `light_tree::WideNode`.)
+/// 0.06 until the walk chose among eight children at a time, `light_tree::WideNode`.) Measured
+/// again after the walk's d-scaled importances (2026-11-23, walk 170 → 133 ns): 0.175, 0.175 and
+/// 0.178 s against 0.108, 0.112 and 0.113 s, 1.56× and ≈ 0.046, within the spread of the figure
+/// above, so it stays: the tree's paths also trace more shadow rays (2.33 rays a path against
+/// 2.04: fewer of its light samples face away), which the faster walk does not change.
 pub const TREE_LEVEL_COST: f64 = 0.044;
 
 /// A uniform number in [0, 1) from a hash of (stream, index).

@@ -26,26 +26,6 @@ fn safe_sqrt(x: f32) -> f32 {
     x.max(0.0).sqrt()
 }
 
-/// cos(max(0, θa − θb)) from sines and cosines.
-#[inline]
-fn cos_sub_clamped(sin_a: f32, cos_a: f32, sin_b: f32, cos_b: f32) -> f32 {
-    if cos_a > cos_b {
-        1.0
-    } else {
-        cos_a * cos_b + sin_a * sin_b
-    }
-}
-
-/// sin(max(0, θa − θb)).
-#[inline]
-fn sin_sub_clamped(sin_a: f32, cos_a: f32, sin_b: f32, cos_b: f32) -> f32 {
-    if cos_a > cos_b {
-        0.0
-    } else {
-        sin_a * cos_b - cos_a * sin_b
-    }
-}
-
 /// Rotates `v` about the unit axis `k` by `angle` (Rodrigues).
 fn rotate(v: Vec3, k: Vec3, angle: f32) -> Vec3 {
     let (s, c) = angle.sin_cos();
@@ -98,45 +78,53 @@ impl LightBounds {
     ///
     /// pbrt-v4's `LightBounds::Importance`, written for a short chain of dependent operations:
     /// the walk waits on each level's importances before it can pick the next node, so their
-    /// latency, not their count, is what a sample costs (`WideNode`). From d = |p − c| (one square
-    /// root), each quantity is one division away where pbrt takes several steps: cos θw = (w·v)/d
-    /// (pbrt normalises v first, a square root, a division and a dot product in a row),
-    /// cos θb = √(d² − r²)/d (pbrt: √(1 − r²/d²)) and sin θb = r/d (pbrt: √(1 − cos²θb) after it),
-    /// and the power over distance², φ · min(1/d², 2/diagonal) (pbrt's d² is max(d², diagonal/2)),
-    /// is ready before cos θp is, so it costs one multiplication at the end instead of a division.
+    /// latency, not their count, is what a sample costs (`WideNode`). Every sine and cosine of an
+    /// angle at `p` is kept multiplied by d = |p − c| (cos θw·d = w·v, sin θw·d = √(d² − (w·v)²),
+    /// cos θb·d = √(d² − r²), sin θb·d = r), so none of them waits on d itself: pbrt's chain of
+    /// normalising v (a square root, then a division), then √(1 − cos²) (a second square root)
+    /// becomes one square root straight from d² and w·v, and the one division, 1/d², runs beside
+    /// it. cos θp, a product of two such d-scaled factors, is d² times itself and is scaled back
+    /// by that 1/d², which φ · min(1/d², 2/diagonal) (pbrt's d² is max(d², diagonal/2)) uses too.
+    /// The comparisons pbrt makes on cosines compare the d-scaled ones: θw ≤ θo (inside the
+    /// emission cone) is w·v > cos θo·d, tested squared with signs kept, (w·v)|w·v| > cos θo|cos θo|·d².
     pub fn importance(&self, p: Vec3, n: Option<Vec3>) -> f32 {
         let pc = self.centroid();
         let half_diag = (self.max - self.min).length() / 2.0;
         let inv_half_diag = 1.0 / half_diag;
         let v = p - pc;
         let dist2 = v.length_squared();
-        let len = dist2.sqrt();
-        let rcp = 1.0 / len;
-        // Where v has no direction (p at the centroid, or overflow), normalize_or_zero's 0.
-        let ok = rcp.is_finite() && rcp > 0.0;
-        let along = |x: Vec3| if ok { x.dot(v) / len } else { 0.0 };
-        let phi_d2 = self.phi * (rcp * rcp).min(inv_half_diag);
-        let mut cos_w = along(self.w);
+        // From here on, cos_w, sin_w, cos_b, cos_x, sin_x and cos_i, sin_i are the d-scaled
+        // values (cos θw·d and so on); cos_p and the normal's factor are plain cosines again.
+        let inv_dist2 = 1.0 / dist2;
+        // f32::min returns its other operand for a NaN (as VMINPS its second).
+        let phi_d2 = self.phi * inv_dist2.min(inv_half_diag);
+        let mut cos_w = self.w.dot(v);
         if self.two_sided {
             cos_w = cos_w.abs();
         }
-        let sin_w = safe_sqrt(1.0 - cos_w * cos_w);
+        let sin_w = safe_sqrt(dist2 - cos_w * cos_w);
         // Angle θb subtended by the bounds' bounding sphere (radius r) as seen from p.
-        let inside = dist2 <= half_diag * half_diag;
-        let cos_b = if inside { -1.0 } else { safe_sqrt(dist2 - half_diag * half_diag) / len };
-        let sin_b = if inside { 0.0 } else { (half_diag * rcp).min(1.0) };
-        let sin_o = safe_sqrt(1.0 - self.cos_theta_o * self.cos_theta_o);
-        let cos_x = cos_sub_clamped(sin_w, cos_w, sin_o, self.cos_theta_o);
-        let sin_x = sin_sub_clamped(sin_w, cos_w, sin_o, self.cos_theta_o);
-        let cos_p = cos_sub_clamped(sin_x, cos_x, sin_b, cos_b);
+        let r2 = half_diag * half_diag;
+        let inside = dist2 <= r2;
+        let cos_b = safe_sqrt(dist2 - r2);
+        let cos_o = self.cos_theta_o;
+        let sin_o = safe_sqrt(1.0 - cos_o * cos_o);
+        let in_cone = cos_w * cos_w.abs() > cos_o * cos_o.abs() * dist2;
+        // θx = max(0, θw − θo), its cosine and sine (d-scaled) where θw > θo.
+        let cos_x = cos_w * cos_o + sin_w * sin_o;
+        let sin_x = sin_w * cos_o - cos_w * sin_o;
+        // cos θp = cos(max(0, θx − θb)): 1 inside the cone or the bounds, or where θx ≤ θb.
+        let cos_p =
+            if in_cone || inside || cos_x > cos_b { 1.0 } else { (cos_x * cos_b + sin_x * half_diag) * inv_dist2 };
         if cos_p <= self.cos_theta_e {
             return 0.0;
         }
         let mut importance = phi_d2 * cos_p;
         if let Some(n) = n {
-            let cos_i = along(n).abs();
-            let sin_i = safe_sqrt(1.0 - cos_i * cos_i);
-            importance *= cos_sub_clamped(sin_i, cos_i, sin_b, cos_b);
+            // cos(max(0, θi − θb)), θi the angle between n (either side) and p − c.
+            let cos_i = n.dot(v).abs();
+            let sin_i = safe_sqrt(dist2 - cos_i * cos_i);
+            importance *= if inside || cos_i > cos_b { 1.0 } else { (cos_i * cos_b + sin_i * half_diag) * inv_dist2 };
         }
         if importance.is_finite() {
             importance.max(0.0)
@@ -194,13 +182,16 @@ impl Family {
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[inline]
     fn importance(&self, p: Vec3, n: Option<Vec3>) -> [f32; 8] {
-        // SAFETY: AVX2 is enabled at compile time; every load reads a 32-byte-aligned [f32; 8].
-        unsafe { self.importance_avx(p, n) }
+        let mut out = [0f32; 8];
+        // SAFETY: AVX2 is enabled at compile time; every load reads a 32-byte-aligned [f32; 8],
+        // the store writes the eight floats of `out`.
+        unsafe { std::arch::x86_64::_mm256_storeu_ps(out.as_mut_ptr(), self.importance_avx(p, n)) };
+        out
     }
 
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[inline(always)]
-    unsafe fn importance_avx(&self, p: Vec3, n: Option<Vec3>) -> [f32; 8] {
+    unsafe fn importance_avx(&self, p: Vec3, n: Option<Vec3>) -> std::arch::x86_64::__m256 {
         use std::arch::x86_64::*;
         let ld = |a: &[f32; 8]| _mm256_load_ps(a.as_ptr());
         let splat = _mm256_set1_ps;
@@ -212,13 +203,6 @@ impl Family {
             _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(ax, bx), _mm256_mul_ps(ay, by)), _mm256_mul_ps(az, bz))
         };
         let gt = |a: __m256, b: __m256| _mm256_cmp_ps::<_CMP_GT_OQ>(a, b);
-        // cos(max(0, θa − θb)) and sin(max(0, θa − θb)).
-        let cos_sub = |sa: __m256, ca: __m256, sb: __m256, cb: __m256| {
-            select(gt(ca, cb), one, _mm256_add_ps(_mm256_mul_ps(ca, cb), _mm256_mul_ps(sa, sb)))
-        };
-        let sin_sub = |sa: __m256, ca: __m256, sb: __m256, cb: __m256| {
-            select(gt(ca, cb), zero, _mm256_sub_ps(_mm256_mul_ps(sa, cb), _mm256_mul_ps(ca, sb)))
-        };
         let (vx, vy, vz) = (
             _mm256_sub_ps(splat(p.x), ld(&self.c[0])),
             _mm256_sub_ps(splat(p.y), ld(&self.c[1])),
@@ -226,38 +210,36 @@ impl Family {
         );
         let dist2 = dot(vx, vy, vz, vx, vy, vz);
         let half_diag = ld(&self.half_diag);
-        let len = _mm256_sqrt_ps(dist2);
-        let rcp = _mm256_div_ps(one, len);
+        let inv_dist2 = _mm256_div_ps(one, dist2);
         let abs = |x: __m256| _mm256_andnot_ps(splat(-0.0), x);
-        let ok = _mm256_and_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(abs(rcp), splat(f32::INFINITY)), gt(rcp, zero));
-        let along = |x: __m256, y: __m256, z: __m256| _mm256_and_ps(ok, _mm256_div_ps(dot(x, y, z, vx, vy, vz), len));
-        // min(x, y) is y when x is NaN, as f32::min is (here x never is: rcp ≥ 0 or ∞).
-        let phi_d2 = _mm256_mul_ps(ld(&self.phi), _mm256_min_ps(_mm256_mul_ps(rcp, rcp), ld(&self.inv_half_diag)));
-        let cos_w = along(ld(&self.w[0]), ld(&self.w[1]), ld(&self.w[2]));
+        // VMINPS returns its second operand for a NaN, as f32::min returns the other one.
+        let phi_d2 = _mm256_mul_ps(ld(&self.phi), _mm256_min_ps(inv_dist2, ld(&self.inv_half_diag)));
+        let cos_w = dot(ld(&self.w[0]), ld(&self.w[1]), ld(&self.w[2]), vx, vy, vz);
         let two_sided = _mm256_castsi256_ps(_mm256_load_si256(self.two_sided.as_ptr() as *const __m256i));
         let cos_w = select(two_sided, abs(cos_w), cos_w);
-        let sin_w = safe_sqrt(_mm256_sub_ps(one, _mm256_mul_ps(cos_w, cos_w)));
+        let sin_w = safe_sqrt(_mm256_sub_ps(dist2, _mm256_mul_ps(cos_w, cos_w)));
         let r2 = _mm256_mul_ps(half_diag, half_diag);
         let inside = _mm256_cmp_ps::<_CMP_LE_OQ>(dist2, r2);
-        let cos_b = select(inside, splat(-1.0), _mm256_div_ps(safe_sqrt(_mm256_sub_ps(dist2, r2)), len));
-        // f32::min(NaN, 1) is 1, as VMINPS's second operand.
-        let sin_b = select(inside, zero, _mm256_min_ps(_mm256_mul_ps(half_diag, rcp), one));
+        let cos_b = safe_sqrt(_mm256_sub_ps(dist2, r2));
         let (sin_o, cos_o) = (ld(&self.sin_o), ld(&self.cos_o));
-        let cos_x = cos_sub(sin_w, cos_w, sin_o, cos_o);
-        let sin_x = sin_sub(sin_w, cos_w, sin_o, cos_o);
-        let cos_p = cos_sub(sin_x, cos_x, sin_b, cos_b);
+        let in_cone = gt(_mm256_mul_ps(cos_w, abs(cos_w)), _mm256_mul_ps(_mm256_mul_ps(cos_o, abs(cos_o)), dist2));
+        let cos_x = _mm256_add_ps(_mm256_mul_ps(cos_w, cos_o), _mm256_mul_ps(sin_w, sin_o));
+        let sin_x = _mm256_sub_ps(_mm256_mul_ps(sin_w, cos_o), _mm256_mul_ps(cos_w, sin_o));
+        // cos(max(0, θa − θb)) from d-scaled sines and cosines, 1 where θa ≤ θb or inside.
+        let cos_sub = |sa: __m256, ca: __m256, clamped: __m256| {
+            let unclamped = _mm256_add_ps(_mm256_mul_ps(ca, cos_b), _mm256_mul_ps(sa, half_diag));
+            select(_mm256_or_ps(clamped, gt(ca, cos_b)), one, _mm256_mul_ps(unclamped, inv_dist2))
+        };
+        let cos_p = cos_sub(sin_x, cos_x, _mm256_or_ps(in_cone, inside));
         let lit = gt(cos_p, ld(&self.cos_e));
         let mut imp = _mm256_mul_ps(phi_d2, cos_p);
         if let Some(n) = n {
-            let cos_i = abs(along(splat(n.x), splat(n.y), splat(n.z)));
-            let sin_i = safe_sqrt(_mm256_sub_ps(one, _mm256_mul_ps(cos_i, cos_i)));
-            imp = _mm256_mul_ps(imp, cos_sub(sin_i, cos_i, sin_b, cos_b));
+            let cos_i = abs(dot(splat(n.x), splat(n.y), splat(n.z), vx, vy, vz));
+            let sin_i = safe_sqrt(_mm256_sub_ps(dist2, _mm256_mul_ps(cos_i, cos_i)));
+            imp = _mm256_mul_ps(imp, cos_sub(sin_i, cos_i, inside));
         }
         let finite = _mm256_cmp_ps::<_CMP_LT_OQ>(abs(imp), splat(f32::INFINITY));
-        let imp = _mm256_and_ps(_mm256_and_ps(lit, finite), _mm256_max_ps(imp, zero));
-        let mut out = [0f32; 8];
-        _mm256_storeu_ps(out.as_mut_ptr(), imp);
-        out
+        _mm256_and_ps(_mm256_and_ps(lit, finite), _mm256_max_ps(imp, zero))
     }
 }
 
@@ -339,6 +321,15 @@ fn choose(imp: &[f32; WIDTH], u: f32) -> Option<(usize, f32, f32)> {
     }
     let t = u * total;
     let below: usize = running.iter().map(|&r| (!(t < r)) as usize).sum();
+    chosen(imp, &running, t, below)
+}
+
+/// What `choose` and `choose_avx` return once they have the running sums (total last) and
+/// `below`, the count of running sums not above `t = u · total`: that slot, its probability and
+/// `u` rescaled within its share.
+#[inline(always)]
+fn chosen(imp: &[f32; WIDTH], running: &[f32; WIDTH], t: f32, below: usize) -> Option<(usize, f32, f32)> {
+    let total = running[WIDTH - 1];
     if below < WIDTH {
         let x = imp[below];
         let before = if below == 0 { 0.0 } else { running[below - 1] };
@@ -347,6 +338,42 @@ fn choose(imp: &[f32; WIDTH], u: f32) -> Option<(usize, f32, f32)> {
     // Rounding left t at or past the sum: the last slot that has any importance.
     let last = imp.iter().rposition(|&x| x > 0.0)?;
     Some((last, imp[last] / total, 1.0 - f32::EPSILON))
+}
+
+/// `choose` on importances still in an AVX register, as the walk has them: the running sums by
+/// three shuffle-and-add steps, each lane the same two numbers added as in `running_sums`
+/// ([x0, s01, x2, s23, …], then lanes 2–3 and 6–7 add s01 and s45, then lanes 4–7 add s03; a
+/// lane with nothing to add adds +0, which leaves a non-negative sum unchanged), the slot by a
+/// compare, a mask and a bit count; the slot's share then comes from `chosen`, as `choose`'s
+/// does. Same slot, probability and rescaled `u` as `choose`, bit for bit
+/// (`choose_matches_running_search`); what it saves, on the path from one level's node to the
+/// next (the slot), is what `choose` compiled to there: the importances stored and reloaded as
+/// eight scalars, ten scalar additions and the lane inserts that rebuilt a vector for the compare.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[inline(always)]
+unsafe fn choose_avx(imp: std::arch::x86_64::__m256, u: f32) -> Option<(usize, f32, f32)> {
+    use std::arch::x86_64::*;
+    let zero = _mm256_setzero_ps();
+    // [x0, x0 + x1, x2, x2 + x3, x4, x4 + x5, x6, x6 + x7]
+    let pairs = _mm256_add_ps(imp, _mm256_blend_ps::<0b1010_1010>(zero, _mm256_permute_ps::<0b10_10_00_00>(imp)));
+    // Lanes 2–3 add lane 1 (s01), lanes 6–7 add lane 5 (s45).
+    let halves = _mm256_add_ps(pairs, _mm256_blend_ps::<0b1100_1100>(zero, _mm256_permute_ps::<0b01_01_00_00>(pairs)));
+    // Lanes 4–7 add lane 3 (s03): lane 3 of each half broadcast, the low half's moved up.
+    let s03 = _mm256_permute_ps::<0b11_11_11_11>(halves);
+    let running = _mm256_add_ps(halves, _mm256_permute2f128_ps::<0x08>(s03, s03));
+    let total = _mm_cvtss_f32(_mm_permute_ps::<0b11_11_11_11>(_mm256_extractf128_ps::<1>(running)));
+    if total.is_nan() || total <= 0.0 {
+        return None;
+    }
+    let t = u * total;
+    // !(t < r) in every lane: NLT, true for a NaN as `choose`'s negation is.
+    let not_below = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_NLT_UQ>(_mm256_set1_ps(t), running));
+    // The slot's share is off the path to the next node (only the rescaled u waits on it), so
+    // the lanes go through memory to the scalar code `choose` ends with.
+    let (mut imp_lanes, mut running_lanes) = ([0f32; WIDTH], [0f32; WIDTH]);
+    _mm256_storeu_ps(imp_lanes.as_mut_ptr(), imp);
+    _mm256_storeu_ps(running_lanes.as_mut_ptr(), running);
+    chosen(&imp_lanes, &running_lanes, t, not_below.count_ones() as usize)
 }
 
 impl LightTree {
@@ -472,10 +499,22 @@ impl LightTree {
     }
 
     /// Chooses a light for point `p`: (light index, probability).
-    pub fn sample(&self, p: Vec3, n: Option<Vec3>, mut u: f32) -> Option<(usize, f32)> {
+    pub fn sample(&self, p: Vec3, n: Option<Vec3>, u: f32) -> Option<(usize, f32)> {
+        #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+        if !self.scalar_reference {
+            // SAFETY: AVX2 is enabled at compile time; the family's loads are 32-byte aligned.
+            return self.walk(u, |at, u| unsafe { choose_avx(self.nodes[at].family.importance_avx(p, n), u) });
+        }
+        self.walk(u, |at, u| choose(&self.importances(at, p, n), u))
+    }
+
+    /// The walk from the root: `pick(node, u)` chooses a slot of `node` (slot, probability,
+    /// rescaled u) and the walk follows it to a light, multiplying the probabilities.
+    #[inline(always)]
+    fn walk(&self, mut u: f32, pick: impl Fn(usize, f32) -> Option<(usize, f32, f32)>) -> Option<(usize, f32)> {
         let (mut at, mut pmf) = (0usize, 1.0f32);
         loop {
-            let (slot, prob, rest) = choose(&self.importances(at, p, n), u)?;
+            let (slot, prob, rest) = pick(at, u)?;
             pmf *= prob;
             u = rest;
             match self.nodes[at].child[slot] {
@@ -577,8 +616,8 @@ mod tests {
     }
 
     /// `choose` picks the slot the running search picks, with the same probability and rescaled
-    /// `u` bit for bit: random importances with zeros, ties, tiny and huge values, and `u` at 0,
-    /// just below 1 and at the slot boundaries.
+    /// `u` bit for bit, and so does `choose_avx` (the walk's): random importances with zeros,
+    /// ties, tiny and huge values, and `u` at 0, just below 1 and at the slot boundaries.
     #[test]
     fn choose_matches_running_search() {
         let h = crate::sampler::hash_unit;
@@ -616,6 +655,12 @@ mod tests {
             }
             let (got, want) = (choose(&imp, u), choose_by_search(&imp, u));
             assert_eq!(bits(got), bits(want), "importances {imp:?}, u {u}");
+            #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+            {
+                // SAFETY: AVX2 is enabled at compile time; the load reads imp's eight floats.
+                let avx = unsafe { choose_avx(std::arch::x86_64::_mm256_loadu_ps(imp.as_ptr()), u) };
+                assert_eq!(bits(avx), bits(got), "AVX choose: importances {imp:?}, u {u}");
+            }
             if let Some((s, ..)) = got {
                 picked[s] += 1;
             }
@@ -696,6 +741,94 @@ mod tests {
             assert_eq!(family.1, scalar.1, "point {k}");
         }
         assert!(compared > 500_000 && nonzero > compared / 4, "{compared} compared, {nonzero} non-zero");
+    }
+
+    /// pbrt-v4's `LightBounds::Importance`, step for step as it is written there (normalise
+    /// p − c, √(1 − cos²) for every sine), in f64: what `LightBounds::importance`'s d-scaled
+    /// rearrangement must equal.
+    fn pbrt_importance(b: &LightBounds, p: Vec3, n: Option<Vec3>) -> (f64, f64) {
+        let f = |v: Vec3| [v.x as f64, v.y as f64, v.z as f64];
+        let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+        let sqrt0 = |x: f64| x.max(0.0).sqrt();
+        let cos_sub = |sa: f64, ca: f64, sb: f64, cb: f64| if ca > cb { 1.0 } else { ca * cb + sa * sb };
+        let sin_sub = |sa: f64, ca: f64, sb: f64, cb: f64| if ca > cb { 0.0 } else { sa * cb - ca * sb };
+        let (lo, hi, p) = (f(b.min), f(b.max), f(p));
+        let pc = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0, (lo[2] + hi[2]) / 2.0];
+        let v = [p[0] - pc[0], p[1] - pc[1], p[2] - pc[2]];
+        let diag = [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]];
+        let r = dot(diag, diag).sqrt() / 2.0;
+        let d2 = dot(v, v);
+        let len = d2.sqrt();
+        let wi = [v[0] / len, v[1] / len, v[2] / len];
+        let mut cos_w = dot(f(b.w), wi);
+        if b.two_sided {
+            cos_w = cos_w.abs();
+        }
+        let sin_w = sqrt0(1.0 - cos_w * cos_w);
+        let cos_b = if d2 < r * r { -1.0 } else { sqrt0(1.0 - r * r / d2) };
+        let sin_b = sqrt0(1.0 - cos_b * cos_b);
+        let cos_o = b.cos_theta_o as f64;
+        let sin_o = sqrt0(1.0 - cos_o * cos_o);
+        let cos_x = cos_sub(sin_w, cos_w, sin_o, cos_o);
+        let sin_x = sin_sub(sin_w, cos_w, sin_o, cos_o);
+        let cos_p = cos_sub(sin_x, cos_x, sin_b, cos_b);
+        let mut importance = b.phi as f64 * cos_p / d2.max(r);
+        if let Some(n) = n {
+            let cos_i = dot(wi, f(n)).abs();
+            importance *= cos_sub(sqrt0(1.0 - cos_i * cos_i), cos_i, sin_b, cos_b);
+        }
+        // The culling test's margin: how far cos θp is from the cut at cos θe.
+        (if cos_p <= b.cos_theta_e as f64 { 0.0 } else { importance.max(0.0) }, cos_p - b.cos_theta_e as f64)
+    }
+
+    /// `LightBounds::importance` (whose d-scaled steps the AVX family repeats bit for bit) is
+    /// pbrt-v4's bound: within f32 rounding of the literal f64 steps on random bounds of every
+    /// kind (cones from a ray to the full sphere, two-sided, points inside the bounds, normals
+    /// and none), and zero exactly where pbrt's is, away from the cut's edge.
+    #[test]
+    fn importance_is_pbrts_bound() {
+        let u = crate::sampler::hash_unit;
+        let v = |i: u64| Vec3::new(u(i), u(i + 1), u(i + 2)) * 2.0 - 1.0;
+        let (mut checked, mut lit, mut culled) = (0usize, 0usize, 0usize);
+        for i in 0..200_000u64 {
+            let c = v(20 * i) * 4.0;
+            let ext = match i % 4 {
+                0 => Vec3::ZERO,
+                1 => Vec3::splat(0.01),
+                _ => (v(20 * i + 3) + 1.0) * 0.5,
+            };
+            let b = LightBounds {
+                min: c - ext,
+                max: c + ext,
+                phi: 0.1 + u(20 * i + 9) * 10.0,
+                w: v(20 * i + 6).normalize_or(Vec3::Y),
+                // A full sphere, a triangle's cone (its normal alone), or anything between.
+                cos_theta_o: match i % 5 {
+                    0 => -1.0,
+                    1 => 1.0,
+                    _ => u(20 * i + 10) * 2.0 - 1.0,
+                },
+                cos_theta_e: if i % 3 == 0 { 0.0 } else { u(20 * i + 11) - 1.0 },
+                two_sided: i % 7 == 0,
+            };
+            let p = v(20 * i + 12) * 5.0;
+            let n = (i % 3 != 0).then(|| v(20 * i + 15).normalize_or(Vec3::Z));
+            let (want, margin) = pbrt_importance(&b, p, n);
+            if margin.abs() < 1e-3 {
+                continue; // at the cut, f32 rounding may fall either side
+            }
+            let got = b.importance(p, n) as f64;
+            // Errors are relative to the unculled power / distance² (a cosine factor near 0 has
+            // an absolute error of about √ε from √(d² − (w·v)²)).
+            let d2 = (p - b.centroid()).length_squared() as f64;
+            let scale = b.phi as f64 / d2.max(((b.max - b.min).length() / 2.0) as f64);
+            assert!((got - want).abs() <= 2e-3 * scale, "bounds {b:?}, p {p}, n {n:?}: {got} vs pbrt {want}");
+            assert_eq!(got == 0.0, want == 0.0, "bounds {b:?}, p {p}, n {n:?}: {got} vs pbrt {want}");
+            checked += 1;
+            lit += (want > 0.0) as usize;
+            culled += (want == 0.0) as usize;
+        }
+        assert!(checked > 190_000 && lit > checked / 3 && culled > checked / 20, "{checked} {lit} {culled}");
     }
 
     /// The node sizes (416 bytes a family, 480 a node); and the collapse: every light in exactly

@@ -50,6 +50,11 @@ impl Proc {
     pub fn pid(&self) -> u32 {
         self.child.id()
     }
+    /// Sends a signal by name (`STOP`, `CONT`) with kill(1).
+    pub fn signal(&self, sig: &str) {
+        let ok = Command::new("kill").arg(format!("-{sig}")).arg(self.pid().to_string()).status().map(|s| s.success());
+        assert!(matches!(ok, Ok(true)), "kill -{sig} {} failed", self.pid());
+    }
 }
 
 impl Drop for Proc {
@@ -146,6 +151,39 @@ impl Farm {
                 .then_some(())
                 .ok_or_else(|| format!("{n} workers did not register"))
         });
+    }
+
+    /// The units the coordinator says worker `i` (named `worker{i}`) holds now.
+    pub fn units_held_by(&self, i: usize) -> Result<usize, String> {
+        let w = self.api("/workers")?;
+        let name = format!("worker{i}");
+        let me = w["workers"].as_array().into_iter().flatten().find(|x| x["name"] == name.as_str());
+        let me = me.ok_or_else(|| format!("{name} is not listed: {w}"))?;
+        Ok(me["current_units"].as_array().map_or(0, |u| u.len()))
+    }
+
+    /// Kills worker `i` with SIGKILL at a moment it holds a lease, so a test of lease expiry cannot
+    /// race the worker's own result. Polling and then killing can: a unit returned between the
+    /// poll and the kill leaves the dead worker holding nothing (it happened in CI). So the worker
+    /// is frozen first (SIGSTOP: no more results or heartbeats), and killed only if, once anything
+    /// it had already sent has been taken in, the coordinator still counts a unit as its;
+    /// otherwise it is thawed and tried again once it holds one.
+    pub fn kill_worker_holding_a_lease(&mut self, i: usize) {
+        let t = Instant::now();
+        loop {
+            self.workers[i].signal("STOP");
+            std::thread::sleep(Duration::from_millis(300));
+            if self.units_held_by(i).unwrap_or(0) > 0 {
+                self.workers[i].kill9();
+                return;
+            }
+            self.workers[i].signal("CONT");
+            assert!(t.elapsed() < Duration::from_secs(60), "worker{i} never held a lease when frozen");
+            poll(Duration::from_secs(30), || match self.units_held_by(i)? {
+                0 => Err(format!("worker{i} holds no unit")),
+                _ => Ok(()),
+            });
+        }
     }
 
     /// Runs the CLI against this farm; returns (exit code, stdout, stderr).

@@ -125,8 +125,8 @@ fn a_killed_worker_units_are_re_leased() {
     let doomed = farm.start_worker(1);
     farm.start_worker(1);
     farm.wait_workers(2);
-    // Longer units (64-sample passes) leave a worker idle between units only ~2 % of the time, and
-    // the kill waits until both workers hold a lease, so the dead worker almost surely dies holding one.
+    // The kill waits until both workers are at work, and freezes the doomed one until it is seen
+    // holding a lease (`kill_worker_holding_a_lease`), so it dies holding one.
     let scene = cornell();
     let mut args = vec!["submit", scene.to_str().unwrap()];
     args.extend_from_slice(SETTINGS);
@@ -138,7 +138,7 @@ fn a_killed_worker_units_are_re_leased() {
         j["progress"]["units_done"].as_u64().unwrap_or(0) >= 2
             && j["progress"]["units_leased"].as_u64().unwrap_or(0) == 2
     });
-    farm.workers[doomed].kill9();
+    farm.kill_worker_holding_a_lease(doomed);
     // The dead worker is listed as offline (not "last seen N s" forever), the live one is not.
     poll(Duration::from_secs(30), || {
         let w = farm.api("/workers")?;
@@ -361,7 +361,7 @@ fn a_shot_on_two_workers_one_killed_gives_the_local_frames_byte_for_byte() {
             Err(format!("{leased} units leased"))
         }
     });
-    farm.workers[doomed].kill9();
+    farm.kill_worker_holding_a_lease(doomed);
     let j = farm.wait_job(&shot, Duration::from_secs(240), |j| j["state"] == "done");
     assert_eq!(j["frames"]["done"], 4, "{j}");
     // Per-frame download through the CLI, as a frame pattern.

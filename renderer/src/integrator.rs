@@ -92,7 +92,8 @@ pub fn radiance(
             break;
         };
         let sp = scene.surface_point(&hit);
-        let material = &materials[mesh.triangles[hit.triangle as usize].material as usize];
+        let material_id = mesh.triangles[hit.triangle as usize].material;
+        let material = &materials[material_id as usize];
         if medium != Vec3::ZERO {
             // Beer–Lambert over the segment's real length (from the vertex, not `o`, which
             // transparent layers may have moved).
@@ -163,7 +164,7 @@ pub fn radiance(
                 break;
             }
         }
-        let mut bsdf = material.bsdf(textures, sp.uv, sp.color);
+        let mut bsdf = scene.bsdf(material_id, &sp);
         if let Some(coat) = bsdf.coat.as_mut() {
             // The coat's normal: its own normal map on the interpolated vertex normal, or that
             // normal alone (not the base's mapped one: KHR_materials_clearcoat), in the shading frame.

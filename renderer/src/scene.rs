@@ -2,6 +2,7 @@
 //! lights and cameras. Built once per job; everything here is read-only while rendering.
 
 use crate::accel::{Accel, Hit};
+use crate::bsdf::Bsdf;
 use crate::camera::Camera;
 use crate::light::LightSet;
 use crate::material::{AlphaMode, Material};
@@ -22,6 +23,8 @@ pub struct Scene {
     pub bounds: (Vec3, Vec3),
     /// Some material is MASK or BLEND (computed once: it is asked on every ray).
     transparent: bool,
+    /// Per material, its BSDF when no texture feeds it ([`Material::uniform_bsdf`]).
+    uniform_bsdfs: Vec<Option<Bsdf>>,
     /// What the loader could not honour but rendered without (optional extensions), for the user.
     pub warnings: Vec<String>,
     /// The file's `asset.generator` (decides `--light-units auto`).
@@ -47,6 +50,7 @@ impl Scene {
         let lights = LightSet::build(&mesh, &materials, &textures, Vec::new(), None, (max - min).length() * 0.5);
         tracing::debug!(triangles = mesh.triangles.len(), lights = lights.lights.len(), "scene built");
         let transparent = materials.iter().any(|m| m.alpha_mode != AlphaMode::Opaque);
+        let uniform_bsdfs = materials.iter().map(Material::uniform_bsdf).collect();
         Scene {
             mesh,
             materials,
@@ -56,6 +60,7 @@ impl Scene {
             lights,
             bounds: (min, max),
             transparent,
+            uniform_bsdfs,
             warnings: Vec::new(),
             animator: None,
             time: 0.0,
@@ -300,6 +305,17 @@ impl Scene {
         }
     }
 
+    /// The BSDF of material `material` at `sp`: the scene's precomputed one when nothing varies it
+    /// there (no texture, no vertex colour: multiplying by a colour of ones is exact, so the two
+    /// are the same bits), else resolved from the textures.
+    #[inline]
+    pub fn bsdf(&self, material: u32, sp: &crate::mesh::SurfacePoint) -> Bsdf {
+        match self.uniform_bsdfs.get(material as usize) {
+            Some(Some(b)) if sp.color == crate::math::Vec4::ONE => *b,
+            _ => self.materials[material as usize].bsdf(&self.textures, sp.uv, sp.color),
+        }
+    }
+
     /// The first surface along the ray that stops it: MASK cut-outs are skipped, BLEND surfaces stop
     /// the ray with probability alpha, decided by `seed` (a pure function of the sample, so the
     /// determinism rule holds).
@@ -364,5 +380,34 @@ impl Scene {
             Some(i) => self.cameras.get(i).copied().ok_or((i, self.cameras.len())),
             None => Ok(self.cameras.first().copied().unwrap_or_else(|| Camera::framing(self.bounds.0, self.bounds.1))),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::material::Material;
+    use crate::math::{Vec3, Vec4};
+    use crate::testing::SceneBuilder;
+
+    /// `Scene::bsdf` takes the precomputed BSDF only where the surface has no vertex colour: a
+    /// coloured point gets the material's BSDF with that colour, an uncoloured one the same bits
+    /// as resolving it there.
+    #[test]
+    fn scene_bsdf_honours_vertex_colour() {
+        let mut b = SceneBuilder::default();
+        let m =
+            b.material(Material { base_color: Vec4::new(0.8, 0.6, 0.4, 1.0), roughness: 0.3, ..Material::default() });
+        b.triangles(&[Vec3::ZERO, Vec3::X, Vec3::Y], &[[0, 1, 2]], m);
+        let scene = b.build();
+        let mut sp = scene.mesh.surface_point(0, 0.25, 0.25);
+        let material = &scene.materials[m as usize];
+        assert_eq!(
+            format!("{:?}", scene.bsdf(m, &sp)),
+            format!("{:?}", material.bsdf(&scene.textures, sp.uv, sp.color))
+        );
+        sp.color = Vec4::new(0.5, 1.0, 0.25, 1.0);
+        let coloured = scene.bsdf(m, &sp);
+        assert_eq!(format!("{coloured:?}"), format!("{:?}", material.bsdf(&scene.textures, sp.uv, sp.color)));
+        assert_eq!(coloured.base_color, Vec3::new(0.4, 0.6, 0.1));
     }
 }

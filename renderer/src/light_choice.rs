@@ -90,12 +90,12 @@ fn camera_points(scene: &Scene, view: Option<(Camera, u32, u32)>) -> Vec<PilotPo
         let d = camera.ray_direction(film, w, h);
         let Some(hit) = scene.intersect(camera.origin, d, f32::INFINITY) else { continue };
         let sp = scene.surface_point(&hit);
-        let m = &scene.materials[scene.mesh.triangles[hit.triangle as usize].material as usize];
-        if m.is_emissive() {
+        let material = scene.mesh.triangles[hit.triangle as usize].material;
+        if scene.materials[material as usize].is_emissive() {
             continue;
         }
         let n = if sp.ng.dot(d) < 0.0 { sp.ng } else { -sp.ng };
-        let bsdf = m.bsdf(&scene.textures, sp.uv, sp.color);
+        let bsdf = scene.bsdf(material, &sp);
         if bsdf.is_delta_only() {
             continue;
         }

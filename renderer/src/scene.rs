@@ -15,6 +15,7 @@ use crate::texture::Texture;
 
 pub struct Scene {
     pub mesh: Mesh,
+    /// Fixed once the scene is built: `transparent` and `uniform_bsdfs` are derived from it there.
     pub materials: Vec<Material>,
     pub textures: Vec<Texture>,
     pub cameras: Vec<Camera>,
@@ -400,6 +401,7 @@ mod tests {
         b.triangles(&[Vec3::ZERO, Vec3::X, Vec3::Y], &[[0, 1, 2]], m);
         let scene = b.build();
         let mut sp = scene.mesh.surface_point(0, 0.25, 0.25);
+        assert_eq!(sp.color, Vec4::ONE, "an uncoloured point, so the precomputed BSDF is the one compared");
         let material = &scene.materials[m as usize];
         assert_eq!(
             format!("{:?}", scene.bsdf(m, &sp)),

@@ -153,13 +153,17 @@ impl Farm {
         });
     }
 
-    /// The units the coordinator says worker `i` (named `worker{i}`) holds now.
-    pub fn units_held_by(&self, i: usize) -> Result<usize, String> {
+    /// Worker `i`'s entry in `GET /workers` (workers are started as `worker{i}`).
+    pub fn worker(&self, i: usize) -> Result<Value, String> {
         let w = self.api("/workers")?;
         let name = format!("worker{i}");
         let me = w["workers"].as_array().into_iter().flatten().find(|x| x["name"] == name.as_str());
-        let me = me.ok_or_else(|| format!("{name} is not listed: {w}"))?;
-        Ok(me["current_units"].as_array().map_or(0, |u| u.len()))
+        me.cloned().ok_or_else(|| format!("{name} is not listed: {w}"))
+    }
+
+    /// The units the coordinator says worker `i` holds now.
+    pub fn units_held_by(&self, i: usize) -> Result<usize, String> {
+        Ok(self.worker(i)?["current_units"].as_array().map_or(0, |u| u.len()))
     }
 
     /// Kills worker `i` with SIGKILL at a moment it holds a lease, so a test of lease expiry cannot

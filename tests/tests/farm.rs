@@ -141,13 +141,11 @@ fn a_killed_worker_units_are_re_leased() {
     farm.kill_worker_holding_a_lease(doomed);
     // The dead worker is listed as offline (not "last seen N s" forever), the live one is not.
     poll(Duration::from_secs(30), || {
-        let w = farm.api("/workers")?;
-        let state = |name: &str| {
-            w["workers"].as_array().into_iter().flatten().find(|x| x["name"] == name).map(|x| x["state"].clone())
-        };
-        match (state(&format!("worker{doomed}")), state(&format!("worker{}", 1 - doomed))) {
-            (Some(d), Some(l)) if d == "offline" && l != "offline" => Ok(()),
-            other => Err(format!("worker states {other:?}")),
+        let (d, l) = (farm.worker(doomed)?["state"].clone(), farm.worker(1 - doomed)?["state"].clone());
+        if d == "offline" && l != "offline" {
+            Ok(())
+        } else {
+            Err(format!("worker states: dead {d}, live {l}"))
         }
     });
     let j = farm.wait_job(&id, Duration::from_secs(180), |j| j["state"] == "done");

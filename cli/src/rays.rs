@@ -126,6 +126,28 @@ fn run_scene(a: &RaysArgs, path: &Path) -> Result<()> {
             median(closest),
             median(occluded)
         );
+        if kind == AccelKind::Obvhs {
+            let mut paired = Vec::new();
+            let mut same = true;
+            for run in 0..=a.runs {
+                let t = Instant::now();
+                let mut n = 0usize;
+                for i in (0..origins.len() - 1).step_by(2) {
+                    let h = accel.intersect_pair([origins[i], origins[i + 1]], [dirs[i], dirs[i + 1]], f32::INFINITY);
+                    n += h.iter().filter(|h| h.is_some()).count();
+                    if run == 0 {
+                        let r0 = accel.intersect(origins[i], dirs[i], f32::INFINITY).map(|h| (h.t, h.triangle));
+                        same &= r0 == h[0].map(|h| (h.t, h.triangle));
+                    }
+                }
+                let secs = t.elapsed().as_secs_f64();
+                if run > 0 {
+                    paired.push(origins.len() as f64 / secs / 1e6);
+                }
+                std::hint::black_box(n);
+            }
+            println!("{:<16} {:>10} {:>16.3} {:>16}  (same hits: {same})", "obvhs paired", "", median(paired), "");
+        }
     }
     Ok(())
 }
@@ -221,6 +243,23 @@ pub fn run(a: RaysArgs) -> Result<()> {
                 String::new()
             }
         );
+        if kind == AccelKind::Obvhs || kind == AccelKind::ObvhsCompressed {
+            let mut paired = Vec::new();
+            for run in 0..=a.runs {
+                let t = Instant::now();
+                let mut n = 0usize;
+                for i in (0..origins.len() - 1).step_by(2) {
+                    let h = accel.intersect_pair([origins[i], origins[i + 1]], [dirs[i], dirs[i + 1]], f32::INFINITY);
+                    n += h.iter().filter(|h| h.is_some()).count();
+                }
+                let secs = t.elapsed().as_secs_f64();
+                if run > 0 {
+                    paired.push(origins.len() as f64 / secs / 1e6);
+                }
+                std::hint::black_box(n);
+            }
+            println!("{:<16} {:>10} {:>16.3}", "  paired", "", median(paired));
+        }
         if kind == AccelKind::Obvhs {
             closest_t = ts;
         }

@@ -127,30 +127,87 @@ impl TraversalNode for WideNode {
 fn traverse_closest<N: TraversalNode>(
     nodes: &[N],
     stack: &mut [MaybeUninit<Deferred>],
-    mut ray: BvhRay,
+    ray: BvhRay,
     mut group: impl FnMut(&BvhRay, usize, u32) -> f32,
 ) {
     if nodes.is_empty() {
         return;
     }
-    let oct_inv4 = octant_inv4(ray.direction);
-    let oct = oct_inv4 & 7;
-    let inv_far = crate::wide_node::far_inverse(&ray);
-    let (mut sp, mut current) = (0usize, 0u32);
-    loop {
-        let node = &nodes[current as usize];
-        let (hits, entry) = node.test(&ray, inv_far, oct_inv4);
+    let mut walk = ClosestWalk::new(ray);
+    while walk.step(nodes, stack, &mut group) {}
+}
+
+/// [`traverse_closest`] for two rays at once, a node of each in turn: the two walks are
+/// independent chains of loads and tests, so the core can overlap one's latency with the other's.
+#[inline(always)]
+fn traverse_closest_pair<N: TraversalNode>(
+    nodes: &[N],
+    stacks: (&mut [MaybeUninit<Deferred>], &mut [MaybeUninit<Deferred>]),
+    rays: (BvhRay, BvhRay),
+    mut group_a: impl FnMut(&BvhRay, usize, u32) -> f32,
+    mut group_b: impl FnMut(&BvhRay, usize, u32) -> f32,
+) {
+    if nodes.is_empty() {
+        return;
+    }
+    let (stack_a, stack_b) = stacks;
+    let mut a = ClosestWalk::new(rays.0);
+    let mut b = ClosestWalk::new(rays.1);
+    let (mut live_a, mut live_b) = (true, true);
+    while live_a && live_b {
+        live_a = a.step(nodes, stack_a, &mut group_a);
+        live_b = b.step(nodes, stack_b, &mut group_b);
+    }
+    while live_a {
+        live_a = a.step(nodes, stack_a, &mut group_a);
+    }
+    while live_b {
+        live_b = b.step(nodes, stack_b, &mut group_b);
+    }
+}
+
+/// One ray's closest-hit traversal ([`traverse_closest`]) as a state advanced a node at a time.
+/// (The stack stays outside the state: a borrowed slice inside it kept LLVM from holding the
+/// state in registers, 1.7 % more instructions per render.)
+struct ClosestWalk {
+    ray: BvhRay,
+    inv_far: Vec3A,
+    oct_inv4: u32,
+    sp: usize,
+    current: u32,
+}
+
+impl ClosestWalk {
+    #[inline(always)]
+    fn new(ray: BvhRay) -> Self {
+        let oct_inv4 = octant_inv4(ray.direction);
+        let inv_far = crate::wide_node::far_inverse(&ray);
+        ClosestWalk { ray, inv_far, oct_inv4, sp: 0, current: 0 }
+    }
+
+    /// Visits the current node and picks the next; false when no node is left to visit.
+    #[inline(always)]
+    fn step<N: TraversalNode>(
+        &mut self,
+        nodes: &[N],
+        stack: &mut [MaybeUninit<Deferred>],
+        group: &mut impl FnMut(&BvhRay, usize, u32) -> f32,
+    ) -> bool {
+        let oct = self.oct_inv4 & 7;
+        let node = &nodes[self.current as usize];
+        let (hits, entry) = node.test(&self.ray, self.inv_far, self.oct_inv4);
         let prims = hits & 0x00ff_ffff;
         if prims != 0 {
-            let t = group(&ray, node.links().1 as usize, prims);
-            if t < ray.tmax {
-                ray.tmax = t;
+            let t = group(&self.ray, node.links().1 as usize, prims);
+            if t < self.ray.tmax {
+                self.ray.tmax = t;
             }
         }
         // Inner children hit: bit 24 + p of the mask is the child in slot p ^ octant. Each is
         // inserted into this node's run at the top of the stack, farthest deepest.
         let mut inner = hits >> 24;
-        let run = sp;
+        let run = self.sp;
+        let mut sp = self.sp;
         while inner != 0 && sp < stack.len() {
             let slot = inner.trailing_zeros() ^ oct;
             inner &= inner - 1;
@@ -167,14 +224,16 @@ fn traverse_closest<N: TraversalNode>(
         // Next: the nearest deferred child that begins before the closest hit so far.
         loop {
             if sp == 0 {
-                return;
+                self.sp = 0;
+                return false;
             }
             sp -= 1;
             // SAFETY: as above.
             let d = unsafe { stack[sp].assume_init() };
-            if d.entry <= ray.tmax {
-                current = d.node;
-                break;
+            if d.entry <= self.ray.tmax {
+                self.current = d.node;
+                self.sp = sp;
+                return true;
             }
         }
     }
@@ -590,6 +649,46 @@ impl Accel {
         best.map(|(t, slot, b1, b2)| Hit { t, triangle: self.tris.ids[slot], b1, b2, instance: NO_INSTANCE })
     }
 
+    /// [`Self::intersect`] for two rays at once (interleaved traversal, the same hits).
+    pub fn intersect_pair(&self, o: [Vec3; 2], d: [Vec3; 2], tmax: f32) -> [Option<Hit>; 2] {
+        let (oa, da) = (o.map(Vec3A::from), d.map(Vec3A::from));
+        if self.top.is_some()
+            || self.own.is_some()
+            || self.tris.is_empty()
+            || !(oa[0].is_finite() && oa[1].is_finite() && da[0].is_finite() && da[1].is_finite())
+        {
+            return [self.intersect(o[0], d[0], tmax), self.intersect(o[1], d[1], tmax)];
+        }
+        let rays = (BvhRay::new(oa[0], da[0], 0.0, tmax), BvhRay::new(oa[1], da[1], 0.0, tmax));
+        let wrays = [WatertightRay::new(oa[0], da[0]), WatertightRay::new(oa[1], da[1])];
+        let mut best: [Option<(f32, usize, f32, f32)>; 2] = [None, None];
+        let [best_a, best_b] = &mut best;
+        let group =
+            |wray: &WatertightRay, best: &mut Option<(f32, usize, f32, f32)>, r: &BvhRay, base: usize, mask: u32| {
+                let (mut bound, mut mask) = (r.tmax, mask);
+                while mask != 0 {
+                    let (start, lanes) = next_window(base, &mut mask);
+                    if let Some(h) = self.tris.intersect8(wray, start, lanes, bound) {
+                        bound = h.0;
+                        *best = Some(h);
+                    }
+                }
+                bound
+            };
+        with_stack(self.stack_len, |sa| {
+            with_stack(self.stack_len, |sb| {
+                let ga = |r: &BvhRay, base, mask| group(&wrays[0], best_a, r, base, mask);
+                let gb = |r: &BvhRay, base, mask| group(&wrays[1], best_b, r, base, mask);
+                if self.wide.is_empty() {
+                    traverse_closest_pair(&self.bvh.nodes, (sa, sb), rays, ga, gb)
+                } else {
+                    traverse_closest_pair(&self.wide, (sa, sb), rays, ga, gb)
+                }
+            })
+        });
+        best.map(|b| b.map(|(t, slot, b1, b2)| Hit { t, triangle: self.tris.ids[slot], b1, b2, instance: NO_INSTANCE }))
+    }
+
     /// Whether any leaf triangle of the group (`traverse_any`) lies on the ray before `tmax`.
     #[inline(always)]
     fn any_in_group(&self, wray: &WatertightRay, base: usize, mask: u32, tmax: f32) -> bool {
@@ -724,6 +823,48 @@ mod tests {
         }
         eprintln!("{hits} hits, {ties} ties on shared edges");
         assert!(hits > 30_000, "the test rays must hit ({hits})");
+    }
+
+    /// Two rays traversed interleaved find what each finds alone, bit for bit, with compressed and
+    /// wide nodes and a heap stack, and where a ray ends (tmax) or leaves everything early.
+    #[test]
+    fn paired_traversal_finds_each_rays_own_hit() {
+        let mut b = crate::testing::SceneBuilder::default();
+        let m = b.material(crate::testing::lambert(Vec3::splat(0.5)));
+        b.sphere(Vec3::ZERO, 6.0, 3, true, m);
+        for k in 0..12u64 {
+            let u = |j: u64| crate::sampler::hash_unit(16 * k + j);
+            let c = Vec3::new(u(0), u(1), u(2)) * 6.0 - 3.0;
+            b.sphere(c, 0.2 + u(3), 2 + (k % 3) as u32, false, m);
+        }
+        let all = (0..b.mesh.triangles.len() as u32).collect::<Vec<_>>();
+        let key = |h: Option<Hit>| h.map(|h| (h.t.to_bits(), h.triangle, h.b1.to_bits(), h.b2.to_bits()));
+        let mut hits = 0usize;
+        for (kind, heap) in [(AccelKind::ObvhsCompressed, false), (AccelKind::Obvhs, false), (AccelKind::Obvhs, true)] {
+            let mut accel = Accel::build_triangles(&b.mesh, all.clone(), kind);
+            if heap {
+                accel.stack_len = STACK + 1;
+            }
+            let ray = |i: u64| {
+                let u = |j: u64| crate::sampler::hash_unit(8 * i + j);
+                // Every third ray starts outside the enclosing sphere pointing away: it ends at
+                // the root while its partner walks on.
+                let o = Vec3::new(u(0), u(1), u(2)) * 8.0 - 4.0;
+                let o = if i.is_multiple_of(3) { o.normalize_or_zero() * 20.0 } else { o };
+                let d = if i.is_multiple_of(3) { o } else { Vec3::new(u(3), u(4), u(5)) * 2.0 - 1.0 };
+                (o, d)
+            };
+            for i in 0..10_000u64 {
+                let ((oa, da), (ob, db)) = (ray(2 * i), ray(2 * i + 1));
+                let tmax = if i % 4 == 0 { 3.0 * crate::sampler::hash_unit(7 * i) } else { f32::INFINITY };
+                let got = accel.intersect_pair([oa, ob], [da, db], tmax);
+                let want = [accel.intersect(oa, da, tmax), accel.intersect(ob, db, tmax)];
+                assert_eq!(key(got[0]), key(want[0]), "pair {i}, first ray ({kind:?}, heap {heap})");
+                assert_eq!(key(got[1]), key(want[1]), "pair {i}, second ray ({kind:?}, heap {heap})");
+                hits += want.iter().filter(|h| h.is_some()).count();
+            }
+        }
+        assert!(hits > 25_000, "the test rays must hit ({hits})");
     }
 
     /// Windows cover exactly the slots a group names, block-aligned, highest block first.

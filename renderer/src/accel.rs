@@ -349,6 +349,13 @@ fn build_params(n: usize) -> obvhs::BvhBuildParams {
     }
 }
 
+/// Above this many triangles (a one-level BVH) renders trace two paths' closest-hit rays together
+/// ([`Accel::intersect_pair`]): there the walks wait on memory and two overlap their misses
+/// (`tessera bench rays`: +13 % to +33 % closest-hit rays/s at 327 680 and 1 310 720
+/// triangles); below, the BVH stays in cache and pairing costs more than it saves (−2 % to −21 %
+/// on the suite's scenes of 2 500 to 30 000 triangles). ARCHITECTURE.md has the figures.
+pub const PAIR_RAYS_ABOVE: usize = WIDE_NODES_UP_TO;
+
 /// See [`build_params`].
 pub const LARGE_BUILD: usize = 4_000_000;
 
@@ -425,6 +432,8 @@ pub struct Accel {
     /// Test leaf triangles one at a time (`TriangleBlocks::intersect8_scalar`): the reference the
     /// eight-wide test is held to (same hits, same images), off except in tests.
     scalar_reference: bool,
+    /// Renders trace two paths' rays together ([`Accel::pairs_rays`]).
+    pair_rays: bool,
     own: Option<crate::bvh::Bvh>,
     /// Set when the scene has instances (then `bvh`, `tris` and `own` are empty).
     top: Option<Box<TopLevel>>,
@@ -456,6 +465,7 @@ impl Accel {
                 stack_len: 0,
                 tris: TriangleBlocks::default(),
                 scalar_reference: false,
+                pair_rays: false,
                 own: Some(crate::bvh::Bvh::build(tris)),
                 top: None,
             };
@@ -480,7 +490,8 @@ impl Accel {
             bvh.primitive_indices.iter().map(|&k| RtTriangle::new(mesh.vertices(ids[k as usize]), ids[k as usize])),
         );
         let (bvh, wide) = decompress(bvh, prims.len(), kind.wide_up_to());
-        Accel { stack_len, bvh, wide, kind, tris, scalar_reference: false, own: None, top: None }
+        let pair_rays = prims.len() > PAIR_RAYS_ABOVE;
+        Accel { stack_len, bvh, wide, kind, tris, scalar_reference: false, pair_rays, own: None, top: None }
     }
 
     /// After an animation moved instances or world vertices: a new top level over the prototype
@@ -647,6 +658,18 @@ impl Accel {
             bound
         });
         best.map(|(t, slot, b1, b2)| Hit { t, triangle: self.tris.ids[slot], b1, b2, instance: NO_INSTANCE })
+    }
+
+    /// Whether renders should trace two paths' rays together ([`PAIR_RAYS_ABOVE`]; only a
+    /// one-level obvhs BVH pairs).
+    pub fn pairs_rays(&self) -> bool {
+        self.pair_rays && self.top.is_none() && self.own.is_none() && !self.tris.is_empty()
+    }
+
+    /// Overrides [`Self::pairs_rays`]' size rule (tests hold paired renders to single ones on
+    /// small scenes; images are the same either way).
+    pub fn set_pair_rays(&mut self, on: bool) {
+        self.pair_rays = on;
     }
 
     /// [`Self::intersect`] for two rays at once (interleaved traversal, the same hits).

@@ -6,6 +6,7 @@
 //! reaches `rr_depth` and is based on the path throughput times the η² of the transmissions so far
 //! (radiance scaling at glass boundaries is not energy the path will lose).
 
+use crate::accel::Hit;
 use crate::light::emitted;
 use crate::math::{balance_heuristic, offset_ray_origin, power_heuristic, Frame, Vec2, Vec3, SHADOW_EPSILON};
 use crate::sampler::{dims, PixelSample};
@@ -25,112 +26,203 @@ fn mis_weight(h: MisHeuristic, f: f32, g: f32) -> f32 {
 pub fn radiance(
     scene: &Scene,
     settings: &RenderSettings,
-    mut o: Vec3,
-    mut d: Vec3,
+    o: Vec3,
+    d: Vec3,
     sampler: &PixelSample,
     rays: &mut u64,
 ) -> Vec3 {
-    let mut l = Vec3::ZERO;
-    let mut beta = Vec3::ONE;
-    // The previous vertex and its BSDF pdf, when the last bounce was not a delta event (camera rays
-    // and mirror bounces leave it None: NEE cannot have sampled what they hit).
-    let mut prev: Option<(Vec3, Vec3, f32)> = None;
-    let (mesh, materials, textures) = (&scene.mesh, &scene.materials, &scene.textures);
-    let mut depth = 0u32;
-    // Absorption coefficient of the medium the path is in (KHR_materials_volume): set when a
-    // transmission enters a mesh through its front face, cleared when one leaves. Meshes are taken
-    // as closed and not nested (a path inside two absorbing meshes at once sees the inner one).
-    let mut medium = Vec3::ZERO;
-    // Product of η² over the transmissions so far: radiance crossing into glass is divided by η²
-    // (dielectric.rs), which says nothing about how much the path will carry once it leaves again,
-    // so Russian roulette looks at beta·eta_scale (pbrt-v4 §13.4.3 `etaScale`; Mitsuba's `eta`).
-    // Without it, paths inside glass were killed with probability 1 − 1/η² = 56 % at ior 1.5 and
-    // the survivors came back out 2.25× brighter: fireflies.
-    let mut eta_scale = 1.0f32;
-    // Whether a bounce draws its light-sampling set (NEE; the stochastic-transparency bits share it).
-    let draws_light_set =
-        (settings.integrator != IntegratorKind::Bsdf && !scene.lights.is_empty()) || scene.has_transparency();
-    loop {
+    let mut path = Path::new(scene, settings, o, d);
+    path.run(scene, settings, sampler, rays);
+    path.l
+}
+
+/// [`radiance`] for two samples at once: both paths' rays go to the BVH together
+/// ([`Scene::intersect_surface_pair`]) while both live, and each path does exactly the arithmetic
+/// it does alone, so each result is bit-equal to its own [`radiance`]. Pays where the BVH misses
+/// cache and two traversals overlap their waits ([`Scene::pairs_rays`]).
+pub fn radiance_pair(
+    scene: &Scene,
+    settings: &RenderSettings,
+    o: Vec3,
+    d: [Vec3; 2],
+    samplers: [&PixelSample; 2],
+    rays: &mut u64,
+) -> [Vec3; 2] {
+    let mut a = Path::new(scene, settings, o, d[0]);
+    let mut b = Path::new(scene, settings, o, d[1]);
+    let (mut live_a, mut live_b) = (true, true);
+    while live_a && live_b {
+        let seed_a = a.begin_bounce(scene, samplers[0], rays);
+        let seed_b = b.begin_bounce(scene, samplers[1], rays);
+        let [hit_a, hit_b] = scene.intersect_surface_pair([a.o, b.o], [a.d, b.d], [seed_a, seed_b]);
+        live_a = a.after_hit(scene, settings, hit_a, rays);
+        live_b = b.after_hit(scene, settings, hit_b, rays);
+    }
+    if live_a {
+        a.run(scene, settings, samplers[0], rays);
+    }
+    if live_b {
+        b.run(scene, settings, samplers[1], rays);
+    }
+    [a.l, b.l]
+}
+
+/// One path between bounces: what [`radiance`] carries from one vertex to the next.
+struct Path {
+    /// Radiance gathered so far.
+    l: Vec3,
+    /// Path throughput.
+    beta: Vec3,
+    /// The previous vertex and its BSDF pdf, when the last bounce was not a delta event (camera rays
+    /// and mirror bounces leave it None: NEE cannot have sampled what they hit).
+    prev: Option<(Vec3, Vec3, f32)>,
+    depth: u32,
+    /// Absorption coefficient of the medium the path is in (KHR_materials_volume): set when a
+    /// transmission enters a mesh through its front face, cleared when one leaves. Meshes are taken
+    /// as closed and not nested (a path inside two absorbing meshes at once sees the inner one).
+    medium: Vec3,
+    /// Product of η² over the transmissions so far: radiance crossing into glass is divided by η²
+    /// (dielectric.rs), which says nothing about how much the path will carry once it leaves again,
+    /// so Russian roulette looks at beta·eta_scale (pbrt-v4 §13.4.3 `etaScale`; Mitsuba's `eta`).
+    /// Without it, paths inside glass were killed with probability 1 − 1/η² = 56 % at ior 1.5 and
+    /// the survivors came back out 2.25× brighter: fireflies.
+    eta_scale: f32,
+    /// The next ray.
+    o: Vec3,
+    d: Vec3,
+    /// Whether a bounce draws its light-sampling set (NEE; the stochastic-transparency bits share it).
+    draws_light_set: bool,
+    /// The current bounce's two 4D sample sets ([`Path::begin_bounce`]).
+    u_bsdf: [f32; 4],
+    u_light: [f32; 4],
+}
+
+impl Path {
+    #[inline(always)]
+    fn new(scene: &Scene, settings: &RenderSettings, o: Vec3, d: Vec3) -> Self {
+        let draws_light_set =
+            (settings.integrator != IntegratorKind::Bsdf && !scene.lights.is_empty()) || scene.has_transparency();
+        Path {
+            l: Vec3::ZERO,
+            beta: Vec3::ONE,
+            prev: None,
+            depth: 0,
+            medium: Vec3::ZERO,
+            eta_scale: 1.0,
+            o,
+            d,
+            draws_light_set,
+            u_bsdf: [0.0; 4],
+            u_light: [0.0; 4],
+        }
+    }
+
+    /// The path to its end, a ray at a time.
+    #[inline(always)]
+    fn run(&mut self, scene: &Scene, settings: &RenderSettings, sampler: &PixelSample, rays: &mut u64) {
+        loop {
+            let seed = self.begin_bounce(scene, sampler, rays);
+            let hit = scene.intersect_surface(self.o, self.d, seed);
+            if !self.after_hit(scene, settings, hit, rays) {
+                break;
+            }
+        }
+    }
+
+    /// Counts the bounce's ray and draws its sample sets; returns the stochastic-transparency seed
+    /// its ray is traced with.
+    #[inline(always)]
+    fn begin_bounce(&mut self, scene: &Scene, sampler: &PixelSample, rays: &mut u64) -> u32 {
         *rays += 1;
         // The bounce's two 4D sets, drawn before its ray is traced although only the vertex it
         // finds uses them: they do not depend on the hit, and each is a chain of hashes that can
         // then overlap the traversal instead of holding up the shading (Cornell box 3–4 % faster,
         // same bits; ARCHITECTURE.md). A path that ends at this hit wastes them.
-        let base = dims::BOUNCE_BASE + dims::BOUNCE_STRIDE * depth;
-        let (u_bsdf, u_light) = if draws_light_set {
+        let base = dims::BOUNCE_BASE + dims::BOUNCE_STRIDE * self.depth;
+        (self.u_bsdf, self.u_light) = if self.draws_light_set {
             sampler.get_4d_pair((base + dims::BSDF_DIR) / 4, (base + dims::LIGHT_POS) / 4)
         } else {
             (sampler.get_4d((base + dims::BSDF_DIR) / 4), [0.0; 4])
         };
         // Per-bounce random bits for stochastic (BLEND) transparency, only drawn when it can matter.
-        let transparency_seed =
-            if scene.has_transparency() { u_light[(dims::SPARE % 4) as usize].to_bits() } else { 0 };
-        let Some(hit) = scene.intersect_surface(o, d, transparency_seed) else {
-            if medium != Vec3::ZERO {
+        if scene.has_transparency() {
+            self.u_light[(dims::SPARE % 4) as usize].to_bits()
+        } else {
+            0
+        }
+    }
+
+    /// The vertex the bounce's ray found (or the escape), its emission, next-event estimation and
+    /// the next ray; false when the path ends here.
+    #[inline(always)]
+    fn after_hit(&mut self, scene: &Scene, settings: &RenderSettings, hit: Option<Hit>, rays: &mut u64) -> bool {
+        let (mesh, materials, textures) = (&scene.mesh, &scene.materials, &scene.textures);
+        let Some(hit) = hit else {
+            if self.medium != Vec3::ZERO {
                 // An absorbing medium that never ends (an open mesh): nothing gets out.
-                beta *= Vec3::select(medium.cmpgt(Vec3::ZERO), Vec3::ZERO, Vec3::ONE);
+                self.beta *= Vec3::select(self.medium.cmpgt(Vec3::ZERO), Vec3::ZERO, Vec3::ONE);
             }
             if let Some(env) = &scene.lights.environment {
-                match (settings.integrator, prev) {
-                    (_, None) | (IntegratorKind::Bsdf, _) => l += beta * env.eval(d),
+                match (settings.integrator, self.prev) {
+                    (_, None) | (IntegratorKind::Bsdf, _) => self.l += self.beta * env.eval(self.d),
                     // NEE already sampled the environment where it can: where the light pdf is 0
                     // (sampling off, or directions MIS compensation leaves to BSDF sampling:
                     // environment.rs) only this path finds it.
                     (IntegratorKind::Nee, Some((p_prev, n_prev, _))) => {
                         // (A float pattern: matches a light pdf of ±0.)
-                        if let Some((le, 0.0)) = scene.lights.environment_eval_pdf(d, p_prev, Some(n_prev)) {
-                            l += beta * le;
+                        if let Some((le, 0.0)) = scene.lights.environment_eval_pdf(self.d, p_prev, Some(n_prev)) {
+                            self.l += self.beta * le;
                         }
                     }
                     (IntegratorKind::Mis, Some((p_prev, n_prev, bsdf_pdf))) => {
-                        if let Some((le, light_pdf)) = scene.lights.environment_eval_pdf(d, p_prev, Some(n_prev)) {
-                            l += beta * le * mis_weight(settings.mis_heuristic, bsdf_pdf, light_pdf);
+                        if let Some((le, light_pdf)) = scene.lights.environment_eval_pdf(self.d, p_prev, Some(n_prev)) {
+                            self.l += self.beta * le * mis_weight(settings.mis_heuristic, bsdf_pdf, light_pdf);
                         }
                     }
                 }
             }
-            break;
+            return false;
         };
         let sp = scene.surface_point(&hit);
         let material_id = mesh.triangles[hit.triangle as usize].material;
         let material = &materials[material_id as usize];
-        if medium != Vec3::ZERO {
+        if self.medium != Vec3::ZERO {
             // Beer–Lambert over the segment's real length (from the vertex, not `o`, which
             // transparent layers may have moved).
-            beta *= transmittance(medium, (sp.p - o).length());
+            self.beta *= transmittance(self.medium, (sp.p - self.o).length());
         }
         if material.unlit {
             // KHR_materials_unlit: the surface shows its color and scatters nothing. No light
             // sampler picks it, so every strategy adds it with full weight.
-            l += beta * material.base_color_at(textures, sp.uv, sp.color);
-            break;
+            self.l += self.beta * material.base_color_at(textures, sp.uv, sp.color);
+            return false;
         }
 
         if material.is_emissive() {
-            let le = emitted(material, textures, sp.ng, sp.uv, -d);
+            let le = emitted(material, textures, sp.ng, sp.uv, -self.d);
             if le != Vec3::ZERO {
-                match (settings.integrator, prev) {
-                    (_, None) | (IntegratorKind::Bsdf, _) => l += beta * le,
+                match (settings.integrator, self.prev) {
+                    (_, None) | (IntegratorKind::Bsdf, _) => self.l += self.beta * le,
                     // NEE already counted this emitter, unless it is not in the light set.
                     (IntegratorKind::Nee, Some(_)) => {
                         if !scene.lights.is_light(hit.triangle) {
-                            l += beta * le;
+                            self.l += self.beta * le;
                         }
                     }
                     (IntegratorKind::Mis, Some((p_prev, n_prev, bsdf_pdf))) => {
                         let light_pdf = scene.lights.pdf(hit.triangle, p_prev, Some(n_prev), sp.p, sp.ng);
-                        l += beta * le * mis_weight(settings.mis_heuristic, bsdf_pdf, light_pdf);
+                        self.l += self.beta * le * mis_weight(settings.mis_heuristic, bsdf_pdf, light_pdf);
                     }
                 }
             }
         }
-        if depth >= settings.max_depth {
-            break;
+        if self.depth >= settings.max_depth {
+            return false;
         }
 
         // Shading frame: normal map first (in the mesh's orientation), then turn both normals to the
         // side the ray came from, so every surface reflects from both faces.
-        let wo_world = -d;
+        let wo_world = -self.d;
         let mut ns = sp.ns;
         let mut tangent_hint = None;
         if let Some(t) = sp.tangent {
@@ -161,7 +253,7 @@ pub fn radiance(
             frame = Frame::from_normal(ng);
             wo = frame.to_local(wo_world);
             if wo.z <= 0.0 {
-                break;
+                return false;
             }
         }
         let mut bsdf = scene.bsdf(material_id, &sp);
@@ -193,13 +285,17 @@ pub fn radiance(
         // BSDF sampling for the next segment, done before next-event estimation although used
         // after it: it does not depend on NEE's result, and drawn first it can overlap the shadow
         // ray's traversal (with f6d57ed's other two changes: Cornell box 3 % faster, same bits).
-        let u_dir = Vec2::new(u_bsdf[(dims::BSDF_DIR % 4) as usize], u_bsdf[(dims::BSDF_DIR % 4 + 1) as usize]);
-        let next = bsdf.sample(wo, u_bsdf[(dims::BSDF_LOBE % 4) as usize], u_dir);
+        let u_dir =
+            Vec2::new(self.u_bsdf[(dims::BSDF_DIR % 4) as usize], self.u_bsdf[(dims::BSDF_DIR % 4 + 1) as usize]);
+        let next = bsdf.sample(wo, self.u_bsdf[(dims::BSDF_LOBE % 4) as usize], u_dir);
 
         // Next-event estimation.
         if settings.integrator != IntegratorKind::Bsdf && !scene.lights.is_empty() && !bsdf.is_delta_only() {
-            let u_sel = u_light[(dims::LIGHT_SELECT % 4) as usize];
-            let u = Vec2::new(u_light[(dims::LIGHT_POS % 4) as usize], u_light[(dims::LIGHT_POS % 4 + 1) as usize]);
+            let u_sel = self.u_light[(dims::LIGHT_SELECT % 4) as usize];
+            let u = Vec2::new(
+                self.u_light[(dims::LIGHT_POS % 4) as usize],
+                self.u_light[(dims::LIGHT_POS % 4 + 1) as usize],
+            );
             if let Some(ls) = scene.lights.sample(mesh, materials, textures, sp.p, Some(ns), u_sel, u) {
                 let wi = frame.to_local(ls.wi);
                 // Reflection needs the light above the true surface; transmission (glass), below.
@@ -234,9 +330,9 @@ pub fn radiance(
                                 0.0
                             }
                         };
-                        let visible = if medium != Vec3::ZERO {
+                        let visible = if self.medium != Vec3::ZERO {
                             // Inside an absorbing mesh, the light is too (glass stops shadow rays).
-                            visible * transmittance(medium, ls.dist)
+                            visible * transmittance(self.medium, ls.dist)
                         } else {
                             Vec3::splat(visible)
                         };
@@ -247,47 +343,47 @@ pub fn radiance(
                                 }
                                 _ => 1.0,
                             };
-                            l += beta * f * ls.le * visible * (wi.z.abs() * w / ls.pdf);
+                            self.l += self.beta * f * ls.le * visible * (wi.z.abs() * w / ls.pdf);
                         }
                     }
                 }
             }
         }
 
-        let Some(bs) = next else { break };
+        let Some(bs) = next else { return false };
         let wi_world = frame.to_world(bs.wi);
         let transmitted = bs.wi.z < 0.0;
         if (wi_world.dot(ng) <= 0.0) != transmitted || wi_world.dot(ng) == 0.0 {
             // A shading normal can send a direction to the wrong side of the true surface; that
             // energy is lost.
-            break;
+            return false;
         }
-        beta *= bs.weight();
-        if !beta.is_finite() || beta == Vec3::ZERO {
-            break;
+        self.beta *= bs.weight();
+        if !self.beta.is_finite() || self.beta == Vec3::ZERO {
+            return false;
         }
         if transmitted {
-            eta_scale *= bsdf.eta * bsdf.eta;
+            self.eta_scale *= bsdf.eta * bsdf.eta;
             // Entering through the front (winding) face: into this mesh's medium; else out of it.
-            medium = if sp.ng.dot(wo_world) > 0.0 { material.absorption } else { Vec3::ZERO };
+            self.medium = if sp.ng.dot(wo_world) > 0.0 { material.absorption } else { Vec3::ZERO };
         }
-        prev = if bs.delta { None } else { Some((sp.p, ns, bs.pdf)) };
-        o = if transmitted { offset_ray_origin(sp.p, -ng) } else { origin };
-        d = wi_world;
-        depth += 1;
+        self.prev = if bs.delta { None } else { Some((sp.p, ns, bs.pdf)) };
+        self.o = if transmitted { offset_ray_origin(sp.p, -ng) } else { origin };
+        self.d = wi_world;
+        self.depth += 1;
 
-        if depth >= settings.rr_depth {
-            let m = beta.max_element() * eta_scale;
+        if self.depth >= settings.rr_depth {
+            let m = self.beta.max_element() * self.eta_scale;
             if m < 1.0 {
                 let q = (1.0 - m).max(0.0);
-                if u_bsdf[(dims::RUSSIAN_ROULETTE % 4) as usize] < q {
-                    break;
+                if self.u_bsdf[(dims::RUSSIAN_ROULETTE % 4) as usize] < q {
+                    return false;
                 }
-                beta /= 1.0 - q;
+                self.beta /= 1.0 - q;
             }
         }
+        true
     }
-    l
 }
 
 /// Beer–Lambert transmittance exp(−σ·t) per channel (a channel with σ = 0 is 1 even for t = ∞).

@@ -118,7 +118,7 @@ impl Mesh {
     }
 
     /// Both texture coordinate sets of triangle `t` at barycentrics (b1, b2).
-    #[inline]
+    #[inline(always)]
     fn tex_coords(&self, t: &Triangle, b1: f32, b2: f32) -> TexCoords {
         let b0 = 1.0 - b1 - b2;
         let [i0, i1, i2] = [t.v[0] as usize, t.v[1] as usize, t.v[2] as usize];

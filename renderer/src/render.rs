@@ -1,7 +1,7 @@
 //! Rendering a tile over a sample range into [`PartialSums`], and a whole image by passes.
 
 use crate::film::{PartialSums, Rect};
-use crate::integrator::radiance;
+use crate::integrator::{radiance, radiance_pair};
 use crate::math::Vec2;
 use crate::sampler::{dims, PixelSample};
 use crate::scene::Scene;
@@ -72,6 +72,46 @@ fn pass_report(
     ((mse / px).sqrt(), frac / px)
 }
 
+/// One pixel's sums over its samples in a tile, and the non-finite samples it met.
+#[derive(Default)]
+struct PixelSums {
+    rgb: [f64; 3],
+    lum_sq: f64,
+    bad: u64,
+}
+
+impl PixelSums {
+    /// Adds one sample (a non-finite one as zero, counted). Same arithmetic as
+    /// `PartialSums::add_sample`, in sample order (determinism rule 2).
+    #[inline(always)]
+    fn add(&mut self, l: crate::math::Vec3) {
+        let l = if l.is_finite() {
+            l
+        } else {
+            self.bad += 1;
+            crate::math::Vec3::ZERO
+        };
+        self.rgb[0] += l.x as f64;
+        self.rgb[1] += l.y as f64;
+        self.rgb[2] += l.z as f64;
+        let y = crate::math::luminance(l) as f64;
+        self.lum_sq += y * y;
+    }
+}
+
+/// Sample `s` of pixel (x, y): its sample generator and camera ray direction.
+#[inline(always)]
+fn camera_ray(
+    settings: &RenderSettings,
+    raster: &crate::camera::Raster,
+    (x, y): (u32, u32),
+    s: u32,
+) -> (PixelSample, crate::math::Vec3) {
+    let sampler = PixelSample::new(settings.sampler, settings.seed, (x, y), s);
+    let film = Vec2::new(x as f32 + 0.5, y as f32 + 0.5) + filter_offset(settings.filter, sampler.get_2d(dims::FILM));
+    (sampler, raster.direction(film))
+}
+
 /// Samples a filter offset from the pixel centre, in pixels (filter importance sampling).
 #[inline]
 fn filter_offset(filter: PixelFilter, u: Vec2) -> Vec2 {
@@ -108,6 +148,7 @@ pub fn render_tile_counted(
         .camera(settings.camera)
         .unwrap_or_else(|_| crate::camera::Camera::framing(scene.bounds.0, scene.bounds.1));
     let raster = camera.raster(settings.width, settings.height);
+    let pairs = scene.pairs_rays();
     // Per pixel: its sums, its sample count, and the rays traced and non-finite samples met, which
     // go to the shared counters once per tile rather than once per pixel (threads adding to the
     // same atomics contend for their cache line).
@@ -116,26 +157,25 @@ pub fn render_tile_counted(
         .map(|i| {
             let x = rect.x0 + (i as u32 % rect.width);
             let y = rect.y0 + (i as u32 / rect.width);
-            let (mut rgb, mut lum_sq) = ([0.0f64; 3], 0.0f64);
             let mut rays = 0u64;
-            let mut bad = 0u64;
-            for s in samples.clone() {
-                let sampler = PixelSample::new(settings.sampler, settings.seed, (x, y), s);
-                let film = Vec2::new(x as f32 + 0.5, y as f32 + 0.5)
-                    + filter_offset(settings.filter, sampler.get_2d(dims::FILM));
-                let d = raster.direction(film);
-                let mut l = radiance(scene, settings, camera.origin, d, &sampler, &mut rays);
-                if !l.is_finite() {
-                    bad += 1;
-                    l = crate::math::Vec3::ZERO;
+            let mut sums = PixelSums::default();
+            let mut s = samples.start;
+            if pairs {
+                // Two samples' paths at a time, added in sample order: the same sums as one at a time.
+                while s + 1 < samples.end {
+                    let (sa, da) = camera_ray(settings, &raster, (x, y), s);
+                    let (sb, db) = camera_ray(settings, &raster, (x, y), s + 1);
+                    let [la, lb] = radiance_pair(scene, settings, camera.origin, [da, db], [&sa, &sb], &mut rays);
+                    sums.add(la);
+                    sums.add(lb);
+                    s += 2;
                 }
-                // Same arithmetic as PartialSums::add_sample, in sample order (determinism rule 2).
-                rgb[0] += l.x as f64;
-                rgb[1] += l.y as f64;
-                rgb[2] += l.z as f64;
-                let y = crate::math::luminance(l) as f64;
-                lum_sq += y * y;
             }
+            for s in s..samples.end {
+                let (sampler, d) = camera_ray(settings, &raster, (x, y), s);
+                sums.add(radiance(scene, settings, camera.origin, d, &sampler, &mut rays));
+            }
+            let PixelSums { rgb, lum_sq, bad } = sums;
             (rgb, lum_sq, samples.len() as u32, rays, bad)
         })
         .collect();

@@ -74,7 +74,7 @@ impl PixelSample {
     /// scrambles run as the eight lanes of one AVX2 evaluation ([`sobol_4d_pair`]) instead of two
     /// four-lane ones, and the reversed index is shared. A bounce draws its BSDF and light sets
     /// together.
-    #[inline]
+    #[inline(always)]
     pub fn get_4d_pair(&self, set_a: u32, set_b: u32) -> ([f32; 4], [f32; 4]) {
         match self.kind {
             SamplerKind::Sobol => sobol_4d_pair(self.index & 0xffff, self.sobol_seed(set_a), self.sobol_seed(set_b)),
@@ -136,7 +136,7 @@ fn dimension_scrambles(seed: u32) -> [u32; 4] {
 /// dimensions, their bit reversal and the conversion to floats are the crate's `Int4` operations
 /// (`hash_int4`, `owen_scramble_int4_rev`, `Int4::reverse_bits`, `Int4::to_f32_norm`), written out
 /// on eight lanes. A test compares it with two `sobol_4d` calls over every index.
-#[inline]
+#[inline(always)]
 pub fn sobol_4d_pair(index: u32, seed_a: u32, seed_b: u32) -> ([f32; 4], [f32; 4]) {
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     {

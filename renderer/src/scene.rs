@@ -137,6 +137,13 @@ impl Scene {
         self.lights.set_scalar_reference(on);
     }
 
+    /// Overrides whether renders trace two samples' paths together (by default only above
+    /// [`crate::accel::PAIR_RAYS_ABOVE`] triangles): same images either way
+    /// (`renderer/tests/paired_paths.rs`). Lasts until the BVH is rebuilt.
+    pub fn set_pair_rays(&mut self, on: bool) {
+        self.accel.set_pair_rays(on);
+    }
+
     /// Attaches the animation data the loader gathered (the scene is posed at time 0).
     pub fn set_animator(&mut self, animator: crate::animation::Animator) {
         self.animator = Some(animator);
@@ -337,6 +344,22 @@ impl Scene {
             o = self.pass_through(&hit, d);
         }
         None
+    }
+
+    /// [`Self::intersect_surface`] for two rays: traced together ([`Accel::intersect_pair`]) where
+    /// no surface is transparent, else one after the other. The same hits either way.
+    pub fn intersect_surface_pair(&self, o: [Vec3; 2], d: [Vec3; 2], seed: [u32; 2]) -> [Option<Hit>; 2] {
+        if self.has_transparency() {
+            return [self.intersect_surface(o[0], d[0], seed[0]), self.intersect_surface(o[1], d[1], seed[1])];
+        }
+        self.accel.intersect_pair(o, d, f32::INFINITY)
+    }
+
+    /// Whether a render traces a pixel's samples two at a time ([`crate::integrator::radiance_pair`]):
+    /// where the BVH is large enough to miss cache ([`Accel::pairs_rays`]) and nothing is
+    /// transparent (a transparent layer re-traces one ray at a time).
+    pub fn pairs_rays(&self) -> bool {
+        self.accel.pairs_rays() && !self.has_transparency()
     }
 
     /// Fraction of light that gets from `o` along `d` to distance `tmax`: 0 behind an opaque (or

@@ -130,38 +130,38 @@ fn run_scene(a: &RaysArgs, path: &Path) -> Result<()> {
             median(occluded)
         );
         if kind == AccelKind::Obvhs {
-            let mut paired = Vec::new();
-            let mut same = true;
-            for run in 0..=a.runs {
-                let t = Instant::now();
-                let mut n = 0usize;
-                for i in (0..origins.len() - 1).step_by(2) {
-                    let h = accel.intersect_pair([origins[i], origins[i + 1]], [dirs[i], dirs[i + 1]], f32::INFINITY);
-                    n += h.iter().filter(|h| h.is_some()).count();
-                    if run == 0 {
-                        for k in 0..2 {
-                            let alone = accel.intersect(origins[i + k], dirs[i + k], f32::INFINITY);
-                            same &= alone.map(|h| (h.t, h.triangle)) == h[k].map(|h| (h.t, h.triangle));
-                        }
-                    }
-                }
-                let secs = t.elapsed().as_secs_f64();
-                if run > 0 {
-                    paired.push(origins.len() as f64 / secs / 1e6);
-                }
-                std::hint::black_box(n);
-            }
-            // Two rays' walks interleaved (Accel::intersect_pair, what renders of large scenes use).
-            println!(
-                "{:<16} {:>10} {:>16.3} {:>16}  (same hits as one at a time: {same})",
-                "  paired",
-                "",
-                median(paired),
-                ""
-            );
+            print_paired(&accel, &origins, &dirs, a.runs);
         }
     }
     Ok(())
+}
+
+/// The "paired" row under an accelerator's: the closest-hit rays two at a time with their walks
+/// interleaved (`Accel::intersect_pair`, what renders of large scenes use), median Mrays/s of
+/// `runs` timed runs after a warm-up that also checks every pair's hits against each ray alone.
+fn print_paired(accel: &Accel, origins: &[Vec3], dirs: &[Vec3], runs: usize) {
+    let pairs = origins.len() / 2;
+    let (mut mrays, mut same) = (Vec::new(), true);
+    for run in 0..=runs {
+        let t = Instant::now();
+        let mut found = 0usize;
+        for i in (0..2 * pairs).step_by(2) {
+            let h = accel.intersect_pair([origins[i], origins[i + 1]], [dirs[i], dirs[i + 1]], f32::INFINITY);
+            found += h.iter().filter(|h| h.is_some()).count();
+            if run == 0 {
+                for k in 0..2 {
+                    let alone = accel.intersect(origins[i + k], dirs[i + k], f32::INFINITY);
+                    same &= alone.map(|h| (h.t, h.triangle)) == h[k].map(|h| (h.t, h.triangle));
+                }
+            }
+        }
+        let secs = t.elapsed().as_secs_f64();
+        if run > 0 {
+            mrays.push((2 * pairs) as f64 / secs / 1e6);
+        }
+        std::hint::black_box(found);
+    }
+    println!("{:<16} {:>10} {:>16.3} {:>16}  (same hits as one at a time: {same})", "  paired", "", median(mrays), "");
 }
 
 /// The workload's rays: origins uniform in the ball of radius 0.5, directions uniform on the
@@ -256,21 +256,7 @@ pub fn run(a: RaysArgs) -> Result<()> {
             }
         );
         if kind == AccelKind::Obvhs || kind == AccelKind::ObvhsCompressed {
-            let mut paired = Vec::new();
-            for run in 0..=a.runs {
-                let t = Instant::now();
-                let mut n = 0usize;
-                for i in (0..origins.len() - 1).step_by(2) {
-                    let h = accel.intersect_pair([origins[i], origins[i + 1]], [dirs[i], dirs[i + 1]], f32::INFINITY);
-                    n += h.iter().filter(|h| h.is_some()).count();
-                }
-                let secs = t.elapsed().as_secs_f64();
-                if run > 0 {
-                    paired.push(origins.len() as f64 / secs / 1e6);
-                }
-                std::hint::black_box(n);
-            }
-            println!("{:<16} {:>10} {:>16.3}", "  paired", "", median(paired));
+            print_paired(&accel, &origins, &dirs, a.runs);
         }
         if kind == AccelKind::Obvhs {
             closest_t = ts;

@@ -48,6 +48,9 @@ enum TopPrim {
     Instance { index: u32, prototype: u32, to_object: glam::Affine3A },
 }
 
+/// A leaf triangle's hit as the eight-wide test reports it: (t, slot in `Accel::tris`, b1, b2).
+type LeafHit = (f32, usize, f32, f32);
+
 /// A child the traversal has yet to visit: its node and, for closest hits, the distance at which
 /// the ray enters its box.
 #[derive(Clone, Copy)]
@@ -167,8 +170,7 @@ fn traverse_closest_pair<N: TraversalNode>(
 }
 
 /// One ray's closest-hit traversal ([`traverse_closest`]) as a state advanced a node at a time.
-/// (The stack stays outside the state: a borrowed slice inside it kept LLVM from holding the
-/// state in registers, 1.7 % more instructions per render.)
+/// Its stack is handed to each step, so a pair's two stacks are two plain borrows.
 struct ClosestWalk {
     ray: BvhRay,
     inv_far: Vec3A,
@@ -351,9 +353,9 @@ fn build_params(n: usize) -> obvhs::BvhBuildParams {
 
 /// Above this many triangles (a one-level BVH) renders trace two paths' closest-hit rays together
 /// ([`Accel::intersect_pair`]): there the walks wait on memory and two overlap their misses
-/// (`tessera bench rays`: +13 % to +33 % closest-hit rays/s at 327 680 and 1 310 720
+/// (`tessera bench rays`: +3 % to +33 % closest-hit rays/s at 327 680 and 1 310 720
 /// triangles); below, the BVH stays in cache and pairing costs more than it saves (−2 % to −21 %
-/// on the suite's scenes of 2 500 to 30 000 triangles). ARCHITECTURE.md has the figures.
+/// on four suite scenes of 36 to 4 622 triangles). ARCHITECTURE.md has the figures.
 pub const PAIR_RAYS_ABOVE: usize = WIDE_NODES_UP_TO;
 
 /// See [`build_params`].
@@ -640,24 +642,41 @@ impl Accel {
         }
         let ray = BvhRay::new(oa, da, 0.0, tmax);
         let wray = WatertightRay::new(oa, da);
-        let mut best: Option<(f32, usize, f32, f32)> = None;
-        self.closest(ray, |r, base, mask| {
-            let (mut bound, mut mask) = (r.tmax, mask);
-            while mask != 0 {
-                let (start, lanes) = next_window(base, &mut mask);
-                let hit = if self.scalar_reference {
-                    self.tris.intersect8_scalar(&wray, start, lanes, bound)
-                } else {
-                    self.tris.intersect8(&wray, start, lanes, bound)
-                };
-                if let Some(h) = hit {
-                    bound = h.0;
-                    best = Some(h);
-                }
+        let mut best = None;
+        self.closest(ray, |r, base, mask| self.closest_in_group(&wray, &mut best, r.tmax, base, mask));
+        best.map(|leaf| self.leaf_hit(leaf))
+    }
+
+    /// The closest of a group's leaf triangles (as in [`traverse_closest`]) on the ray before
+    /// `bound`, into `best`; returns the new bound (`bound` when none is closer).
+    #[inline(always)]
+    fn closest_in_group(
+        &self,
+        wray: &WatertightRay,
+        best: &mut Option<LeafHit>,
+        bound: f32,
+        base: usize,
+        mask: u32,
+    ) -> f32 {
+        let (mut bound, mut mask) = (bound, mask);
+        while mask != 0 {
+            let (start, lanes) = next_window(base, &mut mask);
+            let hit = if self.scalar_reference {
+                self.tris.intersect8_scalar(wray, start, lanes, bound)
+            } else {
+                self.tris.intersect8(wray, start, lanes, bound)
+            };
+            if let Some(h) = hit {
+                bound = h.0;
+                *best = Some(h);
             }
-            bound
-        });
-        best.map(|(t, slot, b1, b2)| Hit { t, triangle: self.tris.ids[slot], b1, b2, instance: NO_INSTANCE })
+        }
+        bound
+    }
+
+    #[inline(always)]
+    fn leaf_hit(&self, (t, slot, b1, b2): LeafHit) -> Hit {
+        Hit { t, triangle: self.tris.ids[slot], b1, b2, instance: NO_INSTANCE }
     }
 
     /// Whether renders should trace two paths' rays together ([`PAIR_RAYS_ABOVE`]; only a
@@ -684,24 +703,12 @@ impl Accel {
         }
         let rays = (BvhRay::new(oa[0], da[0], 0.0, tmax), BvhRay::new(oa[1], da[1], 0.0, tmax));
         let wrays = [WatertightRay::new(oa[0], da[0]), WatertightRay::new(oa[1], da[1])];
-        let mut best: [Option<(f32, usize, f32, f32)>; 2] = [None, None];
+        let mut best = [None, None];
         let [best_a, best_b] = &mut best;
-        let group =
-            |wray: &WatertightRay, best: &mut Option<(f32, usize, f32, f32)>, r: &BvhRay, base: usize, mask: u32| {
-                let (mut bound, mut mask) = (r.tmax, mask);
-                while mask != 0 {
-                    let (start, lanes) = next_window(base, &mut mask);
-                    if let Some(h) = self.tris.intersect8(wray, start, lanes, bound) {
-                        bound = h.0;
-                        *best = Some(h);
-                    }
-                }
-                bound
-            };
         with_stack(self.stack_len, |sa| {
             with_stack(self.stack_len, |sb| {
-                let ga = |r: &BvhRay, base, mask| group(&wrays[0], best_a, r, base, mask);
-                let gb = |r: &BvhRay, base, mask| group(&wrays[1], best_b, r, base, mask);
+                let ga = |r: &BvhRay, base, mask| self.closest_in_group(&wrays[0], best_a, r.tmax, base, mask);
+                let gb = |r: &BvhRay, base, mask| self.closest_in_group(&wrays[1], best_b, r.tmax, base, mask);
                 if self.wide.is_empty() {
                     traverse_closest_pair(&self.bvh.nodes, (sa, sb), rays, ga, gb)
                 } else {
@@ -709,7 +716,7 @@ impl Accel {
                 }
             })
         });
-        best.map(|b| b.map(|(t, slot, b1, b2)| Hit { t, triangle: self.tris.ids[slot], b1, b2, instance: NO_INSTANCE }))
+        best.map(|b| b.map(|leaf| self.leaf_hit(leaf)))
     }
 
     /// Whether any leaf triangle of the group (`traverse_any`) lies on the ray before `tmax`.
@@ -790,12 +797,9 @@ mod tests {
         best
     }
 
-    /// The distance-ordered loop with its culling finds the hit obvhs' loop finds, ray for ray (the
-    /// same distance to the bit and the same triangle, or a triangle the ray hits at that same
-    /// distance: a ray through a shared edge), over compressed and over decompressed nodes, also
-    /// with the heap stack a deep BVH gets; any-hit queries agree with the closest hit.
-    #[test]
-    fn own_traversal_finds_the_hits_of_obvhs_loop() {
+    /// Twelve spheres of mixed sizes and subdivisions inside a large inward-facing one, and the
+    /// ids of all their triangles: a BVH deep enough for the traversal tests.
+    fn sphere_cluster() -> (crate::testing::SceneBuilder, Vec<u32>) {
         let mut b = crate::testing::SceneBuilder::default();
         let m = b.material(crate::testing::lambert(Vec3::splat(0.5)));
         b.sphere(Vec3::ZERO, 6.0, 3, true, m);
@@ -804,7 +808,17 @@ mod tests {
             let c = Vec3::new(u(0), u(1), u(2)) * 6.0 - 3.0;
             b.sphere(c, 0.2 + u(3), 2 + (k % 3) as u32, false, m);
         }
-        let all = (0..b.mesh.triangles.len() as u32).collect::<Vec<_>>();
+        let all = (0..b.mesh.triangles.len() as u32).collect();
+        (b, all)
+    }
+
+    /// The distance-ordered loop with its culling finds the hit obvhs' loop finds, ray for ray (the
+    /// same distance to the bit and the same triangle, or a triangle the ray hits at that same
+    /// distance: a ray through a shared edge), over compressed and over decompressed nodes, also
+    /// with the heap stack a deep BVH gets; any-hit queries agree with the closest hit.
+    #[test]
+    fn own_traversal_finds_the_hits_of_obvhs_loop() {
+        let (b, all) = sphere_cluster();
         // The reference keeps obvhs' compressed nodes.
         let reference = Accel::build_triangles(&b.mesh, all.clone(), AccelKind::ObvhsCompressed);
         assert!(reference.wide.is_empty() && reference.bvh.nodes.len() > 20 && reference.stack_len > 8);
@@ -852,15 +866,7 @@ mod tests {
     /// wide nodes and a heap stack, and where a ray ends (tmax) or leaves everything early.
     #[test]
     fn paired_traversal_finds_each_rays_own_hit() {
-        let mut b = crate::testing::SceneBuilder::default();
-        let m = b.material(crate::testing::lambert(Vec3::splat(0.5)));
-        b.sphere(Vec3::ZERO, 6.0, 3, true, m);
-        for k in 0..12u64 {
-            let u = |j: u64| crate::sampler::hash_unit(16 * k + j);
-            let c = Vec3::new(u(0), u(1), u(2)) * 6.0 - 3.0;
-            b.sphere(c, 0.2 + u(3), 2 + (k % 3) as u32, false, m);
-        }
-        let all = (0..b.mesh.triangles.len() as u32).collect::<Vec<_>>();
+        let (b, all) = sphere_cluster();
         let key = |h: Option<Hit>| h.map(|h| (h.t.to_bits(), h.triangle, h.b1.to_bits(), h.b2.to_bits()));
         let mut hits = 0usize;
         for (kind, heap) in [(AccelKind::ObvhsCompressed, false), (AccelKind::Obvhs, false), (AccelKind::Obvhs, true)] {

@@ -249,3 +249,48 @@ pub fn node_test_ray(i: u64) -> Option<obvhs::ray::Ray> {
     let tmax = if i.is_multiple_of(3) { 2.0 * u(8 * i + 6) } else { f32::INFINITY };
     Some(obvhs::ray::Ray::new(o, d.normalize(), 0.0, tmax))
 }
+
+/// The scene files the "same bits either way" tests render (paths from the repository root), each
+/// with whether it is also lit by `scenes/env/sunset.exr`: the suite, the Blender exports, the
+/// Khronos models and the animations.
+pub const BIT_TEST_SCENES: [(&str, bool); 13] = [
+    ("scenes/cornell/cornell.gltf", false),
+    ("scenes/envlit/envlit.gltf", true),
+    ("scenes/glass/glass.gltf", false),
+    ("scenes/many_lights/many_lights.gltf", false),
+    ("scenes/sphere_light/sphere_light.gltf", false),
+    ("scenes/sphere_lights/sphere_lights.gltf", false),
+    ("scenes/veach/veach.gltf", false),
+    ("scenes/blender/materials.glb", false),
+    ("scenes/blender/lights.glb", false),
+    ("scenes/khronos/DamagedHelmet/DamagedHelmet.gltf", true),
+    ("scenes/khronos/BoxTextured.glb", true),
+    ("scenes/animation/moving_light.gltf", false),
+    ("scenes/animation/rig.glb", true),
+];
+
+/// One of [`BIT_TEST_SCENES`] loaded from `root`, its environment set in `settings` where the
+/// table says, prepared for `settings` and posed at frame 5. Test support: panics naming the file.
+pub fn load_bit_test_scene(
+    root: &std::path::Path,
+    (rel, sunset): (&str, bool),
+    settings: &mut crate::RenderSettings,
+) -> Scene {
+    let mut scene = crate::gltf_loader::load(&root.join(rel)).unwrap_or_else(|e| panic!("{rel}: {e}"));
+    if sunset {
+        settings.environment.map = Some("scenes/env/sunset.exr".into());
+    }
+    scene.prepare(settings, root).unwrap_or_else(|e| panic!("{rel}: {e}"));
+    scene.set_frame(settings, 5).unwrap_or_else(|e| panic!("{rel}: {e}"));
+    scene
+}
+
+/// Every bit of an image's sums, colour then squared luminance: what "the same image" means to
+/// the determinism rule.
+pub fn sum_bits(p: &crate::film::PartialSums) -> Vec<u64> {
+    p.sum_rgb
+        .iter()
+        .flat_map(|c| c.iter().map(|v| v.to_bits()))
+        .chain(p.sum_lum_sq.iter().map(|v| v.to_bits()))
+        .collect()
+}

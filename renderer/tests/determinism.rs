@@ -4,6 +4,7 @@
 use renderer::film::{PartialSums, Rect};
 use renderer::gltf_loader;
 use renderer::sampler::SamplerKind;
+use renderer::testing::sum_bits;
 use renderer::{render, render_tile, Counters, IntegratorKind, RenderSettings};
 use std::path::Path;
 
@@ -24,14 +25,6 @@ fn assemble(settings: &RenderSettings, tile: u32, scene: &renderer::Scene) -> Pa
         }
     }
     image
-}
-
-fn bits(p: &PartialSums) -> Vec<u64> {
-    p.sum_rgb
-        .iter()
-        .flat_map(|c| c.iter().map(|v| v.to_bits()))
-        .chain(p.sum_lum_sq.iter().map(|v| v.to_bits()))
-        .collect()
 }
 
 #[test]
@@ -57,8 +50,8 @@ fn splitting_threads_tiles_and_calls_changes_no_bit() {
             rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap().install(|| assemble(&s, 16, &scene));
         let three_threads =
             rayon::ThreadPoolBuilder::new().num_threads(3).build().unwrap().install(|| assemble(&s, 7, &scene));
-        assert_eq!(bits(&local), bits(&one_thread), "{integrator:?}: 1 thread, 16px tiles");
-        assert_eq!(bits(&local), bits(&three_threads), "{integrator:?}: 3 threads, 7px tiles");
+        assert_eq!(sum_bits(&local), sum_bits(&one_thread), "{integrator:?}: 1 thread, 16px tiles");
+        assert_eq!(sum_bits(&local), sum_bits(&three_threads), "{integrator:?}: 3 threads, 7px tiles");
         assert!(local.count.iter().all(|&c| c == 24));
     }
 }
@@ -70,5 +63,5 @@ fn seed_changes_the_noise_but_not_the_plan() {
     let b = RenderSettings { seed: 1, ..a.clone() };
     let ra = render_tile(&scene, &a, Rect { x0: 0, y0: 0, width: 16, height: 16 }, 0..4);
     let rb = render_tile(&scene, &b, Rect { x0: 0, y0: 0, width: 16, height: 16 }, 0..4);
-    assert_ne!(bits(&ra), bits(&rb));
+    assert_ne!(sum_bits(&ra), sum_bits(&rb));
 }

@@ -5,23 +5,15 @@
 //! both ways too.
 
 use renderer::accel::PAIR_RAYS_ABOVE;
-use renderer::film::{PartialSums, Rect};
+use renderer::film::Rect;
 use renderer::math::Vec3;
 use renderer::scene::Scene;
-use renderer::testing::{emitter, lambert, metal, SceneBuilder};
+use renderer::testing::{emitter, lambert, load_bit_test_scene, metal, sum_bits, SceneBuilder, BIT_TEST_SCENES};
 use renderer::{render_tile, RenderSettings};
 use std::path::Path;
 
 fn root() -> &'static Path {
     Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
-}
-
-fn bits(s: &PartialSums) -> Vec<u64> {
-    s.sum_rgb
-        .iter()
-        .flat_map(|c| c.iter().map(|v| v.to_bits()))
-        .chain(s.sum_lum_sq.iter().map(|v| v.to_bits()))
-        .collect()
 }
 
 /// Renders `scene` with pairing on and off; panics naming `what` if a bit differs. An odd sample
@@ -36,35 +28,16 @@ fn same_both_ways(scene: &mut Scene, settings: &RenderSettings, what: &str) {
     let single = render_tile(scene, settings, rect, 0..settings.spp);
     let total: f64 = single.sum_rgb.iter().flatten().sum();
     assert!(total > 0.0, "{what}: a black image tests nothing");
-    assert!(bits(&paired) == bits(&single), "{what}: pairing changed the image");
+    assert!(sum_bits(&paired) == sum_bits(&single), "{what}: pairing changed the image");
 }
 
 #[test]
 fn paired_paths_render_every_test_scene_bit_for_bit() {
-    let scenes = [
-        "scenes/cornell/cornell.gltf",
-        "scenes/envlit/envlit.gltf",
-        "scenes/glass/glass.gltf",
-        "scenes/many_lights/many_lights.gltf",
-        "scenes/sphere_light/sphere_light.gltf",
-        "scenes/sphere_lights/sphere_lights.gltf",
-        "scenes/veach/veach.gltf",
-        "scenes/blender/materials.glb",
-        "scenes/blender/lights.glb",
-        "scenes/khronos/DamagedHelmet/DamagedHelmet.gltf",
-        "scenes/khronos/BoxTextured.glb",
-        "scenes/animation/moving_light.gltf",
-        "scenes/animation/rig.glb",
-    ];
     let mut paired = 0;
-    for rel in scenes {
-        let mut scene = renderer::gltf_loader::load(&root().join(rel)).unwrap_or_else(|e| panic!("{rel}: {e}"));
+    for entry in BIT_TEST_SCENES {
+        let rel = entry.0;
         let mut settings = RenderSettings { width: 40, height: 30, spp: 5, seed: 7, ..RenderSettings::default() };
-        if rel.contains("envlit") || rel.contains("Helmet") || rel.contains("Box") || rel.contains("rig") {
-            settings.environment.map = Some("scenes/env/sunset.exr".into());
-        }
-        scene.prepare(&settings, root()).unwrap_or_else(|e| panic!("{rel}: {e}"));
-        scene.set_frame(&settings, 5).unwrap_or_else(|e| panic!("{rel}: {e}"));
+        let mut scene = load_bit_test_scene(root(), entry, &mut settings);
         scene.set_pair_rays(true);
         // Instanced (two-level) and transparent scenes trace one ray at a time whatever is asked.
         if !scene.pairs_rays() {

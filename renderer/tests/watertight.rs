@@ -12,6 +12,7 @@ use renderer::film::Rect;
 use renderer::light::LightSamplerKind;
 use renderer::math::{Vec3, Vec3A};
 use renderer::sampler::hash_unit as u;
+use renderer::testing::{load_bit_test_scene, sum_bits, BIT_TEST_SCENES};
 use renderer::triangle::{RtTriangle, WatertightRay};
 use renderer::{render_tile, RenderSettings};
 use std::collections::HashMap;
@@ -117,40 +118,19 @@ fn root() -> &'static Path {
 /// of any test scene's image (with the light sampler each scene's `auto` picks, and the tree forced).
 #[test]
 fn every_test_scene_renders_the_same_bits_with_the_scalar_reference() {
-    let scenes = [
-        "scenes/cornell/cornell.gltf",
-        "scenes/envlit/envlit.gltf",
-        "scenes/glass/glass.gltf",
-        "scenes/many_lights/many_lights.gltf",
-        "scenes/sphere_light/sphere_light.gltf",
-        "scenes/sphere_lights/sphere_lights.gltf",
-        "scenes/veach/veach.gltf",
-        "scenes/blender/materials.glb",
-        "scenes/blender/lights.glb",
-        "scenes/khronos/DamagedHelmet/DamagedHelmet.gltf",
-        "scenes/khronos/BoxTextured.glb",
-        "scenes/animation/moving_light.gltf",
-        "scenes/animation/rig.glb",
-    ];
-    for (rel, light_sampler) in scenes.iter().flat_map(|s| [(*s, LightSamplerKind::Auto), (*s, LightSamplerKind::Tree)])
+    for (entry, light_sampler) in
+        BIT_TEST_SCENES.iter().flat_map(|s| [(*s, LightSamplerKind::Auto), (*s, LightSamplerKind::Tree)])
     {
-        let mut scene = renderer::gltf_loader::load(&root().join(rel)).unwrap_or_else(|e| panic!("{rel}: {e}"));
+        let rel = entry.0;
         let mut settings =
             RenderSettings { width: 40, height: 30, spp: 4, seed: 3, light_sampler, ..RenderSettings::default() };
-        if rel.contains("envlit") || rel.contains("Helmet") || rel.contains("Box") || rel.contains("rig") {
-            settings.environment.map = Some("scenes/env/sunset.exr".into());
-        }
-        scene.prepare(&settings, root()).unwrap_or_else(|e| panic!("{rel}: {e}"));
-        scene.set_frame(&settings, 5).unwrap_or_else(|e| panic!("{rel}: {e}"));
+        let mut scene = load_bit_test_scene(root(), entry, &mut settings);
         let rect = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
         let simd = render_tile(&scene, &settings, rect, 0..settings.spp);
         scene.set_scalar_reference(true);
         let scalar = render_tile(&scene, &settings, rect, 0..settings.spp);
-        let bits = |s: &renderer::film::PartialSums| {
-            s.sum_rgb.iter().flat_map(|c| c.iter().map(|v| v.to_bits())).collect::<Vec<u64>>()
-        };
         let total: f64 = simd.sum_rgb.iter().flatten().sum();
         assert!(total > 0.0, "{rel}: a black image tests nothing");
-        assert!(bits(&simd) == bits(&scalar), "{rel} ({light_sampler:?}): the SIMD paths changed the image");
+        assert!(sum_bits(&simd) == sum_bits(&scalar), "{rel} ({light_sampler:?}): the SIMD paths changed the image");
     }
 }

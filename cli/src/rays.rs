@@ -7,9 +7,9 @@
 //! inside a subdivided unit icosphere (level 8: 1 310 720 triangles) in uniformly random
 //! directions, so every ray hits and neighbouring rays share nothing. `--scene` takes a glTF
 //! scene instead, with rays leaving its surfaces as a path tracer's bounce and shadow rays do.
-//! Under obvhs' rows, a "paired" row: the same closest-hit rays two at a time with their walks
-//! interleaved (`Accel::intersect_pair`, which renders use above `accel::PAIR_RAYS_ABOVE`
-//! triangles).
+//! Under obvhs' rows, "paired", "batch of 4" and "batch of 16" rows: the same rays two, four and
+//! `accel::MAX_BATCH` at a time with their walks interleaved (`Accel::intersect_batch` and `occluded_batch`,
+//! which renders use above `accel::BATCH_RAYS_ABOVE` triangles).
 
 use crate::bench::median;
 use anyhow::{Context, Result};
@@ -94,6 +94,8 @@ fn run_scene(a: &RaysArgs, path: &Path) -> Result<()> {
     let scene = renderer::gltf_loader::load(path).with_context(|| format!("cannot load {}", path.display()))?;
     let mesh = &scene.mesh;
     let SurfaceRays { origins, dirs, shadow } = surface_rays(mesh, a.rays)?;
+    let (shadow_dirs, shadow_tmax): (Vec<Vec3>, Vec<f32>) = shadow.iter().copied().unzip();
+    let batched = Batched { origins: &origins, dirs: &dirs, shadow_dirs: &shadow_dirs, shadow_tmax: &shadow_tmax };
     println!(
         "{}: {} triangles | {} rays off its surfaces | 1 thread | median of {} runs",
         path.display(),
@@ -130,38 +132,76 @@ fn run_scene(a: &RaysArgs, path: &Path) -> Result<()> {
             median(occluded)
         );
         if kind == AccelKind::Obvhs {
-            print_paired(&accel, &origins, &dirs, a.runs);
+            batched.print(&accel, a.runs);
         }
     }
     Ok(())
 }
 
-/// The "paired" row under an accelerator's: the closest-hit rays two at a time with their walks
-/// interleaved (`Accel::intersect_pair`, what renders of large scenes use), median Mrays/s of
-/// `runs` timed runs after a warm-up that also checks every pair's hits against each ray alone.
-fn print_paired(accel: &Accel, origins: &[Vec3], dirs: &[Vec3], runs: usize) {
-    let pairs = origins.len() / 2;
-    let (mut mrays, mut same) = (Vec::new(), true);
-    for run in 0..=runs {
-        let t = Instant::now();
-        let mut found = 0usize;
-        for i in (0..2 * pairs).step_by(2) {
-            let h = accel.intersect_pair([origins[i], origins[i + 1]], [dirs[i], dirs[i + 1]], f32::INFINITY);
-            found += h.iter().filter(|h| h.is_some()).count();
-            if run == 0 {
-                for k in 0..2 {
-                    let alone = accel.intersect(origins[i + k], dirs[i + k], f32::INFINITY);
-                    same &= alone.map(|h| (h.t, h.triangle)) == h[k].map(|h| (h.t, h.triangle));
+/// The rows under an accelerator's for rays traced `k` at a time with their walks interleaved
+/// (`Accel::intersect_batch` and `occluded_batch`, what renders of large scenes use): median
+/// Mrays/s of `runs` timed runs after a warm-up that also checks every batch's answers against
+/// each ray alone.
+struct Batched<'a> {
+    origins: &'a [Vec3],
+    dirs: &'a [Vec3],
+    /// The occlusion rays (from `origins`): directions and lengths.
+    shadow_dirs: &'a [Vec3],
+    shadow_tmax: &'a [f32],
+}
+
+impl Batched<'_> {
+    fn print(&self, accel: &Accel, runs: usize) {
+        for k in [2, 4, renderer::accel::MAX_BATCH] {
+            self.print_row(accel, runs, k);
+        }
+    }
+
+    fn print_row(&self, accel: &Accel, runs: usize, k: usize) {
+        let Batched { origins, dirs, shadow_dirs, shadow_tmax } = *self;
+        let batches = origins.len() / k;
+        let (mut closest, mut occluded, mut same) = (Vec::new(), Vec::new(), true);
+        let (mut h, mut blocked) = (vec![None; k], vec![false; k]);
+        for run in 0..=runs {
+            let t = Instant::now();
+            let mut found = 0usize;
+            for i in (0..k * batches).step_by(k) {
+                accel.intersect_batch(&origins[i..i + k], &dirs[i..i + k], f32::INFINITY, &mut h);
+                found += h.iter().filter(|h| h.is_some()).count();
+                if run == 0 {
+                    for (j, hj) in h.iter().enumerate() {
+                        let alone = accel.intersect(origins[i + j], dirs[i + j], f32::INFINITY);
+                        same &= alone.map(|h| (h.t, h.triangle)) == hj.map(|h| (h.t, h.triangle));
+                    }
                 }
             }
+            let secs = t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            for i in (0..k * batches).step_by(k) {
+                accel.occluded_batch(&origins[i..i + k], &shadow_dirs[i..i + k], &shadow_tmax[i..i + k], &mut blocked);
+                found += blocked.iter().filter(|b| **b).count();
+                if run == 0 {
+                    for (j, bj) in blocked.iter().enumerate() {
+                        same &= accel.occluded(origins[i + j], shadow_dirs[i + j], shadow_tmax[i + j]) == *bj;
+                    }
+                }
+            }
+            let secs_occ = t.elapsed().as_secs_f64();
+            if run > 0 {
+                closest.push((k * batches) as f64 / secs / 1e6);
+                occluded.push((k * batches) as f64 / secs_occ / 1e6);
+            }
+            std::hint::black_box(found);
         }
-        let secs = t.elapsed().as_secs_f64();
-        if run > 0 {
-            mrays.push((2 * pairs) as f64 / secs / 1e6);
-        }
-        std::hint::black_box(found);
+        let name = if k == 2 { "  paired".to_string() } else { format!("  batch of {k}") };
+        println!(
+            "{:<16} {:>10} {:>16.3} {:>16.3}  (same hits as one at a time: {same})",
+            name,
+            "",
+            median(closest),
+            median(occluded)
+        );
     }
-    println!("{:<16} {:>10} {:>16.3} {:>16}  (same hits as one at a time: {same})", "  paired", "", median(mrays), "");
 }
 
 /// The workload's rays: origins uniform in the ball of radius 0.5, directions uniform on the
@@ -208,6 +248,8 @@ pub fn run(a: RaysArgs) -> Result<()> {
         ..Mesh::default()
     };
     let (origins, dirs) = rays(a.rays);
+    let shadow_tmax = vec![10.0; origins.len()];
+    let batched = Batched { origins: &origins, dirs: &dirs, shadow_dirs: &dirs, shadow_tmax: &shadow_tmax };
     println!(
         "icosphere level {}: {} triangles | {} incoherent rays from inside | 1 thread | median of {} runs",
         a.level,
@@ -256,7 +298,7 @@ pub fn run(a: RaysArgs) -> Result<()> {
             }
         );
         if kind == AccelKind::Obvhs || kind == AccelKind::ObvhsCompressed {
-            print_paired(&accel, &origins, &dirs, a.runs);
+            batched.print(&accel, a.runs);
         }
         if kind == AccelKind::Obvhs {
             closest_t = ts;

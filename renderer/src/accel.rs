@@ -65,6 +65,9 @@ struct Deferred {
 /// of its own size (`Accel::stack_len`).
 const STACK: usize = 256;
 
+/// The most rays [`Accel::intersect_batch`] walks at once.
+pub const MAX_BATCH: usize = 16;
+
 /// obvhs' ray octant code (`CwBvh::new_traversal`): in every byte, bit 2, 1, 0 set for a
 /// non-negative x, y, z direction component. XORed with a child's slot it gives the child's
 /// traversal priority (the node test's hit-mask bit).
@@ -137,46 +140,83 @@ fn traverse_closest<N: TraversalNode>(
         return;
     }
     let mut walk = ClosestWalk::new(ray);
-    while walk.step(nodes, stack, &mut group) {}
+    while walk.step::<N, false>(nodes, stack, &mut group, &|_, _| ()) {}
 }
 
-/// [`traverse_closest`] for two rays at once, a node of each in turn: the two walks are
-/// independent chains of loads and tests, so the core can overlap one's latency with the other's.
+/// [`traverse_closest`] for up to [`MAX_BATCH`] rays at once, a node of each live ray in turn:
+/// the walks are independent chains of loads and tests, so the core can overlap one's cache
+/// misses with the others' work. `stack` holds `rays.len()` stacks of `len` entries;
+/// `group(lane, ray, base, mask)` is `traverse_closest`'s group test for ray `lane`. A walk's
+/// steps do not depend on the others', so each ray finds what it finds alone.
 #[inline(always)]
-fn traverse_closest_pair<N: TraversalNode>(
+fn traverse_closest_batch<N: TraversalNode>(
     nodes: &[N],
-    stacks: (&mut [MaybeUninit<Deferred>], &mut [MaybeUninit<Deferred>]),
-    rays: (BvhRay, BvhRay),
-    mut group_a: impl FnMut(&BvhRay, usize, u32) -> f32,
-    mut group_b: impl FnMut(&BvhRay, usize, u32) -> f32,
+    stack: &mut [MaybeUninit<Deferred>],
+    len: usize,
+    rays: &[BvhRay],
+    mut group: impl FnMut(usize, &BvhRay, usize, u32) -> f32,
+    touch: impl Fn(usize, u32),
 ) {
-    if nodes.is_empty() {
+    let n = rays.len().min(MAX_BATCH);
+    if nodes.is_empty() || n == 0 {
         return;
     }
-    let (stack_a, stack_b) = stacks;
-    let mut a = ClosestWalk::new(rays.0);
-    let mut b = ClosestWalk::new(rays.1);
-    let (mut live_a, mut live_b) = (true, true);
-    while live_a && live_b {
-        live_a = a.step(nodes, stack_a, &mut group_a);
-        live_b = b.step(nodes, stack_b, &mut group_b);
+    let mut walks = [ClosestWalk::new(rays[0]); MAX_BATCH];
+    let mut live = [0u8; MAX_BATCH];
+    for k in 0..n {
+        walks[k] = ClosestWalk::new(rays[k]);
+        live[k] = k as u8;
     }
-    while live_a {
-        live_a = a.step(nodes, stack_a, &mut group_a);
+    // The live lanes are `live[..count]`; a finished one is swapped out, so the loop only ever
+    // steps walks that have work.
+    let mut count = n;
+    while count > 0 {
+        let mut j = 0;
+        while j < count {
+            let k = live[j] as usize;
+            let more = walks[k].step::<N, true>(
+                nodes,
+                &mut stack[k * len..(k + 1) * len],
+                &mut |r: &BvhRay, b, m| group(k, r, b, m),
+                &touch,
+            );
+            if more {
+                j += 1;
+            } else {
+                count -= 1;
+                live[j] = live[count];
+            }
+        }
     }
-    while live_b {
-        live_b = b.step(nodes, stack_b, &mut group_b);
+}
+
+/// Asks the cache for every line of `node` (a batch's walk is about to visit it, after the
+/// others' steps).
+#[inline(always)]
+pub(crate) fn prefetch<N>(node: &N) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        let p = node as *const N as *const i8;
+        for line in (0..std::mem::size_of::<N>()).step_by(64) {
+            // SAFETY: a prefetch is a hint; the address lies inside `node`.
+            unsafe { std::arch::x86_64::_mm_prefetch(p.add(line), std::arch::x86_64::_MM_HINT_T0) };
+        }
     }
 }
 
 /// One ray's closest-hit traversal ([`traverse_closest`]) as a state advanced a node at a time.
-/// Its stack is handed to each step, so a pair's two stacks are two plain borrows.
+/// Its stack is handed to each step, so a batch's stacks are plain borrows.
+#[derive(Clone, Copy)]
 struct ClosestWalk {
     ray: BvhRay,
     inv_far: Vec3A,
     oct_inv4: u32,
     sp: usize,
     current: u32,
+    /// A batch's pending leaf test ([`ClosestWalk::step`]): the node's first primitive slot and
+    /// the hit mask, 0 when none is pending.
+    leaf_base: u32,
+    leaf_prims: u32,
 }
 
 impl ClosestWalk {
@@ -184,22 +224,38 @@ impl ClosestWalk {
     fn new(ray: BvhRay) -> Self {
         let oct_inv4 = octant_inv4(ray.direction);
         let inv_far = crate::wide_node::far_inverse(&ray);
-        ClosestWalk { ray, inv_far, oct_inv4, sp: 0, current: 0 }
+        ClosestWalk { ray, inv_far, oct_inv4, sp: 0, current: 0, leaf_base: 0, leaf_prims: 0 }
     }
 
     /// Visits the current node and picks the next; false when no node is left to visit.
+    ///
+    /// In a batch (`BATCH`) a node whose leaf triangles the ray reaches takes two steps: the first
+    /// tests the node, defers its children and asks the cache for the triangles (`touch`), the
+    /// second tests them, once the other walks' steps have given the lines time to arrive. The
+    /// ray does the same tests in the same order either way (children are deferred by their entry
+    /// distances alone; only the choice of the next node reads the shortened ray), so its hit is
+    /// the same.
     #[inline(always)]
-    fn step<N: TraversalNode>(
+    fn step<N: TraversalNode, const BATCH: bool>(
         &mut self,
         nodes: &[N],
         stack: &mut [MaybeUninit<Deferred>],
         group: &mut impl FnMut(&BvhRay, usize, u32) -> f32,
+        touch: &impl Fn(usize, u32),
     ) -> bool {
+        if BATCH && self.leaf_prims != 0 {
+            let t = group(&self.ray, self.leaf_base as usize, self.leaf_prims);
+            if t < self.ray.tmax {
+                self.ray.tmax = t;
+            }
+            self.leaf_prims = 0;
+            return self.next::<N, BATCH>(nodes, stack, self.sp);
+        }
         let oct = self.oct_inv4 & 7;
         let node = &nodes[self.current as usize];
         let (hits, entry) = node.test(&self.ray, self.inv_far, self.oct_inv4);
         let prims = hits & 0x00ff_ffff;
-        if prims != 0 {
+        if !BATCH && prims != 0 {
             let t = group(&self.ray, node.links().1 as usize, prims);
             if t < self.ray.tmax {
                 self.ray.tmax = t;
@@ -223,18 +279,39 @@ impl ClosestWalk {
             stack[i] = MaybeUninit::new(d);
             sp += 1;
         }
-        // Next: the nearest deferred child that begins before the closest hit so far.
+        if BATCH && prims != 0 {
+            let base = node.links().1;
+            touch(base as usize, prims);
+            (self.leaf_base, self.leaf_prims) = (base, prims);
+            self.sp = sp;
+            return true;
+        }
+        self.next::<N, BATCH>(nodes, stack, sp)
+    }
+
+    /// Picks the nearest deferred child that begins before the closest hit so far (the stack's
+    /// top `sp` entries); false when none is left.
+    #[inline(always)]
+    fn next<N: TraversalNode, const BATCH: bool>(
+        &mut self,
+        nodes: &[N],
+        stack: &[MaybeUninit<Deferred>],
+        mut sp: usize,
+    ) -> bool {
         loop {
             if sp == 0 {
                 self.sp = 0;
                 return false;
             }
             sp -= 1;
-            // SAFETY: as above.
+            // SAFETY: every entry below the stack pointer has been written.
             let d = unsafe { stack[sp].assume_init() };
             if d.entry <= self.ray.tmax {
                 self.current = d.node;
                 self.sp = sp;
+                if BATCH {
+                    prefetch(&nodes[d.node as usize]);
+                }
                 return true;
             }
         }
@@ -281,6 +358,119 @@ fn traverse_any<N: TraversalNode>(
     }
 }
 
+/// [`traverse_any`] for up to [`MAX_BATCH`] rays at once, a node of each unfinished ray in turn
+/// (as [`traverse_closest_batch`]); `hit[k]` says whether ray k found something. A node whose
+/// leaf triangles the ray reaches takes two steps, the second testing them once `touch` has asked
+/// the cache for them. Which triangle stops a ray may differ from a walk alone (children are
+/// deferred before the leaf test here), but whether one does cannot.
+#[inline(always)]
+fn traverse_any_batch<N: TraversalNode>(
+    nodes: &[N],
+    stack: &mut [MaybeUninit<Deferred>],
+    len: usize,
+    rays: &[BvhRay],
+    mut group: impl FnMut(usize, usize, u32) -> bool,
+    touch: impl Fn(usize, u32),
+    hit: &mut [bool],
+) {
+    let n = rays.len().min(MAX_BATCH).min(hit.len());
+    if nodes.is_empty() || n == 0 {
+        return;
+    }
+    let mut walks = [AnyWalk::new(&rays[0]); MAX_BATCH];
+    let mut live = [0u8; MAX_BATCH];
+    for k in 0..n {
+        walks[k] = AnyWalk::new(&rays[k]);
+        live[k] = k as u8;
+    }
+    let mut count = n;
+    while count > 0 {
+        let mut j = 0;
+        while j < count {
+            let k = live[j] as usize;
+            let stack = &mut stack[k * len..(k + 1) * len];
+            match walks[k].step(nodes, stack, &rays[k], &mut |b, m| group(k, b, m), &touch) {
+                None => j += 1,
+                Some(found) => {
+                    hit[k] = found;
+                    count -= 1;
+                    live[j] = live[count];
+                }
+            }
+        }
+    }
+}
+
+/// One ray's any-hit walk in a batch ([`traverse_any_batch`]), advanced a node at a time.
+#[derive(Clone, Copy)]
+struct AnyWalk {
+    inv_far: Vec3A,
+    oct_inv4: u32,
+    sp: usize,
+    current: u32,
+    /// The pending leaf test: first primitive slot and hit mask (0: none).
+    leaf_base: u32,
+    leaf_prims: u32,
+}
+
+impl AnyWalk {
+    #[inline(always)]
+    fn new(ray: &BvhRay) -> Self {
+        AnyWalk {
+            inv_far: crate::wide_node::far_inverse(ray),
+            oct_inv4: octant_inv4(ray.direction),
+            sp: 0,
+            current: 0,
+            leaf_base: 0,
+            leaf_prims: 0,
+        }
+    }
+
+    /// One step; `Some(hit)` when the walk is over.
+    #[inline(always)]
+    fn step<N: TraversalNode>(
+        &mut self,
+        nodes: &[N],
+        stack: &mut [MaybeUninit<Deferred>],
+        ray: &BvhRay,
+        group: &mut impl FnMut(usize, u32) -> bool,
+        touch: &impl Fn(usize, u32),
+    ) -> Option<bool> {
+        if self.leaf_prims != 0 {
+            if group(self.leaf_base as usize, self.leaf_prims) {
+                return Some(true);
+            }
+            self.leaf_prims = 0;
+        } else {
+            let oct = self.oct_inv4 & 7;
+            let node = &nodes[self.current as usize];
+            let hits = node.test(ray, self.inv_far, self.oct_inv4).0;
+            let mut inner = hits >> 24;
+            while inner != 0 && self.sp < stack.len() {
+                let slot = inner.trailing_zeros() ^ oct;
+                inner &= inner - 1;
+                stack[self.sp] = MaybeUninit::new(Deferred { node: inner_child(node, slot), entry: 0.0 });
+                self.sp += 1;
+            }
+            let prims = hits & 0x00ff_ffff;
+            if prims != 0 {
+                let base = node.links().1;
+                touch(base as usize, prims);
+                (self.leaf_base, self.leaf_prims) = (base, prims);
+                return None;
+            }
+        }
+        if self.sp == 0 {
+            return Some(false);
+        }
+        self.sp -= 1;
+        // SAFETY: every entry below the stack pointer has been written.
+        self.current = unsafe { stack[self.sp].assume_init() }.node;
+        prefetch(&nodes[self.current as usize]);
+        None
+    }
+}
+
 /// Runs `f` with a traversal stack of `len` entries: on the call stack when that fits
 /// [`STACK`], else on the heap.
 #[inline(always)]
@@ -288,6 +478,19 @@ fn with_stack<R>(len: usize, f: impl FnOnce(&mut [MaybeUninit<Deferred>]) -> R) 
     if len <= STACK {
         let mut stack: [MaybeUninit<Deferred>; STACK] = [const { MaybeUninit::uninit() }; STACK];
         f(&mut stack)
+    } else {
+        let mut stack = vec![MaybeUninit::uninit(); len];
+        f(&mut stack)
+    }
+}
+
+/// [`with_stack`] for a batch's stacks: [`MAX_BATCH`] of [`STACK`] entries on the call stack.
+#[inline(always)]
+fn with_batch_stack<R>(len: usize, f: impl FnOnce(&mut [MaybeUninit<Deferred>]) -> R) -> R {
+    if len <= STACK * MAX_BATCH {
+        let mut stack: [MaybeUninit<Deferred>; STACK * MAX_BATCH] =
+            [const { MaybeUninit::uninit() }; STACK * MAX_BATCH];
+        f(&mut stack[..len])
     } else {
         let mut stack = vec![MaybeUninit::uninit(); len];
         f(&mut stack)
@@ -351,12 +554,14 @@ fn build_params(n: usize) -> obvhs::BvhBuildParams {
     }
 }
 
-/// Above this many triangles (a one-level BVH) renders trace two paths' closest-hit rays together
-/// ([`Accel::intersect_pair`]): there the walks wait on memory and two overlap their misses
-/// (`tessera bench rays`: +3 % to +33 % closest-hit rays/s at 327 680 and 1 310 720
-/// triangles); below, the BVH stays in cache and pairing costs more than it saves (−2 % to −21 %
-/// on four suite scenes of 36 to 4 622 triangles). ARCHITECTURE.md has the figures.
-pub const PAIR_RAYS_ABOVE: usize = WIDE_NODES_UP_TO;
+/// Above this many triangles (a one-level BVH) renders trace a batch of paths' rays together
+/// ([`Accel::intersect_batch`], [`Accel::occluded_batch`]): there the walks wait on memory and the
+/// batch's prefetches overlap their misses (`tessera bench rays`, batch of 16 against single:
+/// +6 % / +11 % closest / occluded rays/s at 81 920 triangles, +36 % / +28 % at 327 680, +71 % /
+/// +66 % at 1 310 720); below, the BVH stays in cache and batching costs more than it saves
+/// (−9 % closest at 20 480; −13 % to −26 % on the suite scenes of 36 to 4 622 triangles).
+/// ARCHITECTURE.md has the figures.
+pub const BATCH_RAYS_ABOVE: usize = WIDE_NODES_UP_TO;
 
 /// See [`build_params`].
 pub const LARGE_BUILD: usize = 4_000_000;
@@ -434,8 +639,8 @@ pub struct Accel {
     /// Test leaf triangles one at a time (`TriangleBlocks::intersect8_scalar`): the reference the
     /// eight-wide test is held to (same hits, same images), off except in tests.
     scalar_reference: bool,
-    /// Renders trace two paths' rays together ([`Accel::pairs_rays`]).
-    pair_rays: bool,
+    /// Renders trace two paths' rays together ([`Accel::batches_rays`]).
+    batch_rays: bool,
     own: Option<crate::bvh::Bvh>,
     /// Set when the scene has instances (then `bvh`, `tris` and `own` are empty).
     top: Option<Box<TopLevel>>,
@@ -467,7 +672,7 @@ impl Accel {
                 stack_len: 0,
                 tris: TriangleBlocks::default(),
                 scalar_reference: false,
-                pair_rays: false,
+                batch_rays: false,
                 own: Some(crate::bvh::Bvh::build(tris)),
                 top: None,
             };
@@ -492,8 +697,8 @@ impl Accel {
             bvh.primitive_indices.iter().map(|&k| RtTriangle::new(mesh.vertices(ids[k as usize]), ids[k as usize])),
         );
         let (bvh, wide) = decompress(bvh, prims.len(), kind.wide_up_to());
-        let pair_rays = prims.len() > PAIR_RAYS_ABOVE;
-        Accel { stack_len, bvh, wide, kind, tris, scalar_reference: false, pair_rays, own: None, top: None }
+        let batch_rays = prims.len() > BATCH_RAYS_ABOVE;
+        Accel { stack_len, bvh, wide, kind, tris, scalar_reference: false, batch_rays, own: None, top: None }
     }
 
     /// After an animation moved instances or world vertices: a new top level over the prototype
@@ -679,44 +884,58 @@ impl Accel {
         Hit { t, triangle: self.tris.ids[slot], b1, b2, instance: NO_INSTANCE }
     }
 
-    /// Whether renders should trace two paths' rays together ([`PAIR_RAYS_ABOVE`]; only a
-    /// one-level obvhs BVH pairs).
-    pub fn pairs_rays(&self) -> bool {
-        self.pair_rays && self.top.is_none() && self.own.is_none() && !self.tris.is_empty()
+    /// Whether renders should trace a batch of paths' rays together ([`BATCH_RAYS_ABOVE`]; only a
+    /// one-level obvhs BVH batches).
+    pub fn batches_rays(&self) -> bool {
+        self.batch_rays && self.top.is_none() && self.own.is_none() && !self.tris.is_empty()
     }
 
-    /// Overrides [`Self::pairs_rays`]' size rule (tests hold paired renders to single ones on
+    /// Overrides [`Self::batches_rays`]' size rule (tests hold batched renders to single ones on
     /// small scenes; images are the same either way).
-    pub fn set_pair_rays(&mut self, on: bool) {
-        self.pair_rays = on;
+    pub fn set_batch_rays(&mut self, on: bool) {
+        self.batch_rays = on;
     }
 
-    /// [`Self::intersect`] for two rays at once (interleaved traversal, the same hits).
-    pub fn intersect_pair(&self, o: [Vec3; 2], d: [Vec3; 2], tmax: f32) -> [Option<Hit>; 2] {
-        let (oa, da) = (o.map(Vec3A::from), d.map(Vec3A::from));
-        if self.top.is_some()
-            || self.own.is_some()
-            || self.tris.is_empty()
-            || !(oa[0].is_finite() && oa[1].is_finite() && da[0].is_finite() && da[1].is_finite())
-        {
-            return [self.intersect(o[0], d[0], tmax), self.intersect(o[1], d[1], tmax)];
+    /// [`Self::intersect`] for `o.len()` rays at once (at most [`MAX_BATCH`]; more are traced a
+    /// batch at a time) into `out`: their walks interleaved node by node, the same hits.
+    pub fn intersect_batch(&self, o: &[Vec3], d: &[Vec3], tmax: f32, out: &mut [Option<Hit>]) {
+        let n = o.len().min(d.len()).min(out.len());
+        if n > MAX_BATCH {
+            for s in (0..n).step_by(MAX_BATCH) {
+                let e = (s + MAX_BATCH).min(n);
+                self.intersect_batch(&o[s..e], &d[s..e], tmax, &mut out[s..e]);
+            }
+            return;
         }
-        let rays = (BvhRay::new(oa[0], da[0], 0.0, tmax), BvhRay::new(oa[1], da[1], 0.0, tmax));
-        let wrays = [WatertightRay::new(oa[0], da[0]), WatertightRay::new(oa[1], da[1])];
-        let mut best = [None, None];
-        let [best_a, best_b] = &mut best;
-        with_stack(self.stack_len, |sa| {
-            with_stack(self.stack_len, |sb| {
-                let ga = |r: &BvhRay, base, mask| self.closest_in_group(&wrays[0], best_a, r.tmax, base, mask);
-                let gb = |r: &BvhRay, base, mask| self.closest_in_group(&wrays[1], best_b, r.tmax, base, mask);
-                if self.wide.is_empty() {
-                    traverse_closest_pair(&self.bvh.nodes, (sa, sb), rays, ga, gb)
-                } else {
-                    traverse_closest_pair(&self.wide, (sa, sb), rays, ga, gb)
-                }
-            })
+        let finite = o[..n].iter().chain(&d[..n]).all(|v| v.is_finite());
+        if self.top.is_some() || self.own.is_some() || self.tris.is_empty() || !finite || n < 2 {
+            for k in 0..n {
+                out[k] = self.intersect(o[k], d[k], tmax);
+            }
+            return;
+        }
+        let mut rays = [BvhRay::new(Vec3A::ZERO, Vec3A::X, 0.0, 0.0); MAX_BATCH];
+        let mut wrays = [WatertightRay::new(Vec3A::ZERO, Vec3A::X); MAX_BATCH];
+        for k in 0..n {
+            let (oa, da) = (Vec3A::from(o[k]), Vec3A::from(d[k]));
+            rays[k] = BvhRay::new(oa, da, 0.0, tmax);
+            wrays[k] = WatertightRay::new(oa, da);
+        }
+        let mut best = [None; MAX_BATCH];
+        let len = self.stack_len;
+        with_batch_stack(len * n, |stack| {
+            let group =
+                |k: usize, r: &BvhRay, base, mask| self.closest_in_group(&wrays[k], &mut best[k], r.tmax, base, mask);
+            let touch = |base, mask| self.tris.prefetch(base, mask);
+            if self.wide.is_empty() {
+                traverse_closest_batch(&self.bvh.nodes, stack, len, &rays[..n], group, touch)
+            } else {
+                traverse_closest_batch(&self.wide, stack, len, &rays[..n], group, touch)
+            }
         });
-        best.map(|b| b.map(|leaf| self.leaf_hit(leaf)))
+        for k in 0..n {
+            out[k] = best[k].map(|leaf| self.leaf_hit(leaf));
+        }
     }
 
     /// Whether any leaf triangle of the group (`traverse_any`) lies on the ray before `tmax`.
@@ -735,6 +954,45 @@ impl Accel {
             }
         }
         false
+    }
+
+    /// [`Self::occluded`] for `o.len()` rays at once (at most [`MAX_BATCH`]; more go a batch at
+    /// a time), ray k stopping at `tmax[k]`, into `out`: their walks interleaved node by node, the
+    /// same answers.
+    pub fn occluded_batch(&self, o: &[Vec3], d: &[Vec3], tmax: &[f32], out: &mut [bool]) {
+        let n = o.len().min(d.len()).min(tmax.len()).min(out.len());
+        if n > MAX_BATCH {
+            for s in (0..n).step_by(MAX_BATCH) {
+                let e = (s + MAX_BATCH).min(n);
+                self.occluded_batch(&o[s..e], &d[s..e], &tmax[s..e], &mut out[s..e]);
+            }
+            return;
+        }
+        let finite = o[..n].iter().chain(&d[..n]).all(|v| v.is_finite());
+        if self.top.is_some() || self.own.is_some() || self.tris.is_empty() || !finite || n < 2 {
+            for k in 0..n {
+                out[k] = self.occluded(o[k], d[k], tmax[k]);
+            }
+            return;
+        }
+        let mut rays = [BvhRay::new(Vec3A::ZERO, Vec3A::X, 0.0, 0.0); MAX_BATCH];
+        let mut wrays = [WatertightRay::new(Vec3A::ZERO, Vec3A::X); MAX_BATCH];
+        for k in 0..n {
+            let (oa, da) = (Vec3A::from(o[k]), Vec3A::from(d[k]));
+            rays[k] = BvhRay::new(oa, da, 0.0, tmax[k]);
+            wrays[k] = WatertightRay::new(oa, da);
+        }
+        let len = self.stack_len;
+        out[..n].fill(false);
+        with_batch_stack(len * n, |stack| {
+            let group = |k: usize, base, mask| self.any_in_group(&wrays[k], base, mask, tmax[k]);
+            let touch = |base, mask| self.tris.prefetch(base, mask);
+            if self.wide.is_empty() {
+                traverse_any_batch(&self.bvh.nodes, stack, len, &rays[..n], group, touch, &mut out[..n])
+            } else {
+                traverse_any_batch(&self.wide, stack, len, &rays[..n], group, touch, &mut out[..n])
+            }
+        });
     }
 
     /// True when anything lies on `o + t d` for `0 < t < tmax`.
@@ -862,38 +1120,65 @@ mod tests {
         assert!(hits > 30_000, "the test rays must hit ({hits})");
     }
 
-    /// Two rays traversed interleaved find what each finds alone, bit for bit, with compressed and
-    /// wide nodes and a heap stack, and where a ray ends (tmax) or leaves everything early.
+    /// Rays traversed as a batch find what each finds alone, bit for bit (closest hits) and
+    /// answer for answer (occlusion), for batches of 2 to more than [`MAX_BATCH`], with compressed
+    /// and wide nodes and heap stacks, and where a ray ends (tmax), leaves everything early or is
+    /// not finite.
     #[test]
-    fn paired_traversal_finds_each_rays_own_hit() {
+    fn batched_traversal_finds_each_rays_own_hit() {
         let (b, all) = sphere_cluster();
         let key = |h: Option<Hit>| h.map(|h| (h.t.to_bits(), h.triangle, h.b1.to_bits(), h.b2.to_bits()));
-        let mut hits = 0usize;
+        let (mut hits, mut blocked, mut open) = (0usize, 0usize, 0usize);
         for (kind, heap) in [(AccelKind::ObvhsCompressed, false), (AccelKind::Obvhs, false), (AccelKind::Obvhs, true)] {
             let mut accel = Accel::build_triangles(&b.mesh, all.clone(), kind);
             if heap {
-                accel.stack_len = STACK + 1;
+                // Two stacks of this size no longer fit the batch's call-stack array.
+                accel.stack_len = STACK * MAX_BATCH / 2 + 1;
             }
             let ray = |i: u64| {
                 let u = |j: u64| crate::sampler::hash_unit(8 * i + j);
                 // Every third ray starts outside the enclosing sphere pointing away: it ends at
-                // the root while its partner walks on.
+                // the root while the others walk on.
                 let o = Vec3::new(u(0), u(1), u(2)) * 8.0 - 4.0;
                 let o = if i.is_multiple_of(3) { o.normalize_or_zero() * 20.0 } else { o };
                 let d = if i.is_multiple_of(3) { o } else { Vec3::new(u(3), u(4), u(5)) * 2.0 - 1.0 };
-                (o, d)
+                let d = if i % 997 == 5 { Vec3::new(f32::NAN, 0.0, 1.0) } else { d };
+                // Occlusion rays stop at a random distance, some never.
+                let t = if i.is_multiple_of(5) { f32::INFINITY } else { 6.0 * u(6) };
+                (o, d, t)
             };
-            for i in 0..10_000u64 {
-                let ((oa, da), (ob, db)) = (ray(2 * i), ray(2 * i + 1));
-                let tmax = if i % 4 == 0 { 3.0 * crate::sampler::hash_unit(7 * i) } else { f32::INFINITY };
-                let got = accel.intersect_pair([oa, ob], [da, db], tmax);
-                let want = [accel.intersect(oa, da, tmax), accel.intersect(ob, db, tmax)];
-                assert_eq!(key(got[0]), key(want[0]), "pair {i}, first ray ({kind:?}, heap {heap})");
-                assert_eq!(key(got[1]), key(want[1]), "pair {i}, second ray ({kind:?}, heap {heap})");
-                hits += want.iter().filter(|h| h.is_some()).count();
+            let mut i = 0u64;
+            for n in [2, 3, 5, MAX_BATCH, MAX_BATCH + 3].into_iter().cycle().take(3000) {
+                let rays: Vec<_> = (i..i + n as u64).map(ray).collect();
+                i += n as u64;
+                let (o, d, t): (Vec<_>, Vec<_>, Vec<_>) = (
+                    rays.iter().map(|r| r.0).collect(),
+                    rays.iter().map(|r| r.1).collect(),
+                    rays.iter().map(|r| r.2).collect(),
+                );
+                let tmax = if i.is_multiple_of(4) { 3.0 * crate::sampler::hash_unit(7 * i) } else { f32::INFINITY };
+                let mut got = vec![None; n];
+                accel.intersect_batch(&o, &d, tmax, &mut got);
+                let mut got_occ = vec![false; n];
+                accel.occluded_batch(&o, &d, &t, &mut got_occ);
+                for k in 0..n {
+                    let want = accel.intersect(o[k], d[k], tmax);
+                    assert_eq!(key(got[k]), key(want), "ray {k} of {n} ({kind:?}, heap {heap})");
+                    hits += want.is_some() as usize;
+                    let want_occ = accel.occluded(o[k], d[k], t[k]);
+                    assert_eq!(got_occ[k], want_occ, "occlusion ray {k} of {n} ({kind:?}, heap {heap})");
+                    if want_occ {
+                        blocked += 1;
+                    } else {
+                        open += 1;
+                    }
+                }
             }
         }
-        assert!(hits > 25_000, "the test rays must hit ({hits})");
+        assert!(
+            hits > 40_000 && blocked > 20_000 && open > 10_000,
+            "the test rays must do both ({hits}, {blocked}, {open})"
+        );
     }
 
     /// Windows cover exactly the slots a group names, block-aligned, highest block first.

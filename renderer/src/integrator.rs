@@ -6,7 +6,7 @@
 //! reaches `rr_depth` and is based on the path throughput times the η² of the transmissions so far
 //! (radiance scaling at glass boundaries is not energy the path will lose).
 
-use crate::accel::Hit;
+use crate::accel::{Hit, MAX_BATCH};
 use crate::light::emitted;
 use crate::math::{balance_heuristic, offset_ray_origin, power_heuristic, Frame, Vec2, Vec3, SHADOW_EPSILON};
 use crate::sampler::{dims, PixelSample};
@@ -36,38 +36,86 @@ pub fn radiance(
     path.l
 }
 
-/// [`radiance`] for two samples at once: both paths' rays go to the BVH together
-/// ([`Scene::intersect_surface_pair`]) while both live, and each path does exactly the arithmetic
-/// it does alone, so each result is bit-equal to its own [`radiance`]. Pays where the BVH misses
-/// cache and two traversals overlap their waits ([`Scene::pairs_rays`]).
-pub fn radiance_pair(
+/// [`radiance`] for up to [`MAX_BATCH`] samples at once (`d[k]` with `samplers[k]` into
+/// `out[k]`): the live paths' bounce rays go to the BVH together ([`Scene::intersect_surface_batch`]),
+/// and each path does exactly the arithmetic it does alone, so each result is bit-equal to its
+/// own [`radiance`]. Pays where the BVH misses cache and the traversals overlap their waits
+/// ([`Scene::batches_rays`]).
+pub fn radiance_batch(
     scene: &Scene,
     settings: &RenderSettings,
     o: Vec3,
-    d: [Vec3; 2],
-    samplers: [&PixelSample; 2],
+    d: &[Vec3],
+    samplers: &[PixelSample],
     rays: &mut u64,
-) -> [Vec3; 2] {
-    let mut a = Path::new(scene, settings, o, d[0]);
-    let mut b = Path::new(scene, settings, o, d[1]);
-    let (mut live_a, mut live_b) = (true, true);
-    while live_a && live_b {
-        let seed_a = a.begin_bounce(scene, samplers[0], rays);
-        let seed_b = b.begin_bounce(scene, samplers[1], rays);
-        let [hit_a, hit_b] = scene.intersect_surface_pair([a.o, b.o], [a.d, b.d], [seed_a, seed_b]);
-        live_a = a.after_hit(scene, settings, hit_a, rays);
-        live_b = b.after_hit(scene, settings, hit_b, rays);
+    out: &mut [Vec3],
+) {
+    let n = d.len().min(samplers.len()).min(out.len()).min(MAX_BATCH);
+    if n == 0 {
+        return;
     }
-    if live_a {
-        a.run(scene, settings, samplers[0], rays);
+    let mut paths = [Path::new(scene, settings, o, d[0]); MAX_BATCH];
+    // The live paths are `paths[live[..count]]`, in sample order.
+    let mut live = [0u8; MAX_BATCH];
+    for k in 0..n {
+        paths[k] = Path::new(scene, settings, o, d[k]);
+        live[k] = k as u8;
     }
-    if live_b {
-        b.run(scene, settings, samplers[1], rays);
+    let mut count = n;
+    let (mut ro, mut rd, mut seeds) = ([Vec3::ZERO; MAX_BATCH], [Vec3::ZERO; MAX_BATCH], [0u32; MAX_BATCH]);
+    let mut hits = [None; MAX_BATCH];
+    let (mut tmax, mut waiting, mut visible) = ([0f32; MAX_BATCH], [0u8; MAX_BATCH], [0f32; MAX_BATCH]);
+    while count > 1 {
+        for j in 0..count {
+            let k = live[j] as usize;
+            seeds[j] = paths[k].begin_bounce(scene, &samplers[k], rays);
+            (ro[j], rd[j]) = (paths[k].o, paths[k].d);
+        }
+        scene.intersect_surface_batch(&ro[..count], &rd[..count], &seeds[..count], &mut hits[..count]);
+        // The hits' triangles, then their vertices, asked of the cache for all before any is
+        // shaded: on a mesh that misses cache, the shading's first loads otherwise wait one
+        // after another.
+        for h in hits[..count].iter().flatten() {
+            scene.mesh.prefetch_triangle(h.triangle);
+        }
+        for h in hits[..count].iter().flatten() {
+            scene.mesh.prefetch_vertices(h.triangle);
+        }
+        // Every path's vertex, then their shadow rays together (a path that ends at this vertex
+        // still adds its light sample), then the survivors go on in sample order.
+        let (mut still, mut shadows) = (0, 0);
+        for j in 0..count {
+            let k = live[j] as usize;
+            let more = paths[k].after_hit::<true>(scene, settings, hits[j], rays);
+            if let Some(s) = paths[k].shadow {
+                (ro[shadows], rd[shadows], tmax[shadows], waiting[shadows]) = (s.o, s.d, s.tmax, k as u8);
+                shadows += 1;
+            }
+            if more {
+                live[still] = k as u8;
+                still += 1;
+            }
+        }
+        scene.visibility_batch(&ro[..shadows], &rd[..shadows], &tmax[..shadows], &mut visible[..shadows]);
+        for i in 0..shadows {
+            let path = &mut paths[waiting[i] as usize];
+            if let Some(s) = path.shadow.take() {
+                path.add_direct(&s, visible[i]);
+            }
+        }
+        count = still;
     }
-    [a.l, b.l]
+    if count == 1 {
+        let k = live[0] as usize;
+        paths[k].run(scene, settings, &samplers[k], rays);
+    }
+    for k in 0..n {
+        out[k] = paths[k].l;
+    }
 }
 
 /// One path between bounces: what [`radiance`] carries from one vertex to the next.
+#[derive(Clone, Copy)]
 struct Path {
     /// Radiance gathered so far.
     l: Vec3,
@@ -95,6 +143,23 @@ struct Path {
     /// The current bounce's two 4D sample sets ([`Path::begin_bounce`]).
     u_bsdf: [f32; 4],
     u_light: [f32; 4],
+    /// Next-event estimation's shadow ray, when a batch defers it ([`Path::after_hit`]).
+    shadow: Option<ShadowRay>,
+}
+
+/// Next-event estimation's light sample, waiting for its shadow ray: the ray, and the radiance it
+/// adds if nothing is in the way, in the factors [`Path::add_direct`] multiplies in order.
+#[derive(Clone, Copy)]
+struct ShadowRay {
+    o: Vec3,
+    d: Vec3,
+    tmax: f32,
+    /// Beer–Lambert transmittance to the light, inside an absorbing mesh.
+    medium: Option<Vec3>,
+    /// β·f·Le.
+    unshadowed: Vec3,
+    /// |cos θ|·(MIS weight)/pdf.
+    scale: f32,
 }
 
 impl Path {
@@ -114,6 +179,7 @@ impl Path {
             draws_light_set,
             u_bsdf: [0.0; 4],
             u_light: [0.0; 4],
+            shadow: None,
         }
     }
 
@@ -123,9 +189,23 @@ impl Path {
         loop {
             let seed = self.begin_bounce(scene, sampler, rays);
             let hit = scene.intersect_surface(self.o, self.d, seed);
-            if !self.after_hit(scene, settings, hit, rays) {
+            if !self.after_hit::<false>(scene, settings, hit, rays) {
                 break;
             }
+        }
+    }
+
+    /// Adds next-event estimation's light sample once its shadow ray is answered (`visible`: the
+    /// fraction of light that gets through). The arithmetic of `ShadowRay`'s fields is the
+    /// expression's own, in its order: β·f·Le, then visibility, then |cos|·w/pdf.
+    #[inline(always)]
+    fn add_direct(&mut self, ray: &ShadowRay, visible: f32) {
+        let visible = match ray.medium {
+            Some(t) => visible * t,
+            None => Vec3::splat(visible),
+        };
+        if visible != Vec3::ZERO {
+            self.l += ray.unshadowed * visible * ray.scale;
         }
     }
 
@@ -155,7 +235,17 @@ impl Path {
     /// The vertex the bounce's ray found (or the escape), its emission, next-event estimation and
     /// the next ray; false when the path ends here.
     #[inline(always)]
-    fn after_hit(&mut self, scene: &Scene, settings: &RenderSettings, hit: Option<Hit>, rays: &mut u64) -> bool {
+    ///
+    /// With `DEFER`, next-event estimation's shadow ray is left in [`Path::shadow`] for the caller
+    /// to trace (a batch traces its paths' together) and hand to [`Path::add_direct`]; the
+    /// radiance it adds is the same, and added before anything later in the path.
+    fn after_hit<const DEFER: bool>(
+        &mut self,
+        scene: &Scene,
+        settings: &RenderSettings,
+        hit: Option<Hit>,
+        rays: &mut u64,
+    ) -> bool {
         let (mesh, materials, textures) = (&scene.mesh, &scene.materials, &scene.textures);
         let Some(hit) = hit else {
             if self.medium != Vec3::ZERO {
@@ -306,17 +396,13 @@ impl Path {
                     let origin = if above { origin } else { offset_ray_origin(sp.p, -ng) };
                     if f != Vec3::ZERO {
                         *rays += 1;
-                        let visible = if ls.delta && ls.dist.is_finite() {
+                        let shadow = if ls.delta && ls.dist.is_finite() {
                             // A point light: no surface to offset from; stop just short of it.
                             let to = ls.p - origin;
                             let dist = to.length();
-                            if dist > 0.0 {
-                                scene.visibility(origin, to / dist, dist * (1.0 - 1e-5))
-                            } else {
-                                0.0
-                            }
+                            (dist > 0.0).then(|| (origin, to / dist, dist * (1.0 - 1e-5)))
                         } else if ls.dist.is_infinite() {
-                            scene.visibility(origin, ls.wi, f32::INFINITY)
+                            Some((origin, ls.wi, f32::INFINITY))
                         } else {
                             // An area light: aim just off its surface and stop a relative
                             // SHADOW_EPSILON short, so the emitter's own triangle (or a coplanar
@@ -324,26 +410,35 @@ impl Path {
                             let target = offset_ray_origin(ls.p, ls.n);
                             let to = target - origin;
                             let dist = to.length();
-                            if dist > 0.0 {
-                                scene.visibility(origin, to / dist, dist * (1.0 - SHADOW_EPSILON))
-                            } else {
-                                0.0
-                            }
+                            (dist > 0.0).then(|| (origin, to / dist, dist * (1.0 - SHADOW_EPSILON)))
                         };
-                        let visible = if self.medium != Vec3::ZERO {
-                            // Inside an absorbing mesh, the light is too (glass stops shadow rays).
-                            visible * transmittance(self.medium, ls.dist)
-                        } else {
-                            Vec3::splat(visible)
-                        };
-                        if visible != Vec3::ZERO {
-                            let w = match settings.integrator {
-                                IntegratorKind::Mis if !ls.delta => {
-                                    mis_weight(settings.mis_heuristic, ls.pdf, bsdf_pdf)
+                        if let Some((o, d, tmax)) = shadow {
+                            // Alone, the ray is traced first and the rest is only worked out when
+                            // light gets through; deferred, it all waits in `self.shadow`.
+                            let visible = if DEFER { 1.0 } else { scene.visibility(o, d, tmax) };
+                            if visible != 0.0 {
+                                let w = match settings.integrator {
+                                    IntegratorKind::Mis if !ls.delta => {
+                                        mis_weight(settings.mis_heuristic, ls.pdf, bsdf_pdf)
+                                    }
+                                    _ => 1.0,
+                                };
+                                let ray = ShadowRay {
+                                    o,
+                                    d,
+                                    tmax,
+                                    // Inside an absorbing mesh, the light is too (glass stops
+                                    // shadow rays).
+                                    medium: (self.medium != Vec3::ZERO).then(|| transmittance(self.medium, ls.dist)),
+                                    unshadowed: self.beta * f * ls.le,
+                                    scale: wi.z.abs() * w / ls.pdf,
+                                };
+                                if DEFER {
+                                    self.shadow = Some(ray);
+                                } else {
+                                    self.add_direct(&ray, visible);
                                 }
-                                _ => 1.0,
-                            };
-                            self.l += self.beta * f * ls.le * visible * (wi.z.abs() * w / ls.pdf);
+                            }
                         }
                     }
                 }

@@ -128,6 +128,39 @@ impl Mesh {
         TexCoords([uv0, uv1])
     }
 
+    /// Asks the cache for triangle `tri`'s record ([`Self::prefetch_vertices`] is the second
+    /// half: a batch of hits calls this for all, then that for all, then shades them, so the
+    /// misses of [`Self::surface_point`] overlap instead of following one another).
+    #[inline(always)]
+    pub fn prefetch_triangle(&self, tri: u32) {
+        if let Some(t) = self.triangles.get(tri as usize) {
+            crate::accel::prefetch(t);
+        }
+    }
+
+    /// Asks the cache for the vertex attributes of triangle `tri` that [`Self::surface_point`]
+    /// reads.
+    #[inline(always)]
+    pub fn prefetch_vertices(&self, tri: u32) {
+        let Some(t) = self.triangles.get(tri as usize) else { return };
+        for &i in &t.v {
+            let i = i as usize;
+            if let Some(p) = self.positions.get(i) {
+                crate::accel::prefetch(p);
+            }
+            if t.flags & flags::NORMALS != 0 {
+                if let Some(n) = self.normals.get(i) {
+                    crate::accel::prefetch(n);
+                }
+            }
+            if t.flags & flags::UVS != 0 {
+                if let Some(uv) = self.uvs.get(i) {
+                    crate::accel::prefetch(uv);
+                }
+            }
+        }
+    }
+
     /// Surface point at barycentrics (b1, b2) of `tri` (b0 = 1 − b1 − b2).
     pub fn surface_point(&self, tri: u32, b1: f32, b2: f32) -> SurfacePoint {
         let t = &self.triangles[tri as usize];

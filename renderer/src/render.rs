@@ -1,8 +1,9 @@
 //! Rendering a tile over a sample range into [`PartialSums`], and a whole image by passes.
 
+use crate::accel::MAX_BATCH;
 use crate::film::{PartialSums, Rect};
-use crate::integrator::{radiance, radiance_pair};
-use crate::math::Vec2;
+use crate::integrator::{radiance, radiance_batch};
+use crate::math::{Vec2, Vec3};
 use crate::sampler::{dims, PixelSample};
 use crate::scene::Scene;
 use crate::settings::{PixelFilter, RenderSettings};
@@ -148,7 +149,7 @@ pub fn render_tile_counted(
         .camera(settings.camera)
         .unwrap_or_else(|_| crate::camera::Camera::framing(scene.bounds.0, scene.bounds.1));
     let raster = camera.raster(settings.width, settings.height);
-    let pairs = scene.pairs_rays();
+    let batches = scene.batches_rays();
     // Per pixel: its sums, its sample count, and the rays traced and non-finite samples met, which
     // go to the shared counters once per tile rather than once per pixel (threads adding to the
     // same atomics contend for their cache line).
@@ -160,15 +161,21 @@ pub fn render_tile_counted(
             let mut rays = 0u64;
             let mut sums = PixelSums::default();
             let mut s = samples.start;
-            if pairs {
-                // Two samples' paths at a time, added in sample order: the same sums as one at a time.
+            if batches {
+                // Up to MAX_BATCH samples' paths at a time, added in sample order: the same sums
+                // as one at a time.
+                let mut samplers = [PixelSample::new(settings.sampler, settings.seed, (x, y), 0); MAX_BATCH];
+                let (mut dirs, mut l) = ([Vec3::ZERO; MAX_BATCH], [Vec3::ZERO; MAX_BATCH]);
                 while s + 1 < samples.end {
-                    let (sa, da) = camera_ray(settings, &raster, (x, y), s);
-                    let (sb, db) = camera_ray(settings, &raster, (x, y), s + 1);
-                    let [la, lb] = radiance_pair(scene, settings, camera.origin, [da, db], [&sa, &sb], &mut rays);
-                    sums.add(la);
-                    sums.add(lb);
-                    s += 2;
+                    let n = ((samples.end - s) as usize).min(MAX_BATCH);
+                    for k in 0..n {
+                        (samplers[k], dirs[k]) = camera_ray(settings, &raster, (x, y), s + k as u32);
+                    }
+                    radiance_batch(scene, settings, camera.origin, &dirs[..n], &samplers[..n], &mut rays, &mut l[..n]);
+                    for lk in &l[..n] {
+                        sums.add(*lk);
+                    }
+                    s += n as u32;
                 }
             }
             for s in s..samples.end {

@@ -137,11 +137,11 @@ impl Scene {
         self.lights.set_scalar_reference(on);
     }
 
-    /// Overrides whether renders trace two samples' paths together (by default only above
-    /// [`crate::accel::PAIR_RAYS_ABOVE`] triangles): same images either way
-    /// (`renderer/tests/paired_paths.rs`). Lasts until the BVH is rebuilt.
-    pub fn set_pair_rays(&mut self, on: bool) {
-        self.accel.set_pair_rays(on);
+    /// Overrides whether renders trace a pixel's samples' paths as a batch (by default only above
+    /// [`crate::accel::BATCH_RAYS_ABOVE`] triangles): same images either way
+    /// (`renderer/tests/batched_paths.rs`). Lasts until the BVH is rebuilt.
+    pub fn set_batch_rays(&mut self, on: bool) {
+        self.accel.set_batch_rays(on);
     }
 
     /// Attaches the animation data the loader gathered (the scene is posed at time 0).
@@ -346,20 +346,46 @@ impl Scene {
         None
     }
 
-    /// [`Self::intersect_surface`] for two rays: traced together ([`Accel::intersect_pair`]) where
-    /// no surface is transparent, else one after the other. The same hits either way.
-    pub fn intersect_surface_pair(&self, o: [Vec3; 2], d: [Vec3; 2], seed: [u32; 2]) -> [Option<Hit>; 2] {
+    /// [`Self::intersect_surface`] for up to [`crate::accel::MAX_BATCH`] rays into `out`: traced
+    /// together ([`Accel::intersect_batch`]) where no surface is transparent, else one after the
+    /// other. The same hits either way.
+    pub fn intersect_surface_batch(&self, o: &[Vec3], d: &[Vec3], seed: &[u32], out: &mut [Option<Hit>]) {
         if self.has_transparency() {
-            return [self.intersect_surface(o[0], d[0], seed[0]), self.intersect_surface(o[1], d[1], seed[1])];
+            for (k, h) in out.iter_mut().enumerate().take(o.len().min(d.len()).min(seed.len())) {
+                *h = self.intersect_surface(o[k], d[k], seed[k]);
+            }
+            return;
         }
-        self.accel.intersect_pair(o, d, f32::INFINITY)
+        self.accel.intersect_batch(o, d, f32::INFINITY, out)
     }
 
-    /// Whether a render traces a pixel's samples two at a time ([`crate::integrator::radiance_pair`]):
-    /// where the BVH is large enough to miss cache ([`Accel::pairs_rays`]) and nothing is
-    /// transparent (a transparent layer re-traces one ray at a time).
-    pub fn pairs_rays(&self) -> bool {
-        self.accel.pairs_rays() && !self.has_transparency()
+    /// [`Self::visibility`] for up to [`crate::accel::MAX_BATCH`] rays, ray k to `tmax[k]`, into
+    /// `out`: traced together ([`Accel::occluded_batch`]) where no surface is transparent, else
+    /// one after the other. The same fractions either way.
+    pub fn visibility_batch(&self, o: &[Vec3], d: &[Vec3], tmax: &[f32], out: &mut [f32]) {
+        let n = o.len().min(d.len()).min(tmax.len()).min(out.len());
+        if self.has_transparency() {
+            for k in 0..n {
+                out[k] = self.visibility(o[k], d[k], tmax[k]);
+            }
+            return;
+        }
+        let mut blocked = [false; crate::accel::MAX_BATCH];
+        for s in (0..n).step_by(crate::accel::MAX_BATCH) {
+            let e = (s + crate::accel::MAX_BATCH).min(n);
+            self.accel.occluded_batch(&o[s..e], &d[s..e], &tmax[s..e], &mut blocked[..e - s]);
+            for k in s..e {
+                out[k] = if blocked[k - s] { 0.0 } else { 1.0 };
+            }
+        }
+    }
+
+    /// Whether a render traces a pixel's samples a batch at a time
+    /// ([`crate::integrator::radiance_batch`]): where the BVH is large enough to miss cache
+    /// ([`Accel::batches_rays`]) and nothing is transparent (a transparent layer re-traces one ray
+    /// at a time).
+    pub fn batches_rays(&self) -> bool {
+        self.accel.batches_rays() && !self.has_transparency()
     }
 
     /// Fraction of light that gets from `o` along `d` to distance `tmax`: 0 behind an opaque (or

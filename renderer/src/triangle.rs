@@ -164,6 +164,20 @@ impl TriangleBlocks {
         RtTriangle { v: [v(0), v(1), v(2)], id: self.ids[i] }
     }
 
+    /// Asks the cache for the blocks holding slots `base + i` for the bits i of `mask` (a
+    /// batched traversal's leaf, tested a step later).
+    #[inline(always)]
+    pub fn prefetch(&self, base: usize, mask: u32) {
+        if mask == 0 {
+            return;
+        }
+        let first = (base + mask.trailing_zeros() as usize) / LANES;
+        let last = (base + 31 - mask.leading_zeros() as usize) / LANES;
+        for b in self.blocks.get(first..=last).unwrap_or(&[]) {
+            crate::accel::prefetch(b);
+        }
+    }
+
     /// The closest hit among the slots `start + l` for the lanes l set in `lanes` (bit l), with
     /// `0 < t < tmax`: (t, slot, b1, b2). `start` is a block's first slot (a multiple of
     /// [`LANES`]) and every slot `lanes` names exists. Among equal distances the highest slot

@@ -2,12 +2,12 @@
 """A large enclosed scene for measuring ray throughput in whole renders: the inside of a bumpy
 icosphere (`tessera bench rays --level L`'s mesh, 20·4^L triangles, displaced radially) lit by a
 small quad light, camera inside. Paths stay in it (~10 rays a path at level 7), so most rays
-traverse a BVH that does not fit in cache — the case `accel::PAIR_RAYS_ABOVE` pairs rays for.
+traverse a BVH that does not fit in cache — the case `accel::BATCH_RAYS_ABOVE` batches rays for.
 
     python3 scenes/references/make_cave.py --level 7 -o /tmp/cave.gltf
     tessera render /tmp/cave.gltf --spp 8 --width 160 --height 90 --threads 1
 
-(ARCHITECTURE.md, "Two closest-hit rays interleaved", quotes renders of the level-7 cave.)
+(ARCHITECTURE.md, "Rays traced in batches", quotes renders of the level-7 cave.)
 """
 import argparse
 import base64

@@ -142,8 +142,11 @@ fn bench_rays_on_a_scene_compares_the_accelerators() {
         .collect();
     assert!(hits[0].contains("closest hits") && !hits[0].starts_with("0 "), "{stdout}");
     assert_eq!(hits[0], hits[1], "{stdout}");
-    // The interleaved pairs find what each ray finds alone.
-    assert!(stdout.lines().any(|l| l.starts_with("  paired") && l.ends_with("one at a time: true)")), "{stdout}");
+    // The interleaved pairs and batches find what each ray finds alone (closest and occluded).
+    let full = format!("  batch of {}", renderer::accel::MAX_BATCH);
+    for row in ["  paired", "  batch of 4", &full] {
+        assert!(stdout.lines().any(|l| l.starts_with(row) && l.ends_with("one at a time: true)")), "{row}: {stdout}");
+    }
     let (ok, _, err) = tessera(&["bench", "rays", "--scene", "missing.gltf", "--rays", "10"], &tmp);
     assert!(!ok && err.contains("missing.gltf"), "{err}");
 }

@@ -327,12 +327,20 @@ impl Scene {
     /// The first surface along the ray that stops it: MASK cut-outs are skipped, BLEND surfaces stop
     /// the ray with probability alpha, decided by `seed` (a pure function of the sample, so the
     /// determinism rule holds).
-    pub fn intersect_surface(&self, mut o: Vec3, d: Vec3, seed: u32) -> Option<Hit> {
+    pub fn intersect_surface(&self, o: Vec3, d: Vec3, seed: u32) -> Option<Hit> {
+        let first = self.accel.intersect(o, d, f32::INFINITY);
         if !self.has_transparency() {
-            return self.accel.intersect(o, d, f32::INFINITY);
+            return first;
         }
+        self.through_layers(d, seed, first)
+    }
+
+    /// [`Self::intersect_surface`] on from the hit `first` of its first layer: the first surface
+    /// the ray stops at, passing through (MASK below the cutoff, BLEND by its random bits) at most
+    /// [`MAX_TRANSPARENT_LAYERS`] layers.
+    fn through_layers(&self, d: Vec3, seed: u32, first: Option<Hit>) -> Option<Hit> {
+        let mut hit = first?;
         for layer in 0..MAX_TRANSPARENT_LAYERS {
-            let hit = self.accel.intersect(o, d, f32::INFINITY)?;
             let stops = match self.coverage(&hit) {
                 (AlphaMode::Opaque, _) => true,
                 (AlphaMode::Mask(cutoff), a) => a >= cutoff,
@@ -341,22 +349,24 @@ impl Scene {
             if stops {
                 return Some(hit);
             }
-            o = self.pass_through(&hit, d);
+            if layer + 1 == MAX_TRANSPARENT_LAYERS {
+                break;
+            }
+            hit = self.accel.intersect(self.pass_through(&hit, d), d, f32::INFINITY)?;
         }
         None
     }
 
     /// [`Self::intersect_surface`] for up to [`crate::accel::MAX_BATCH`] rays into `out`: traced
-    /// together ([`Accel::intersect_batch`]) where no surface is transparent, else one after the
-    /// other. The same hits either way.
+    /// together ([`Accel::intersect_batch`]); a ray that meets a transparent layer goes on through
+    /// the others alone. The same hits either way.
     pub fn intersect_surface_batch(&self, o: &[Vec3], d: &[Vec3], seed: &[u32], out: &mut [Option<Hit>]) {
+        self.accel.intersect_batch(o, d, f32::INFINITY, out);
         if self.has_transparency() {
             for (k, h) in out.iter_mut().enumerate().take(o.len().min(d.len()).min(seed.len())) {
-                *h = self.intersect_surface(o[k], d[k], seed[k]);
+                *h = self.through_layers(d[k], seed[k], *h);
             }
-            return;
         }
-        self.accel.intersect_batch(o, d, f32::INFINITY, out)
     }
 
     /// [`Self::visibility`] for up to [`crate::accel::MAX_BATCH`] rays, ray k to `tmax[k]`, into
@@ -382,10 +392,10 @@ impl Scene {
 
     /// Whether a render traces a pixel's samples a batch at a time
     /// ([`crate::integrator::radiance_batch`]): where the BVH is large enough to miss cache
-    /// ([`Accel::batches_rays`]) and nothing is transparent (a transparent layer re-traces one ray
-    /// at a time).
+    /// ([`Accel::batches_rays`]). In scenes with transparent surfaces the bounce rays' first
+    /// layers are batched and shadow rays go one at a time ([`Self::visibility_batch`]).
     pub fn batches_rays(&self) -> bool {
-        self.accel.batches_rays() && !self.has_transparency()
+        self.accel.batches_rays()
     }
 
     /// Fraction of light that gets from `o` along `d` to distance `tmax`: 0 behind an opaque (or

@@ -7,7 +7,7 @@
 
 use renderer::accel::{BATCH_RAYS_ABOVE, MAX_BATCH};
 use renderer::film::Rect;
-use renderer::material::Material;
+use renderer::material::{AlphaMode, Material};
 use renderer::math::{Vec3, Vec4};
 use renderer::scene::Scene;
 use renderer::testing::{emitter, lambert, load_bit_test_scene, metal, sum_bits, SceneBuilder, BIT_TEST_SCENES};
@@ -56,10 +56,11 @@ fn batched_paths_render_every_test_scene_bit_for_bit() {
 
 /// A mesh above the size limit batches by default, one below does not, and the large one's image
 /// is the same batched or not (glossy and diffuse bounces, absorbing glass, an area light, NEE and
-/// MIS).
+/// MIS); also with a BLEND sphere and a MASK quad in it, which bounce rays pass through on their own
+/// after the batch's first layer.
 #[test]
 fn large_scenes_batch_by_default_and_render_the_same() {
-    let scene_with = |level: u32| {
+    let scene_with = |level: u32, transparent: bool| {
         let mut b = SceneBuilder::default();
         let wall = b.material(lambert(Vec3::splat(0.6)));
         let shiny = b.material(metal(Vec3::new(0.9, 0.7, 0.5), 0.3));
@@ -76,14 +77,27 @@ fn large_scenes_batch_by_default_and_render_the_same() {
         b.sphere(Vec3::new(0.0, -1.0, 0.0), 1.5, level, false, shiny);
         b.sphere(Vec3::new(1.6, -2.0, 1.0), 0.7, 2, false, glass);
         b.quad(Vec3::new(0.0, 3.5, 0.0), Vec3::new(0.8, 0.0, 0.0), Vec3::new(0.0, 0.0, 0.8), light);
+        if transparent {
+            let mut blend = Material { alpha_mode: AlphaMode::Blend, ..lambert(Vec3::new(0.2, 0.8, 0.3)) };
+            blend.base_color.w = 0.4;
+            let blend = b.material(blend);
+            let mut mask = Material { alpha_mode: AlphaMode::Mask(0.5), ..lambert(Vec3::new(0.9, 0.2, 0.2)) };
+            mask.base_color.w = 0.3;
+            let mask = b.material(mask);
+            b.sphere(Vec3::new(-1.2, -1.5, 1.5), 0.8, 2, false, blend);
+            b.quad(Vec3::new(0.0, -0.5, 2.0), Vec3::new(1.5, 0.0, 0.0), Vec3::new(0.0, 1.5, 0.0), mask);
+        }
         b.look_at(Vec3::new(0.0, 0.5, 3.5), Vec3::new(0.0, -0.8, 0.0), 50.0);
         b.build()
     };
-    let small = scene_with(3);
+    let small = scene_with(3, false);
     assert!(small.mesh.triangles.len() <= BATCH_RAYS_ABOVE && !small.batches_rays());
-    let mut large = scene_with(6);
-    assert!(large.mesh.triangles.len() > BATCH_RAYS_ABOVE && large.batches_rays());
     let settings =
         RenderSettings { width: 32, height: 24, spp: MAX_BATCH as u32 + 3, seed: 11, ..RenderSettings::default() };
-    same_both_ways(&mut large, &settings, "the large sphere");
+    for transparent in [false, true] {
+        let mut large = scene_with(6, transparent);
+        assert!(large.mesh.triangles.len() > BATCH_RAYS_ABOVE && large.batches_rays());
+        assert_eq!(large.has_transparency(), transparent);
+        same_both_ways(&mut large, &settings, &format!("the large sphere (transparent layers: {transparent})"));
+    }
 }

@@ -64,7 +64,9 @@ pub fn radiance_batch(
     let mut count = n;
     let (mut ro, mut rd, mut seeds) = ([Vec3::ZERO; MAX_BATCH], [Vec3::ZERO; MAX_BATCH], [0u32; MAX_BATCH]);
     let mut hits = [None; MAX_BATCH];
-    let (mut tmax, mut waiting, mut visible) = ([0f32; MAX_BATCH], [0u8; MAX_BATCH], [0f32; MAX_BATCH]);
+    let (mut tmax, mut visible) = ([0f32; MAX_BATCH], [0f32; MAX_BATCH]);
+    // The shadow rays' paths and light samples.
+    let mut waiting = [(0u8, ShadowRay::default()); MAX_BATCH];
     while count > 1 {
         for j in 0..count {
             let k = live[j] as usize;
@@ -86,9 +88,11 @@ pub fn radiance_batch(
         let (mut still, mut shadows) = (0, 0);
         for j in 0..count {
             let k = live[j] as usize;
-            let more = paths[k].after_hit::<true>(scene, settings, hits[j], rays);
-            if let Some(s) = paths[k].shadow {
-                (ro[shadows], rd[shadows], tmax[shadows], waiting[shadows]) = (s.o, s.d, s.tmax, k as u8);
+            let mut shadow = None;
+            let more = paths[k].after_hit::<true>(scene, settings, hits[j], &mut shadow, rays);
+            if let Some(s) = shadow {
+                (ro[shadows], rd[shadows], tmax[shadows]) = (s.o, s.d, s.tmax);
+                waiting[shadows] = (k as u8, s);
                 shadows += 1;
             }
             if more {
@@ -97,11 +101,8 @@ pub fn radiance_batch(
             }
         }
         scene.visibility_batch(&ro[..shadows], &rd[..shadows], &tmax[..shadows], &mut visible[..shadows]);
-        for i in 0..shadows {
-            let path = &mut paths[waiting[i] as usize];
-            if let Some(s) = path.shadow.take() {
-                path.add_direct(&s, visible[i]);
-            }
+        for (i, (k, s)) in waiting[..shadows].iter().enumerate() {
+            paths[*k as usize].add_direct(s, visible[i]);
         }
         count = still;
     }
@@ -143,13 +144,11 @@ struct Path {
     /// The current bounce's two 4D sample sets ([`Path::begin_bounce`]).
     u_bsdf: [f32; 4],
     u_light: [f32; 4],
-    /// Next-event estimation's shadow ray, when a batch defers it ([`Path::after_hit`]).
-    shadow: Option<ShadowRay>,
 }
 
 /// Next-event estimation's light sample, waiting for its shadow ray: the ray, and the radiance it
 /// adds if nothing is in the way, in the factors [`Path::add_direct`] multiplies in order.
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, Default)]
 struct ShadowRay {
     o: Vec3,
     d: Vec3,
@@ -179,7 +178,6 @@ impl Path {
             draws_light_set,
             u_bsdf: [0.0; 4],
             u_light: [0.0; 4],
-            shadow: None,
         }
     }
 
@@ -189,7 +187,7 @@ impl Path {
         loop {
             let seed = self.begin_bounce(scene, sampler, rays);
             let hit = scene.intersect_surface(self.o, self.d, seed);
-            if !self.after_hit::<false>(scene, settings, hit, rays) {
+            if !self.after_hit::<false>(scene, settings, hit, &mut None, rays) {
                 break;
             }
         }
@@ -236,7 +234,7 @@ impl Path {
     /// the next ray; false when the path ends here.
     #[inline(always)]
     ///
-    /// With `DEFER`, next-event estimation's shadow ray is left in [`Path::shadow`] for the caller
+    /// With `DEFER`, next-event estimation's shadow ray is left in `shadow` for the caller
     /// to trace (a batch traces its paths' together) and hand to [`Path::add_direct`]; the
     /// radiance it adds is the same, and added before anything later in the path.
     fn after_hit<const DEFER: bool>(
@@ -244,6 +242,7 @@ impl Path {
         scene: &Scene,
         settings: &RenderSettings,
         hit: Option<Hit>,
+        shadow: &mut Option<ShadowRay>,
         rays: &mut u64,
     ) -> bool {
         let (mesh, materials, textures) = (&scene.mesh, &scene.materials, &scene.textures);
@@ -396,7 +395,7 @@ impl Path {
                     let origin = if above { origin } else { offset_ray_origin(sp.p, -ng) };
                     if f != Vec3::ZERO {
                         *rays += 1;
-                        let shadow = if ls.delta && ls.dist.is_finite() {
+                        let to_light = if ls.delta && ls.dist.is_finite() {
                             // A point light: no surface to offset from; stop just short of it.
                             let to = ls.p - origin;
                             let dist = to.length();
@@ -412,9 +411,9 @@ impl Path {
                             let dist = to.length();
                             (dist > 0.0).then(|| (origin, to / dist, dist * (1.0 - SHADOW_EPSILON)))
                         };
-                        if let Some((o, d, tmax)) = shadow {
+                        if let Some((o, d, tmax)) = to_light {
                             // Alone, the ray is traced first and the rest is only worked out when
-                            // light gets through; deferred, it all waits in `self.shadow`.
+                            // light gets through; deferred, it all waits in `shadow`.
                             let visible = if DEFER { 1.0 } else { scene.visibility(o, d, tmax) };
                             if visible != 0.0 {
                                 let w = match settings.integrator {
@@ -434,7 +433,7 @@ impl Path {
                                     scale: wi.z.abs() * w / ls.pdf,
                                 };
                                 if DEFER {
-                                    self.shadow = Some(ray);
+                                    *shadow = Some(ray);
                                 } else {
                                     self.add_direct(&ray, visible);
                                 }

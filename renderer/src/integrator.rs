@@ -37,10 +37,12 @@ pub fn radiance(
 }
 
 /// [`radiance`] for up to [`MAX_BATCH`] samples at once (`d[k]` with `samplers[k]` into
-/// `out[k]`): the live paths' bounce rays go to the BVH together ([`Scene::intersect_surface_batch`]),
-/// and each path does exactly the arithmetic it does alone, so each result is bit-equal to its
-/// own [`radiance`]. Pays where the BVH misses cache and the traversals overlap their waits
-/// ([`Scene::batches_rays`]).
+/// `out[k]`): each round, the live paths' bounce rays go to the BVH together
+/// ([`Scene::intersect_surface_batch`]), then their vertices' shadow rays
+/// ([`Scene::visibility_batch`]); the last path alive goes on alone. Each path does exactly the
+/// arithmetic it does alone, its light sample added before anything later in it, so each result
+/// is bit-equal to its own [`radiance`]. Pays where the BVH misses cache and the traversals
+/// overlap their waits ([`Scene::batches_rays`]).
 pub fn radiance_batch(
     scene: &Scene,
     settings: &RenderSettings,

@@ -162,25 +162,34 @@ fn traverse_closest_batch<N: TraversalNode>(
         return;
     }
     let mut walks = [ClosestWalk::new(rays[0]); MAX_BATCH];
-    let mut live = [0u8; MAX_BATCH];
-    for k in 0..n {
+    for k in 1..n {
         walks[k] = ClosestWalk::new(rays[k]);
-        live[k] = k as u8;
     }
+    round_robin(n, |k| {
+        walks[k].step::<N, true>(
+            nodes,
+            &mut stack[k * len..(k + 1) * len],
+            &mut |r: &BvhRay, b, m| group(k, r, b, m),
+            &touch,
+        )
+    });
+}
+
+/// Calls `step(k)` for each of lanes `0..n` in turn until it has returned false for every lane
+/// (a lane is not stepped again once it has): a batch's walks, a node each per turn.
+#[inline(always)]
+fn round_robin(n: usize, mut step: impl FnMut(usize) -> bool) {
     // The live lanes are `live[..count]`; a finished one is swapped out, so the loop only ever
     // steps walks that have work.
-    let mut count = n;
+    let mut live = [0u8; MAX_BATCH];
+    for (k, l) in live.iter_mut().enumerate().take(n) {
+        *l = k as u8;
+    }
+    let mut count = n.min(MAX_BATCH);
     while count > 0 {
         let mut j = 0;
         while j < count {
-            let k = live[j] as usize;
-            let more = walks[k].step::<N, true>(
-                nodes,
-                &mut stack[k * len..(k + 1) * len],
-                &mut |r: &BvhRay, b, m| group(k, r, b, m),
-                &touch,
-            );
-            if more {
+            if step(live[j] as usize) {
                 j += 1;
             } else {
                 count -= 1;
@@ -378,27 +387,19 @@ fn traverse_any_batch<N: TraversalNode>(
         return;
     }
     let mut walks = [AnyWalk::new(&rays[0]); MAX_BATCH];
-    let mut live = [0u8; MAX_BATCH];
-    for k in 0..n {
+    for k in 1..n {
         walks[k] = AnyWalk::new(&rays[k]);
-        live[k] = k as u8;
     }
-    let mut count = n;
-    while count > 0 {
-        let mut j = 0;
-        while j < count {
-            let k = live[j] as usize;
-            let stack = &mut stack[k * len..(k + 1) * len];
-            match walks[k].step(nodes, stack, &rays[k], &mut |b, m| group(k, b, m), &touch) {
-                None => j += 1,
-                Some(found) => {
-                    hit[k] = found;
-                    count -= 1;
-                    live[j] = live[count];
-                }
+    round_robin(n, |k| {
+        let stack = &mut stack[k * len..(k + 1) * len];
+        match walks[k].step(nodes, stack, &rays[k], &mut |b, m| group(k, b, m), &touch) {
+            None => true,
+            Some(found) => {
+                hit[k] = found;
+                false
             }
         }
-    }
+    });
 }
 
 /// One ray's any-hit walk in a batch ([`traverse_any_batch`]), advanced a node at a time.
@@ -482,6 +483,23 @@ fn with_stack<R>(len: usize, f: impl FnOnce(&mut [MaybeUninit<Deferred>]) -> R) 
         let mut stack = vec![MaybeUninit::uninit(); len];
         f(&mut stack)
     }
+}
+
+/// A batch's rays (at most [`MAX_BATCH`]) for the node tests and the leaf tests, ray k ending at
+/// `tmax(k)`.
+fn batch_rays(
+    o: &[Vec3],
+    d: &[Vec3],
+    tmax: impl Fn(usize) -> f32,
+) -> ([BvhRay; MAX_BATCH], [WatertightRay; MAX_BATCH]) {
+    let mut rays = [BvhRay::new(Vec3A::ZERO, Vec3A::X, 0.0, 0.0); MAX_BATCH];
+    let mut wrays = [WatertightRay::new(Vec3A::ZERO, Vec3A::X); MAX_BATCH];
+    for k in 0..o.len().min(d.len()).min(MAX_BATCH) {
+        let (oa, da) = (Vec3A::from(o[k]), Vec3A::from(d[k]));
+        rays[k] = BvhRay::new(oa, da, 0.0, tmax(k));
+        wrays[k] = WatertightRay::new(oa, da);
+    }
+    (rays, wrays)
 }
 
 /// [`with_stack`] for a batch's stacks: [`MAX_BATCH`] of [`STACK`] entries on the call stack.
@@ -896,6 +914,16 @@ impl Accel {
         self.batch_rays = on;
     }
 
+    /// Whether rays `o + t d` go through the batched walks: two or more, all finite, in a
+    /// one-level obvhs BVH with triangles (anything else is answered a ray at a time).
+    fn walks_batch(&self, o: &[Vec3], d: &[Vec3]) -> bool {
+        self.top.is_none()
+            && self.own.is_none()
+            && !self.tris.is_empty()
+            && o.len() >= 2
+            && o.iter().chain(d).all(|v| v.is_finite())
+    }
+
     /// [`Self::intersect`] for `o.len()` rays at once (at most [`MAX_BATCH`]; more are traced a
     /// batch at a time) into `out`: their walks interleaved node by node, the same hits.
     pub fn intersect_batch(&self, o: &[Vec3], d: &[Vec3], tmax: f32, out: &mut [Option<Hit>]) {
@@ -907,20 +935,13 @@ impl Accel {
             }
             return;
         }
-        let finite = o[..n].iter().chain(&d[..n]).all(|v| v.is_finite());
-        if self.top.is_some() || self.own.is_some() || self.tris.is_empty() || !finite || n < 2 {
+        if !self.walks_batch(&o[..n], &d[..n]) {
             for k in 0..n {
                 out[k] = self.intersect(o[k], d[k], tmax);
             }
             return;
         }
-        let mut rays = [BvhRay::new(Vec3A::ZERO, Vec3A::X, 0.0, 0.0); MAX_BATCH];
-        let mut wrays = [WatertightRay::new(Vec3A::ZERO, Vec3A::X); MAX_BATCH];
-        for k in 0..n {
-            let (oa, da) = (Vec3A::from(o[k]), Vec3A::from(d[k]));
-            rays[k] = BvhRay::new(oa, da, 0.0, tmax);
-            wrays[k] = WatertightRay::new(oa, da);
-        }
+        let (rays, wrays) = batch_rays(&o[..n], &d[..n], |_| tmax);
         let mut best = [None; MAX_BATCH];
         let len = self.stack_len;
         with_batch_stack(len * n, |stack| {
@@ -968,20 +989,13 @@ impl Accel {
             }
             return;
         }
-        let finite = o[..n].iter().chain(&d[..n]).all(|v| v.is_finite());
-        if self.top.is_some() || self.own.is_some() || self.tris.is_empty() || !finite || n < 2 {
+        if !self.walks_batch(&o[..n], &d[..n]) {
             for k in 0..n {
                 out[k] = self.occluded(o[k], d[k], tmax[k]);
             }
             return;
         }
-        let mut rays = [BvhRay::new(Vec3A::ZERO, Vec3A::X, 0.0, 0.0); MAX_BATCH];
-        let mut wrays = [WatertightRay::new(Vec3A::ZERO, Vec3A::X); MAX_BATCH];
-        for k in 0..n {
-            let (oa, da) = (Vec3A::from(o[k]), Vec3A::from(d[k]));
-            rays[k] = BvhRay::new(oa, da, 0.0, tmax[k]);
-            wrays[k] = WatertightRay::new(oa, da);
-        }
+        let (rays, wrays) = batch_rays(&o[..n], &d[..n], |k| tmax[k]);
         let len = self.stack_len;
         out[..n].fill(false);
         with_batch_stack(len * n, |stack| {

@@ -60,7 +60,9 @@ pub fn radiance_batch(
     // The live paths are `paths[live[..count]]`, in sample order.
     let mut live = [0u8; MAX_BATCH];
     for k in 0..n {
-        paths[k] = Path::new(scene, settings, o, d[k]);
+        if k > 0 {
+            paths[k] = Path::new(scene, settings, o, d[k]);
+        }
         live[k] = k as u8;
     }
     let mut count = n;

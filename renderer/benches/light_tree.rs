@@ -4,10 +4,13 @@
 //! a floor below them. Each walk's `u` depends on the walk before, as a path's would on its
 //! previous bounce, so the figure is a walk's latency, not a pipelined throughput.
 //!
+//! A second line times walks that do not wait on each other: one `sample` call after another,
+//! and [`LightTree::sample_batch`]'s sixteen interleaved, per walk.
+//!
 //! Prints the minimum and median over repetitions (the machine is shared: the minimum is the
 //! figure least disturbed by other work; compare builds by running both in one session).
 
-use renderer::light_tree::{LightBounds, LightTree};
+use renderer::light_tree::{LightBounds, LightTree, MAX_WALKS};
 use renderer::math::Vec3;
 use renderer::sampler::hash_unit;
 use std::hint::black_box;
@@ -72,6 +75,9 @@ fn main() {
             .collect();
         let n = Some(Vec3::Y);
         let (mut sample_ns, mut pmf_ns) = (Vec::new(), Vec::new());
+        let (mut single_ns, mut batch_ns) = (Vec::new(), Vec::new());
+        let us: Vec<f32> = (0..points.len() as u64).map(|k| hash_unit(9000 + k)).collect();
+        let normals = [n; MAX_WALKS];
         let mut chosen = 0usize;
         for _ in 0..REPETITIONS {
             let start = Instant::now();
@@ -83,6 +89,25 @@ fn main() {
                 }
             }
             sample_ns.push(start.elapsed().as_nanos() as f64 / CALLS as f64);
+            // Independent walks: one at a time, then sixteen interleaved (`sample_batch`), on
+            // the same points and numbers.
+            let start = Instant::now();
+            for i in 0..CALLS {
+                if let Some((light, _)) = tree.sample(black_box(points[i % points.len()]), n, us[i % us.len()]) {
+                    chosen = chosen.wrapping_add(light);
+                }
+            }
+            single_ns.push(start.elapsed().as_nanos() as f64 / CALLS as f64);
+            let start = Instant::now();
+            let mut out = [None; MAX_WALKS];
+            for i in (0..CALLS).step_by(MAX_WALKS) {
+                let at = i % points.len();
+                tree.sample_batch(black_box(&points[at..at + MAX_WALKS]), &normals, &us[at..at + MAX_WALKS], &mut out);
+                for (light, _) in out.iter().flatten() {
+                    chosen = chosen.wrapping_add(*light);
+                }
+            }
+            batch_ns.push(start.elapsed().as_nanos() as f64 / CALLS as f64);
             let start = Instant::now();
             let mut total = 0.0f32;
             for i in 0..CALLS {
@@ -93,9 +118,14 @@ fn main() {
         }
         black_box(chosen);
         let ((s_min, s_med), (p_min, p_med)) = (stats(sample_ns), stats(pmf_ns));
+        let ((i_min, i_med), (b_min, b_med)) = (stats(single_ns), stats(batch_ns));
         println!(
             "{name}: sample {s_min:.1} ns min, {s_med:.1} median; pmf {p_min:.1} ns min, {p_med:.1} median \
              ({REPETITIONS} × {CALLS} calls)"
+        );
+        println!(
+            "{name}: independent walks: one at a time {i_min:.1} ns min, {i_med:.1} median; \
+             {MAX_WALKS} interleaved (sample_batch) {b_min:.1} ns min, {b_med:.1} median a walk"
         );
     }
 }

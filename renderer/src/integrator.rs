@@ -7,6 +7,7 @@
 //! (radiance scaling at glass boundaries is not energy the path will lose).
 
 use crate::accel::{Hit, MAX_BATCH};
+use crate::bsdf::{Bsdf, BsdfSample};
 use crate::light::emitted;
 use crate::math::{balance_heuristic, offset_ray_origin, power_heuristic, Frame, Vec2, Vec3, SHADOW_EPSILON};
 use crate::sampler::{dims, PixelSample};
@@ -71,6 +72,10 @@ pub fn radiance_batch(
     let (mut tmax, mut visible) = ([0f32; MAX_BATCH], [0f32; MAX_BATCH]);
     // The shadow rays' paths and light samples.
     let mut waiting = [(0u8, ShadowRay::default()); MAX_BATCH];
+    // The shaded vertices and their light choices.
+    let mut vertices: [Option<Vertex>; MAX_BATCH] = [None; MAX_BATCH];
+    let (mut qp, mut qn, mut qu) = ([Vec3::ZERO; MAX_BATCH], [None; MAX_BATCH], [0f32; MAX_BATCH]);
+    let mut selected = [None; MAX_BATCH];
     while count > 1 {
         for j in 0..count {
             let k = live[j] as usize;
@@ -87,13 +92,32 @@ pub fn radiance_batch(
         for h in hits[..count].iter().flatten() {
             scene.mesh.prefetch_vertices(h.triangle);
         }
-        // Every path's vertex, then their shadow rays together (a path that ends at this vertex
-        // still adds its light sample), then the survivors go on in sample order.
-        let (mut still, mut shadows) = (0, 0);
+        // Every path's vertex shaded, then their lights chosen together (interleaved light-tree
+        // walks), then each vertex's light sample and next ray, then their shadow rays together
+        // (a path that ends at this vertex still adds its light sample), then the survivors go on
+        // in sample order.
+        let mut queries = 0;
         for j in 0..count {
             let k = live[j] as usize;
+            vertices[j] = paths[k].shade(scene, settings, hits[j]);
+            if let Some((p, n, u)) = vertices[j].as_ref().and_then(|v| paths[k].light_query(v)) {
+                (qp[queries], qn[queries], qu[queries]) = (p, Some(n), u);
+                queries += 1;
+            }
+        }
+        scene.lights.select_batch(&qp[..queries], &qn[..queries], &qu[..queries], &mut selected[..queries]);
+        let (mut still, mut shadows, mut query) = (0, 0, 0);
+        for j in 0..count {
+            let k = live[j] as usize;
+            let Some(v) = vertices[j] else { continue };
+            let choice = if v.nee {
+                query += 1;
+                selected[query - 1]
+            } else {
+                None
+            };
             let mut shadow = None;
-            let more = paths[k].after_hit::<true>(scene, settings, hits[j], &mut shadow, rays);
+            let more = paths[k].finish::<true>(scene, settings, v, LightChoice::Made(choice), &mut shadow, rays);
             if let Some(s) = shadow {
                 (ro[shadows], rd[shadows], tmax[shadows]) = (s.o, s.d, s.tmax);
                 waiting[shadows] = (k as u8, s);
@@ -163,6 +187,39 @@ struct ShadowRay {
     unshadowed: Vec3,
     /// |cos θ|·(MIS weight)/pdf.
     scale: f32,
+}
+
+/// How [`Path::finish`] gets its vertex's light: chosen there (a path alone), or already
+/// chosen, with the batch's others ([`LightSet::select_batch`]); the same choice either way.
+#[derive(Clone, Copy)]
+enum LightChoice {
+    Now,
+    Made(Option<(usize, f32)>),
+}
+
+/// A vertex a path has reached and shaded ([`Path::shade`]), waiting for its light choice: what
+/// next-event estimation and the step to the next vertex need from it.
+#[derive(Clone, Copy)]
+struct Vertex {
+    p: Vec3,
+    /// The geometric normal as wound (front face: counter-clockwise), and turned to the side the
+    /// path arrives from.
+    ng_winding: Vec3,
+    ng: Vec3,
+    /// The shading normal (normal-mapped, on the arrival side).
+    ns: Vec3,
+    frame: Frame,
+    /// The direction back along the arriving ray, in `frame`.
+    wo: Vec3,
+    bsdf: Bsdf,
+    /// The next ray's origin when it leaves on the arrival side.
+    origin: Vec3,
+    /// The BSDF's sample of the next direction.
+    next: Option<BsdfSample>,
+    /// The medium inside this mesh (KHR_materials_volume).
+    absorption: Vec3,
+    /// Whether next-event estimation samples a light here.
+    nee: bool,
 }
 
 impl Path {
@@ -249,6 +306,15 @@ impl Path {
         shadow: &mut Option<ShadowRay>,
         rays: &mut u64,
     ) -> bool {
+        let Some(v) = self.shade(scene, settings, hit) else { return false };
+        self.finish::<DEFER>(scene, settings, v, LightChoice::Now, shadow, rays)
+    }
+
+    /// The first part of [`Path::after_hit`]: the vertex's emission, its shading frame and BSDF,
+    /// and the BSDF's sample of the next direction; None when the path ends here (it escaped, hit
+    /// an unlit surface, reached `max_depth`, or sees the surface from behind).
+    #[inline(always)]
+    fn shade(&mut self, scene: &Scene, settings: &RenderSettings, hit: Option<Hit>) -> Option<Vertex> {
         let (mesh, materials, textures) = (&scene.mesh, &scene.materials, &scene.textures);
         let Some(hit) = hit else {
             if self.medium != Vec3::ZERO {
@@ -274,7 +340,7 @@ impl Path {
                     }
                 }
             }
-            return false;
+            return None;
         };
         let sp = scene.surface_point(&hit);
         let material_id = mesh.triangles[hit.triangle as usize].material;
@@ -288,7 +354,7 @@ impl Path {
             // KHR_materials_unlit: the surface shows its color and scatters nothing. No light
             // sampler picks it, so every strategy adds it with full weight.
             self.l += self.beta * material.base_color_at(textures, sp.uv, sp.color);
-            return false;
+            return None;
         }
 
         if material.is_emissive() {
@@ -310,7 +376,7 @@ impl Path {
             }
         }
         if self.depth >= settings.max_depth {
-            return false;
+            return None;
         }
 
         // Shading frame: normal map first (in the mesh's orientation), then turn both normals to the
@@ -346,7 +412,7 @@ impl Path {
             frame = Frame::from_normal(ng);
             wo = frame.to_local(wo_world);
             if wo.z <= 0.0 {
-                return false;
+                return None;
             }
         }
         let mut bsdf = scene.bsdf(material_id, &sp);
@@ -381,22 +447,65 @@ impl Path {
         let u_dir =
             Vec2::new(self.u_bsdf[(dims::BSDF_DIR % 4) as usize], self.u_bsdf[(dims::BSDF_DIR % 4 + 1) as usize]);
         let next = bsdf.sample(wo, self.u_bsdf[(dims::BSDF_LOBE % 4) as usize], u_dir);
+        let nee = settings.integrator != IntegratorKind::Bsdf && !scene.lights.is_empty() && !bsdf.is_delta_only();
+        Some(Vertex {
+            p: sp.p,
+            ng_winding: sp.ng,
+            ng,
+            ns,
+            frame,
+            wo,
+            bsdf,
+            origin,
+            next,
+            absorption: material.absorption,
+            nee,
+        })
+    }
+
+    /// Where next-event estimation at `v` chooses its light: the point, its shading normal and
+    /// the selection number; None when the vertex samples no light.
+    #[inline(always)]
+    fn light_query(&self, v: &Vertex) -> Option<(Vec3, Vec3, f32)> {
+        v.nee.then(|| (v.p, v.ns, self.u_light[(dims::LIGHT_SELECT % 4) as usize]))
+    }
+
+    /// The rest of [`Path::after_hit`]: next-event estimation with the light `choice` gives
+    /// (made, it is what `LightSet::select` answers [`Path::light_query`]), then the step to the
+    /// next vertex and Russian roulette; false when the path ends here.
+    #[inline(always)]
+    fn finish<const DEFER: bool>(
+        &mut self,
+        scene: &Scene,
+        settings: &RenderSettings,
+        v: Vertex,
+        choice: LightChoice,
+        shadow: &mut Option<ShadowRay>,
+        rays: &mut u64,
+    ) -> bool {
+        let (mesh, materials, textures) = (&scene.mesh, &scene.materials, &scene.textures);
+        let Vertex { p, ng_winding, ng, ns, frame, wo, bsdf, origin, next, absorption, nee } = v;
+        let wo_world = -self.d;
 
         // Next-event estimation.
-        if settings.integrator != IntegratorKind::Bsdf && !scene.lights.is_empty() && !bsdf.is_delta_only() {
-            let u_sel = self.u_light[(dims::LIGHT_SELECT % 4) as usize];
+        if nee {
             let u = Vec2::new(
                 self.u_light[(dims::LIGHT_POS % 4) as usize],
                 self.u_light[(dims::LIGHT_POS % 4 + 1) as usize],
             );
-            if let Some(ls) = scene.lights.sample(mesh, materials, textures, sp.p, Some(ns), u_sel, u) {
+            let (lights, u_sel) = (&scene.lights, self.u_light[(dims::LIGHT_SELECT % 4) as usize]);
+            let sample = match choice {
+                LightChoice::Now => lights.sample(mesh, materials, textures, p, Some(ns), u_sel, u),
+                LightChoice::Made(selected) => lights.sample_selected(mesh, materials, textures, p, selected, u),
+            };
+            if let Some(ls) = sample {
                 let wi = frame.to_local(ls.wi);
                 // Reflection needs the light above the true surface; transmission (glass), below.
                 let above = wi.z > 0.0 && ls.wi.dot(ng) > 0.0;
                 let below = bsdf.transmits() && wi.z < 0.0 && ls.wi.dot(ng) < 0.0;
                 if ls.le != Vec3::ZERO && (above || below) {
                     let (f, bsdf_pdf) = bsdf.eval_pdf(wo, wi);
-                    let origin = if above { origin } else { offset_ray_origin(sp.p, -ng) };
+                    let origin = if above { origin } else { offset_ray_origin(p, -ng) };
                     if f != Vec3::ZERO {
                         *rays += 1;
                         let to_light = if ls.delta && ls.dist.is_finite() {
@@ -463,10 +572,10 @@ impl Path {
         if transmitted {
             self.eta_scale *= bsdf.eta * bsdf.eta;
             // Entering through the front (winding) face: into this mesh's medium; else out of it.
-            self.medium = if sp.ng.dot(wo_world) > 0.0 { material.absorption } else { Vec3::ZERO };
+            self.medium = if ng_winding.dot(wo_world) > 0.0 { absorption } else { Vec3::ZERO };
         }
-        self.prev = if bs.delta { None } else { Some((sp.p, ns, bs.pdf)) };
-        self.o = if transmitted { offset_ray_origin(sp.p, -ng) } else { origin };
+        self.prev = if bs.delta { None } else { Some((p, ns, bs.pdf)) };
+        self.o = if transmitted { offset_ray_origin(p, -ng) } else { origin };
         self.d = wi_world;
         self.depth += 1;
 

@@ -4,7 +4,7 @@
 
 use crate::alias::AliasTable;
 use crate::environment::Environment;
-use crate::light_tree::{LightBounds, LightTree};
+use crate::light_tree::{LightBounds, LightTree, MAX_WALKS};
 use crate::material::Material;
 use crate::math::{luminance, sample_uniform_triangle, Vec2, Vec3, PI};
 use crate::mesh::Mesh;
@@ -269,8 +269,59 @@ impl LightSet {
         }
     }
 
+    /// [`Self::select`] for several shading points (`reference[k]`, `normal[k]`, `u[k]` into
+    /// `out[k]`; at most [`crate::light_tree::MAX_WALKS`] at a time are walked together): with a
+    /// light tree the walks are interleaved ([`LightTree::sample_batch`]). The same choices and
+    /// probabilities as one at a time, bit for bit.
+    pub fn select_batch(
+        &self,
+        reference: &[Vec3],
+        normal: &[Option<Vec3>],
+        u: &[f32],
+        out: &mut [Option<(usize, f32)>],
+    ) {
+        let count = reference.len().min(normal.len()).min(u.len()).min(out.len());
+        let (LightSamplerKind::Tree, Some(tree)) = (self.kind, &self.tree) else {
+            for k in 0..count {
+                out[k] = self.select(reference[k], normal[k], u[k]);
+            }
+            return;
+        };
+        // The choices between infinite lights and the tree, as `select` makes them; the tree's
+        // walks together.
+        let ni = self.infinite.len();
+        let p_inf = ni as f32 / (ni as f32 + 1.0);
+        let mut walks = [0u8; MAX_WALKS];
+        let (mut wp, mut wn, mut wu) = ([Vec3::ZERO; MAX_WALKS], [None; MAX_WALKS], [0f32; MAX_WALKS]);
+        let mut found = [None; MAX_WALKS];
+        for s in (0..count).step_by(MAX_WALKS) {
+            let e = (s + MAX_WALKS).min(count);
+            let mut w = 0;
+            for k in s..e {
+                if u[k] < p_inf {
+                    let i = ((u[k] / p_inf * ni as f32) as usize).min(ni - 1);
+                    out[k] = Some((self.infinite[i], p_inf / ni as f32));
+                } else {
+                    (wp[w], wn[w]) = (reference[k], normal[k]);
+                    wu[w] = ((u[k] - p_inf) / (1.0 - p_inf)).min(1.0 - f32::EPSILON);
+                    walks[w] = (k - s) as u8;
+                    w += 1;
+                }
+            }
+            tree.sample_batch(&wp[..w], &wn[..w], &wu[..w], &mut found[..w]);
+            for (i, f) in found[..w].iter().enumerate() {
+                out[s + walks[i] as usize] = f.map(|(t, pmf)| (self.tree_lights[t], pmf * (1.0 - p_inf)));
+            }
+        }
+    }
+
+    /// Whether lights are chosen by walking a light tree.
+    pub fn walks_tree(&self) -> bool {
+        matches!((self.kind, &self.tree), (LightSamplerKind::Tree, Some(_)))
+    }
+
     /// Chooses a light for a shading point: (global index, probability).
-    fn select(&self, reference: Vec3, normal: Option<Vec3>, u: f32) -> Option<(usize, f32)> {
+    pub fn select(&self, reference: Vec3, normal: Option<Vec3>, u: f32) -> Option<(usize, f32)> {
         let n = self.count();
         if n == 0 {
             return None;
@@ -346,7 +397,23 @@ impl LightSet {
         u_select: f32,
         u: Vec2,
     ) -> Option<LightSample> {
-        let (idx, pmf) = self.select(reference, normal, u_select)?;
+        let selected = self.select(reference, normal, u_select);
+        self.sample_selected(mesh, materials, textures, reference, selected, u)
+    }
+
+    /// [`Self::sample`] once the light is chosen (`selected`: [`Self::select`]'s answer for
+    /// this shading point), so a batch of points can choose theirs together
+    /// ([`Self::select_batch`]).
+    pub fn sample_selected(
+        &self,
+        mesh: &Mesh,
+        materials: &[Material],
+        textures: &[Texture],
+        reference: Vec3,
+        selected: Option<(usize, f32)>,
+        u: Vec2,
+    ) -> Option<LightSample> {
+        let (idx, pmf) = selected?;
         if idx >= self.lights.len() && idx < self.environment_index() {
             let (wi, dist, e) = self.punctual[idx - self.lights.len()].illuminate(reference)?;
             return Some(LightSample {
@@ -464,6 +531,51 @@ mod tests {
                 assert_eq!(ls.p, p, "pose {pose}, sample {i}");
                 assert!(ls.n == ng || ls.n == -ng, "pose {pose}: normal {} vs the mesh's {ng}", ls.n);
             }
+        }
+    }
+
+    /// `select_batch` makes `select`'s choices, bit for bit, for every sampler kind, with two
+    /// directional lights (chosen outside the tree) beside the tree's triangles, for batches
+    /// longer than the walks interleaved at once.
+    #[test]
+    fn choosing_together_chooses_what_one_at_a_time_chooses() {
+        let mut b = SceneBuilder::default();
+        for i in 0..40 {
+            let m = b.material(emitter(Vec3::splat(1.0 + (i % 5) as f32)));
+            let (x, z) = ((i % 8) as f32 - 3.5, (i / 8) as f32 - 2.0);
+            b.triangles(
+                &[Vec3::new(x, 2.0, z), Vec3::new(x + 0.3, 2.0, z), Vec3::new(x, 2.0, z + 0.3)],
+                &[[0, 1, 2]],
+                m,
+            );
+        }
+        let mut scene = b.build();
+        let sun = |d: Vec3| PunctualLight {
+            kind: PunctualKind::Directional,
+            intensity: Vec3::splat(3.0),
+            position: Vec3::ZERO,
+            direction: d.normalize(),
+        };
+        scene.set_punctual(vec![sun(Vec3::new(0.2, -1.0, 0.1)), sun(Vec3::new(-0.5, -1.0, 0.3))]);
+        let count = 2 * MAX_WALKS + 5;
+        let h = |j: u64| crate::sampler::hash_unit(j);
+        let p: Vec<Vec3> =
+            (0..count as u64).map(|k| Vec3::new(h(3 * k) * 8.0 - 4.0, 0.0, h(3 * k + 1) * 6.0 - 3.0)).collect();
+        let n: Vec<Option<Vec3>> = (0..count).map(|k| (!k.is_multiple_of(3)).then_some(Vec3::Y)).collect();
+        let u: Vec<f32> = (0..count as u64).map(|k| h(3 * k + 2)).collect();
+        for kind in [LightSamplerKind::Tree, LightSamplerKind::Power, LightSamplerKind::Uniform] {
+            scene.lights.set_kind_exact(kind, &scene.mesh);
+            assert_eq!(scene.lights.walks_tree(), kind == LightSamplerKind::Tree);
+            let mut out = vec![None; count];
+            scene.lights.select_batch(&p, &n, &u, &mut out);
+            let mut infinite = 0;
+            for k in 0..count {
+                let alone = scene.lights.select(p[k], n[k], u[k]);
+                let bits = |x: Option<(usize, f32)>| x.map(|(l, pmf)| (l, pmf.to_bits()));
+                assert_eq!(bits(out[k]), bits(alone), "{kind:?}, point {k}");
+                infinite += usize::from(alone.is_some_and(|(l, _)| l >= scene.lights.lights.len()));
+            }
+            assert!(infinite > 0 && infinite < count, "{kind:?}: {infinite} of {count} chose a sun");
         }
     }
 }

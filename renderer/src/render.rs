@@ -149,7 +149,7 @@ pub fn render_tile_counted(
         .camera(settings.camera)
         .unwrap_or_else(|_| crate::camera::Camera::framing(scene.bounds.0, scene.bounds.1));
     let raster = camera.raster(settings.width, settings.height);
-    let batches = scene.batches_rays();
+    let batches = scene.batches_paths();
     // Per pixel: its sums, its sample count, and the rays traced and non-finite samples met, which
     // go to the shared counters once per tile rather than once per pixel (threads adding to the
     // same atomics contend for their cache line).

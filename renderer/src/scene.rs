@@ -38,6 +38,8 @@ pub struct Scene {
     time: f32,
     /// What `set_frame` last posed: (frame, fps bits, animation).
     pose_key: Option<(u32, u32, Option<String>)>,
+    /// Overrides [`Scene::batches_paths`]' rule (tests; images are the same either way).
+    batch_paths: Option<bool>,
 }
 
 impl Scene {
@@ -66,6 +68,7 @@ impl Scene {
             animator: None,
             time: 0.0,
             pose_key: None,
+            batch_paths: None,
             generator: None,
             light_units: crate::punctual::LightUnits::Gltf,
         }
@@ -361,6 +364,12 @@ impl Scene {
     /// together ([`Accel::intersect_batch`]); a ray that meets a transparent layer goes on through
     /// the others alone. The same hits either way.
     pub fn intersect_surface_batch(&self, o: &[Vec3], d: &[Vec3], seed: &[u32], out: &mut [Option<Hit>]) {
+        if !self.batches_rays() {
+            for (k, h) in out.iter_mut().enumerate().take(o.len().min(d.len()).min(seed.len())) {
+                *h = self.intersect_surface(o[k], d[k], seed[k]);
+            }
+            return;
+        }
         self.accel.intersect_batch(o, d, f32::INFINITY, out);
         if self.has_transparency() {
             for (k, h) in out.iter_mut().enumerate().take(o.len().min(d.len()).min(seed.len())) {
@@ -374,7 +383,7 @@ impl Scene {
     /// one after the other. The same fractions either way.
     pub fn visibility_batch(&self, o: &[Vec3], d: &[Vec3], tmax: &[f32], out: &mut [f32]) {
         let n = o.len().min(d.len()).min(tmax.len()).min(out.len());
-        if self.has_transparency() {
+        if self.has_transparency() || !self.batches_rays() {
             for k in 0..n {
                 out[k] = self.visibility(o[k], d[k], tmax[k]);
             }
@@ -390,12 +399,27 @@ impl Scene {
         }
     }
 
-    /// Whether a render traces a pixel's samples a batch at a time
-    /// ([`crate::integrator::radiance_batch`]): where the BVH is large enough to miss cache
-    /// ([`Accel::batches_rays`]). In scenes with transparent surfaces the bounce rays' first
-    /// layers are batched and shadow rays go one at a time ([`Self::visibility_batch`]).
+    /// Whether the BVH traces a batch's rays together ([`Self::intersect_surface_batch`],
+    /// [`Self::visibility_batch`]): where it is large enough to miss cache
+    /// ([`Accel::batches_rays`]); below, its walks do not wait on memory and a batch's are
+    /// answered one at a time. In scenes with transparent surfaces the bounce rays' first layers
+    /// are batched and shadow rays go one at a time.
     pub fn batches_rays(&self) -> bool {
         self.accel.batches_rays()
+    }
+
+    /// Whether a render runs a pixel's samples a batch at a time
+    /// ([`crate::integrator::radiance_batch`]): where the BVH batches rays, or where a light
+    /// tree chooses the lights (the batch's walks down it are interleaved,
+    /// [`LightSet::select_batch`]).
+    pub fn batches_paths(&self) -> bool {
+        self.batch_paths.unwrap_or_else(|| self.batches_rays() || self.lights.walks_tree())
+    }
+
+    /// Overrides [`Self::batches_paths`]' rule: `Some(on)` batches paths or not whatever the
+    /// scene, None restores the rule. The images are the same either way (tests compare them).
+    pub fn set_batch_paths(&mut self, on: Option<bool>) {
+        self.batch_paths = on;
     }
 
     /// Fraction of light that gets from `o` along `d` to distance `tmax`: 0 behind an opaque (or

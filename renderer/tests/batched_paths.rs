@@ -1,12 +1,14 @@
 //! Tracing a pixel's samples' paths as a batch (`integrator::radiance_batch`: their bounce rays
-//! together, then their shadow rays together; used above `accel::BATCH_RAYS_ABOVE` triangles)
-//! changes no bit of any image: each path does the arithmetic it does alone, its light sample is
+//! together, their light choices together, then their shadow rays together; used above
+//! `accel::BATCH_RAYS_ABOVE` triangles and wherever a light tree chooses lights) changes no bit
+//! of any image: each path does the arithmetic it does alone, its light sample is
 //! added before anything later in the path, and the pixel's sums add the samples in the same
 //! order. Every test scene is rendered with batching forced on and off; a scene large enough to
 //! batch by default is rendered both ways too.
 
 use renderer::accel::{BATCH_RAYS_ABOVE, MAX_BATCH};
 use renderer::film::Rect;
+use renderer::light::LightSamplerKind;
 use renderer::material::{AlphaMode, Material};
 use renderer::math::{Vec3, Vec4};
 use renderer::scene::Scene;
@@ -21,13 +23,22 @@ fn root() -> &'static Path {
 /// Renders `scene` with batching on and off; panics naming `what` if a bit differs. A sample count
 /// of one more than a batch leaves each pixel one sample traced alone after the batch.
 fn same_both_ways(scene: &mut Scene, settings: &RenderSettings, what: &str) {
-    let rect = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
     scene.set_batch_rays(true);
     assert!(scene.batches_rays(), "{what}: forcing batching must batch");
+    same_with_paths_batched_or_not(scene, settings, what);
+}
+
+/// Renders `scene` with its paths batched (`radiance_batch`, its rays traced as
+/// `Scene::batches_rays` says) and one at a time; panics naming `what` if a bit differs.
+fn same_with_paths_batched_or_not(scene: &mut Scene, settings: &RenderSettings, what: &str) {
+    let rect = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
+    scene.set_batch_paths(Some(true));
     let batched = render_tile(scene, settings, rect, 0..settings.spp);
     scene.set_batch_rays(false);
-    assert!(!scene.batches_rays());
+    scene.set_batch_paths(Some(false));
+    assert!(!scene.batches_rays() && !scene.batches_paths());
     let single = render_tile(scene, settings, rect, 0..settings.spp);
+    scene.set_batch_paths(None);
     let total: f64 = single.sum_rgb.iter().flatten().sum();
     assert!(total > 0.0, "{what}: a black image tests nothing");
     assert!(sum_bits(&batched) == sum_bits(&single), "{what}: batching changed the image");
@@ -52,6 +63,37 @@ fn batched_paths_render_every_test_scene_bit_for_bit() {
         batched += 1;
     }
     assert!(batched >= 9, "only {batched} scenes batched: the test lost its coverage");
+}
+
+/// Where a light tree chooses the lights, a pixel's paths run as a batch by default and choose
+/// their lights together (`LightSet::select_batch`: the walks down the tree interleaved), with
+/// the BVH's rays traced one at a time: every test scene with two or more lights, the tree forced,
+/// renders the same so as one path at a time (environments and punctual lights beside the tree
+/// included: `lights.glb`, the sunset scenes).
+#[test]
+fn paths_choosing_lights_together_render_every_test_scene_bit_for_bit() {
+    let mut walked = 0;
+    for (i, entry) in BIT_TEST_SCENES.into_iter().enumerate() {
+        let rel = entry.0;
+        let spp = if i % 2 == 1 { 5 } else { MAX_BATCH as u32 + 1 };
+        let mut settings = RenderSettings {
+            width: 40,
+            height: 30,
+            spp,
+            seed: 3,
+            light_sampler: LightSamplerKind::Tree,
+            ..RenderSettings::default()
+        };
+        let mut scene = load_bit_test_scene(root(), entry, &mut settings);
+        if !scene.lights.walks_tree() {
+            eprintln!("{rel}: fewer than two lights, no tree");
+            continue;
+        }
+        assert!(scene.batches_paths() && !scene.batches_rays(), "{rel}: a tree must batch paths by default");
+        same_with_paths_batched_or_not(&mut scene, &settings, rel);
+        walked += 1;
+    }
+    assert!(walked >= 8, "only {walked} scenes walked a tree: the test lost its coverage");
 }
 
 /// A mesh above the size limit batches by default, one below does not, and the large one's image

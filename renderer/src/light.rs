@@ -321,6 +321,7 @@ impl LightSet {
     }
 
     /// Chooses a light for a shading point: (global index, probability).
+    #[inline(always)]
     pub fn select(&self, reference: Vec3, normal: Option<Vec3>, u: f32) -> Option<(usize, f32)> {
         let n = self.count();
         if n == 0 {
@@ -387,6 +388,7 @@ impl LightSet {
     /// Samples a light and a point on it as seen from `reference` (on a surface with `normal`, which
     /// the light tree uses to discount lights behind it).
     #[allow(clippy::too_many_arguments)] // the scene's three tables, the shading point, two random numbers
+    #[inline(never)] // one function with `select` and `sample_selected` inside, as it was before the split
     pub fn sample(
         &self,
         mesh: &Mesh,
@@ -404,6 +406,7 @@ impl LightSet {
     /// [`Self::sample`] once the light is chosen (`selected`: [`Self::select`]'s answer for
     /// this shading point), so a batch of points can choose theirs together
     /// ([`Self::select_batch`]).
+    #[inline(always)]
     pub fn sample_selected(
         &self,
         mesh: &Mesh,

@@ -61,6 +61,11 @@ pub const PILOT_REPLICATES: u64 = 8;
 /// 0.178 s against 0.108, 0.112 and 0.113 s, 1.56× and ≈ 0.046, within the spread of the figure
 /// above, so it stays: the tree's paths also trace more shadow rays (2.33 rays a path against
 /// 2.04: fewer of its light samples face away), which the faster walk does not change.
+/// Measured again once a batch's walks were interleaved (`LightSet::select_batch`, 2026-11-24;
+/// one thread, 128×96, 64 spp, 11 alternating runs, median of per-pair ratios): tree ÷ power
+/// 1.38 against 1.44 for the binary before, in the same hour (two threads, 256×192, 16 spp: 1.29
+/// against 1.47, noisier). A level then costs ≈ 0.86 × as much, 0.038; the constant stays at
+/// 0.044, the change being inside the spread of the figures it was set from.
 pub const TREE_LEVEL_COST: f64 = 0.044;
 
 /// A uniform number in [0, 1) from a hash of (stream, index).

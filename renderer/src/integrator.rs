@@ -39,11 +39,12 @@ pub fn radiance(
 
 /// [`radiance`] for up to [`MAX_BATCH`] samples at once (`d[k]` with `samplers[k]` into
 /// `out[k]`): each round, the live paths' bounce rays go to the BVH together
-/// ([`Scene::intersect_surface_batch`]), then their vertices' shadow rays
+/// ([`Scene::intersect_surface_batch`]), their vertices choose their lights together
+/// ([`crate::light::LightSet::select_batch`]), then their shadow rays go to the BVH together
 /// ([`Scene::visibility_batch`]); the last path alive goes on alone. Each path does exactly the
 /// arithmetic it does alone, its light sample added before anything later in it, so each result
 /// is bit-equal to its own [`radiance`]. Pays where the BVH misses cache and the traversals
-/// overlap their waits ([`Scene::batches_rays`]).
+/// overlap their waits, and where light-tree walks overlap theirs ([`Scene::batches_paths`]).
 pub fn radiance_batch(
     scene: &Scene,
     settings: &RenderSettings,
@@ -190,7 +191,7 @@ struct ShadowRay {
 }
 
 /// How [`Path::finish`] gets its vertex's light: chosen there (a path alone), or already
-/// chosen, with the batch's others ([`LightSet::select_batch`]); the same choice either way.
+/// chosen, with the batch's others ([`crate::light::LightSet::select_batch`]); the same choice either way.
 #[derive(Clone, Copy)]
 enum LightChoice {
     Now,
@@ -202,9 +203,10 @@ enum LightChoice {
 #[derive(Clone, Copy)]
 struct Vertex {
     p: Vec3,
-    /// The geometric normal as wound (front face: counter-clockwise), and turned to the side the
-    /// path arrives from.
+    /// The geometric normal as wound (front face: counter-clockwise): which side is the mesh's
+    /// inside, for glass and its medium.
     ng_winding: Vec3,
+    /// The geometric normal turned to the side the path arrives from.
     ng: Vec3,
     /// The shading normal (normal-mapped, on the arrival side).
     ns: Vec3,
@@ -248,7 +250,7 @@ impl Path {
         loop {
             let seed = self.begin_bounce(scene, sampler, rays);
             let hit = scene.intersect_surface(self.o, self.d, seed);
-            if !self.after_hit::<false>(scene, settings, hit, &mut None, rays) {
+            if !self.after_hit(scene, settings, hit, rays) {
                 break;
             }
         }
@@ -292,22 +294,12 @@ impl Path {
     }
 
     /// The vertex the bounce's ray found (or the escape), its emission, next-event estimation and
-    /// the next ray; false when the path ends here.
+    /// the next ray; false when the path ends here. [`Path::shade`], then [`Path::finish`] with
+    /// the light chosen there; a batch runs the two apart, its paths' lights chosen between.
     #[inline(always)]
-    ///
-    /// With `DEFER`, next-event estimation's shadow ray is left in `shadow` for the caller
-    /// to trace (a batch traces its paths' together) and hand to [`Path::add_direct`]; the
-    /// radiance it adds is the same, and added before anything later in the path.
-    fn after_hit<const DEFER: bool>(
-        &mut self,
-        scene: &Scene,
-        settings: &RenderSettings,
-        hit: Option<Hit>,
-        shadow: &mut Option<ShadowRay>,
-        rays: &mut u64,
-    ) -> bool {
+    fn after_hit(&mut self, scene: &Scene, settings: &RenderSettings, hit: Option<Hit>, rays: &mut u64) -> bool {
         let Some(v) = self.shade(scene, settings, hit) else { return false };
-        self.finish::<DEFER>(scene, settings, v, LightChoice::Now, shadow, rays)
+        self.finish::<false>(scene, settings, v, LightChoice::Now, &mut None, rays)
     }
 
     /// The first part of [`Path::after_hit`]: the vertex's emission, its shading frame and BSDF,
@@ -473,6 +465,10 @@ impl Path {
     /// The rest of [`Path::after_hit`]: next-event estimation with the light `choice` gives
     /// (made, it is what `LightSet::select` answers [`Path::light_query`]), then the step to the
     /// next vertex and Russian roulette; false when the path ends here.
+    ///
+    /// With `DEFER`, next-event estimation's shadow ray is left in `shadow` for the caller
+    /// to trace (a batch traces its paths' together) and hand to [`Path::add_direct`]; the
+    /// radiance it adds is the same, and added before anything later in the path.
     #[inline(always)]
     fn finish<const DEFER: bool>(
         &mut self,

@@ -139,7 +139,7 @@ fn traverse_closest<N: TraversalNode>(
     if nodes.is_empty() {
         return;
     }
-    let mut walk = ClosestWalk::new(ray);
+    let mut walk = Walk::new(ray);
     while walk.step::<N, false>(nodes, stack, &mut group, &|_, _| ()) {}
 }
 
@@ -161,9 +161,9 @@ fn traverse_closest_batch<N: TraversalNode>(
     if nodes.is_empty() || n == 0 {
         return;
     }
-    let mut walks = [ClosestWalk::new(rays[0]); MAX_BATCH];
+    let mut walks = [Walk::new(rays[0]); MAX_BATCH];
     for k in 1..n {
-        walks[k] = ClosestWalk::new(rays[k]);
+        walks[k] = Walk::new(rays[k]);
     }
     round_robin(n, |k| {
         walks[k].step::<N, true>(
@@ -213,27 +213,28 @@ pub(crate) fn prefetch<N>(node: &N) {
     }
 }
 
-/// One ray's closest-hit traversal ([`traverse_closest`]) as a state advanced a node at a time.
-/// Its stack is handed to each step, so a batch's stacks are plain borrows.
+/// One ray's traversal as a state advanced a node at a time: closest hit ([`Walk::step`], which
+/// [`traverse_closest`] runs alone) or any hit ([`Walk::step_any`], in batches). Its stack is
+/// handed to each step, so a batch's stacks are plain borrows.
 #[derive(Clone, Copy)]
-struct ClosestWalk {
+struct Walk {
     ray: BvhRay,
     inv_far: Vec3A,
     oct_inv4: u32,
     sp: usize,
     current: u32,
-    /// A batch's pending leaf test ([`ClosestWalk::step`]): the node's first primitive slot and
+    /// A batch's pending leaf test ([`Walk::step`]): the node's first primitive slot and
     /// the hit mask, 0 when none is pending.
     leaf_base: u32,
     leaf_prims: u32,
 }
 
-impl ClosestWalk {
+impl Walk {
     #[inline(always)]
     fn new(ray: BvhRay) -> Self {
         let oct_inv4 = octant_inv4(ray.direction);
         let inv_far = crate::wide_node::far_inverse(&ray);
-        ClosestWalk { ray, inv_far, oct_inv4, sp: 0, current: 0, leaf_base: 0, leaf_prims: 0 }
+        Walk { ray, inv_far, oct_inv4, sp: 0, current: 0, leaf_base: 0, leaf_prims: 0 }
     }
 
     /// Visits the current node and picks the next; false when no node is left to visit.
@@ -325,6 +326,64 @@ impl ClosestWalk {
             }
         }
     }
+
+    /// One any-hit step in a batch ([`traverse_any_batch`]): a node's leaf test waits for the
+    /// walk's next step, as in [`Walk::step`]; `Some(hit)` when the walk is over.
+    #[inline(always)]
+    fn step_any<N: TraversalNode>(
+        &mut self,
+        nodes: &[N],
+        stack: &mut [MaybeUninit<Deferred>],
+        group: &mut impl FnMut(usize, u32) -> bool,
+        touch: &impl Fn(usize, u32),
+    ) -> Option<bool> {
+        if self.leaf_prims != 0 {
+            if group(self.leaf_base as usize, self.leaf_prims) {
+                return Some(true);
+            }
+            self.leaf_prims = 0;
+        } else {
+            let node = &nodes[self.current as usize];
+            let hits = node.test(&self.ray, self.inv_far, self.oct_inv4).0;
+            self.sp = defer_unordered(node, hits, self.oct_inv4 & 7, stack, self.sp);
+            let prims = hits & 0x00ff_ffff;
+            if prims != 0 {
+                let base = node.links().1;
+                touch(base as usize, prims);
+                (self.leaf_base, self.leaf_prims) = (base, prims);
+                return None;
+            }
+        }
+        if self.sp == 0 {
+            return Some(false);
+        }
+        self.sp -= 1;
+        // SAFETY: every entry below the stack pointer has been written.
+        self.current = unsafe { stack[self.sp].assume_init() }.node;
+        prefetch(&nodes[self.current as usize]);
+        None
+    }
+}
+
+/// Pushes the inner children `hits` marks (bit 24 + p: the child in slot p ^ `oct`) onto
+/// `stack` above `sp`, in octant order and without distances (an any-hit walk never shortens its
+/// ray, so their order cannot skip one); returns the new stack pointer.
+#[inline(always)]
+fn defer_unordered<N: TraversalNode>(
+    node: &N,
+    hits: u32,
+    oct: u32,
+    stack: &mut [MaybeUninit<Deferred>],
+    mut sp: usize,
+) -> usize {
+    let mut inner = hits >> 24;
+    while inner != 0 && sp < stack.len() {
+        let slot = inner.trailing_zeros() ^ oct;
+        inner &= inner - 1;
+        stack[sp] = MaybeUninit::new(Deferred { node: inner_child(node, slot), entry: 0.0 });
+        sp += 1;
+    }
+    sp
 }
 
 /// True when `group(base, mask)` reports a hit for some group of primitive slots (as in
@@ -351,13 +410,7 @@ fn traverse_any<N: TraversalNode>(
         if prims != 0 && group(node.links().1 as usize, prims) {
             return true;
         }
-        let mut inner = hits >> 24;
-        while inner != 0 && sp < stack.len() {
-            let slot = inner.trailing_zeros() ^ oct;
-            inner &= inner - 1;
-            stack[sp] = MaybeUninit::new(Deferred { node: inner_child(node, slot), entry: 0.0 });
-            sp += 1;
-        }
+        sp = defer_unordered(node, hits, oct, stack, sp);
         if sp == 0 {
             return false;
         }
@@ -386,13 +439,13 @@ fn traverse_any_batch<N: TraversalNode>(
     if nodes.is_empty() || n == 0 {
         return;
     }
-    let mut walks = [AnyWalk::new(&rays[0]); MAX_BATCH];
+    let mut walks = [Walk::new(rays[0]); MAX_BATCH];
     for k in 1..n {
-        walks[k] = AnyWalk::new(&rays[k]);
+        walks[k] = Walk::new(rays[k]);
     }
     round_robin(n, |k| {
         let stack = &mut stack[k * len..(k + 1) * len];
-        match walks[k].step(nodes, stack, &rays[k], &mut |b, m| group(k, b, m), &touch) {
+        match walks[k].step_any(nodes, stack, &mut |b, m| group(k, b, m), &touch) {
             None => true,
             Some(found) => {
                 hit[k] = found;
@@ -400,76 +453,6 @@ fn traverse_any_batch<N: TraversalNode>(
             }
         }
     });
-}
-
-/// One ray's any-hit walk in a batch ([`traverse_any_batch`]), advanced a node at a time.
-#[derive(Clone, Copy)]
-struct AnyWalk {
-    inv_far: Vec3A,
-    oct_inv4: u32,
-    sp: usize,
-    current: u32,
-    /// The pending leaf test: first primitive slot and hit mask (0: none).
-    leaf_base: u32,
-    leaf_prims: u32,
-}
-
-impl AnyWalk {
-    #[inline(always)]
-    fn new(ray: &BvhRay) -> Self {
-        AnyWalk {
-            inv_far: crate::wide_node::far_inverse(ray),
-            oct_inv4: octant_inv4(ray.direction),
-            sp: 0,
-            current: 0,
-            leaf_base: 0,
-            leaf_prims: 0,
-        }
-    }
-
-    /// One step; `Some(hit)` when the walk is over.
-    #[inline(always)]
-    fn step<N: TraversalNode>(
-        &mut self,
-        nodes: &[N],
-        stack: &mut [MaybeUninit<Deferred>],
-        ray: &BvhRay,
-        group: &mut impl FnMut(usize, u32) -> bool,
-        touch: &impl Fn(usize, u32),
-    ) -> Option<bool> {
-        if self.leaf_prims != 0 {
-            if group(self.leaf_base as usize, self.leaf_prims) {
-                return Some(true);
-            }
-            self.leaf_prims = 0;
-        } else {
-            let oct = self.oct_inv4 & 7;
-            let node = &nodes[self.current as usize];
-            let hits = node.test(ray, self.inv_far, self.oct_inv4).0;
-            let mut inner = hits >> 24;
-            while inner != 0 && self.sp < stack.len() {
-                let slot = inner.trailing_zeros() ^ oct;
-                inner &= inner - 1;
-                stack[self.sp] = MaybeUninit::new(Deferred { node: inner_child(node, slot), entry: 0.0 });
-                self.sp += 1;
-            }
-            let prims = hits & 0x00ff_ffff;
-            if prims != 0 {
-                let base = node.links().1;
-                touch(base as usize, prims);
-                (self.leaf_base, self.leaf_prims) = (base, prims);
-                return None;
-            }
-        }
-        if self.sp == 0 {
-            return Some(false);
-        }
-        self.sp -= 1;
-        // SAFETY: every entry below the stack pointer has been written.
-        self.current = unsafe { stack[self.sp].assume_init() }.node;
-        prefetch(&nodes[self.current as usize]);
-        None
-    }
 }
 
 /// Runs `f` with a traversal stack of `len` entries: on the call stack when that fits

@@ -287,10 +287,8 @@ impl LightSet {
             }
             return;
         };
-        // The choices between infinite lights and the tree, as `select` makes them; the tree's
+        // The choices between infinite lights and the tree as `select` makes them; the tree's
         // walks together.
-        let ni = self.infinite.len();
-        let p_inf = ni as f32 / (ni as f32 + 1.0);
         let mut walks = [0u8; MAX_WALKS];
         let (mut wp, mut wn, mut wu) = ([Vec3::ZERO; MAX_WALKS], [None; MAX_WALKS], [0f32; MAX_WALKS]);
         let mut found = [None; MAX_WALKS];
@@ -298,19 +296,18 @@ impl LightSet {
             let e = (s + MAX_WALKS).min(count);
             let mut w = 0;
             for k in s..e {
-                if u[k] < p_inf {
-                    let i = ((u[k] / p_inf * ni as f32) as usize).min(ni - 1);
-                    out[k] = Some((self.infinite[i], p_inf / ni as f32));
-                } else {
-                    (wp[w], wn[w]) = (reference[k], normal[k]);
-                    wu[w] = ((u[k] - p_inf) / (1.0 - p_inf)).min(1.0 - f32::EPSILON);
-                    walks[w] = (k - s) as u8;
-                    w += 1;
+                match self.infinite_or_tree(u[k]) {
+                    Ok(infinite) => out[k] = Some(infinite),
+                    Err(u_tree) => {
+                        (wp[w], wn[w], wu[w]) = (reference[k], normal[k], u_tree);
+                        walks[w] = (k - s) as u8;
+                        w += 1;
+                    }
                 }
             }
             tree.sample_batch(&wp[..w], &wn[..w], &wu[..w], &mut found[..w]);
             for (i, f) in found[..w].iter().enumerate() {
-                out[s + walks[i] as usize] = f.map(|(t, pmf)| (self.tree_lights[t], pmf * (1.0 - p_inf)));
+                out[s + walks[i] as usize] = self.global_of_tree_choice(*f);
             }
         }
     }
@@ -329,20 +326,39 @@ impl LightSet {
         }
         match (self.kind, &self.tree) {
             (LightSamplerKind::Uniform, _) => Some((((u * n as f32) as usize).min(n - 1), 1.0 / n as f32)),
-            (LightSamplerKind::Tree, Some(tree)) => {
-                let ni = self.infinite.len();
-                let p_inf = ni as f32 / (ni as f32 + 1.0);
-                if u < p_inf {
-                    let k = ((u / p_inf * ni as f32) as usize).min(ni - 1);
-                    Some((self.infinite[k], p_inf / ni as f32))
-                } else {
-                    let u = ((u - p_inf) / (1.0 - p_inf)).min(1.0 - f32::EPSILON);
-                    let (t, pmf) = tree.sample(reference, normal, u)?;
-                    Some((self.tree_lights[t], pmf * (1.0 - p_inf)))
-                }
-            }
+            (LightSamplerKind::Tree, Some(tree)) => match self.infinite_or_tree(u) {
+                Ok(infinite) => Some(infinite),
+                Err(u_tree) => self.global_of_tree_choice(tree.sample(reference, normal, u_tree)),
+            },
             _ => Some(self.selection.sample(u)),
         }
+    }
+
+    /// With a light tree, the probability of choosing an infinite light (directional or the
+    /// environment) rather than the tree: each infinite light weighs as much as the whole tree.
+    #[inline(always)]
+    fn p_infinite(&self) -> f32 {
+        let ni = self.infinite.len() as f32;
+        ni / (ni + 1.0)
+    }
+
+    /// With a light tree, `select`'s first choice for `u`: an infinite light and its probability,
+    /// or (`Err`) `u` rescaled for the walk down the tree.
+    #[inline(always)]
+    fn infinite_or_tree(&self, u: f32) -> Result<(usize, f32), f32> {
+        let (ni, p_inf) = (self.infinite.len(), self.p_infinite());
+        if u < p_inf {
+            let k = ((u / p_inf * ni as f32) as usize).min(ni - 1);
+            Ok((self.infinite[k], p_inf / ni as f32))
+        } else {
+            Err(((u - p_inf) / (1.0 - p_inf)).min(1.0 - f32::EPSILON))
+        }
+    }
+
+    /// The tree's choice (tree light, probability) as a global light and its probability.
+    #[inline(always)]
+    fn global_of_tree_choice(&self, found: Option<(usize, f32)>) -> Option<(usize, f32)> {
+        found.map(|(t, pmf)| (self.tree_lights[t], pmf * (1.0 - self.p_infinite())))
     }
 
     /// Probability that `select` picks global light `g` for this shading point.
@@ -354,8 +370,7 @@ impl LightSet {
         match (self.kind, &self.tree) {
             (LightSamplerKind::Uniform, _) => 1.0 / n as f32,
             (LightSamplerKind::Tree, Some(tree)) => {
-                let ni = self.infinite.len() as f32;
-                let p_inf = ni / (ni + 1.0);
+                let (ni, p_inf) = (self.infinite.len() as f32, self.p_infinite());
                 match self.tree_index[g] {
                     u32::MAX => p_inf / ni,
                     t => tree.pmf(reference, normal, t as usize) * (1.0 - p_inf),

@@ -63,9 +63,10 @@ pub const PILOT_REPLICATES: u64 = 8;
 /// 2.04: fewer of its light samples face away), which the faster walk does not change.
 /// Measured again once a batch's walks were interleaved (`LightSet::select_batch`, 2026-11-24;
 /// one thread, 128×96, 64 spp, 11 alternating runs, median of per-pair ratios): tree ÷ power
-/// 1.38 against 1.44 for the binary before, in the same hour (two threads, 256×192, 16 spp: 1.29
-/// against 1.47, noisier). A level then costs ≈ 0.86 × as much, 0.038; the constant stays at
-/// 0.044, the change being inside the spread of the figures it was set from.
+/// 1.38 against 1.44 for the binary before, in the same hour (two threads, `tessera bench`
+/// 256×192, 16 spp, median of three rounds' ratios: 1.29 against 1.47, noisier). A level then
+/// costs ≈ 0.86 × as much, 0.038; the constant stays at 0.044, the change being inside the
+/// spread of the figures it was set from.
 pub const TREE_LEVEL_COST: f64 = 0.044;
 
 /// A uniform number in [0, 1) from a hash of (stream, index).

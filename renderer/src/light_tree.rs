@@ -562,12 +562,11 @@ impl LightTree {
                     out[k] = None;
                     continue;
                 };
-                pmf[k] *= prob;
                 rest[k] = r;
-                match self.nodes[at[k]].child[slot] {
-                    c if c & LIGHT != 0 => out[k] = (pmf[k] > 0.0).then_some(((c & !LIGHT) as usize, pmf[k])),
-                    c => {
-                        at[k] = c as usize;
+                match self.descend(at[k], slot, prob, &mut pmf[k]) {
+                    Err(found) => out[k] = found,
+                    Ok(child) => {
+                        at[k] = child;
                         live[still] = k as u8;
                         still += 1;
                     }
@@ -584,12 +583,23 @@ impl LightTree {
         let (mut at, mut pmf) = (0usize, 1.0f32);
         loop {
             let (slot, prob, rest) = pick(at, u)?;
-            pmf *= prob;
             u = rest;
-            match self.nodes[at].child[slot] {
-                c if c & LIGHT != 0 => return (pmf > 0.0).then_some(((c & !LIGHT) as usize, pmf)),
-                c => at = c as usize,
+            match self.descend(at, slot, prob, &mut pmf) {
+                Ok(child) => at = child,
+                Err(found) => return found,
             }
+        }
+    }
+
+    /// A walk's step down from node `at` through `slot`, chosen with probability `prob` (folded
+    /// into `pmf`): `Ok` the child node to go on from, or `Err` the walk's answer, at a light
+    /// (None when its probability came to 0).
+    #[inline(always)]
+    fn descend(&self, at: usize, slot: usize, prob: f32, pmf: &mut f32) -> Result<usize, Option<(usize, f32)>> {
+        *pmf *= prob;
+        match self.nodes[at].child[slot] {
+            c if c & LIGHT != 0 => Err((*pmf > 0.0).then_some(((c & !LIGHT) as usize, *pmf))),
+            c => Ok(c as usize),
         }
     }
 

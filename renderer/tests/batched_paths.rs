@@ -68,8 +68,8 @@ fn batched_paths_render_every_test_scene_bit_for_bit() {
 /// Where a light tree chooses the lights, a pixel's paths run as a batch by default and choose
 /// their lights together (`LightSet::select_batch`: the walks down the tree interleaved), with
 /// the BVH's rays traced one at a time: every test scene with two or more lights, the tree forced,
-/// renders the same so as one path at a time (environments and punctual lights beside the tree
-/// included: `lights.glb`, the sunset scenes).
+/// renders the same so as one path at a time (an environment chosen beside the tree included:
+/// DamagedHelmet under the sunset; directional lights beside it are `light.rs`'s unit test).
 #[test]
 fn paths_choosing_lights_together_render_every_test_scene_bit_for_bit() {
     let mut walked = 0;

@@ -25,8 +25,8 @@ use glam::Vec3A;
 use obvhs::cwbvh::node::CwBvhNode;
 use obvhs::ray::Ray;
 
-/// obvhs' lower bound on a child's entry distance, as in [`crate::cwbvh_node`].
-const NODE_TMIN: f32 = 0.0001;
+/// The lower bound on a child's entry distance: 0, as in [`crate::cwbvh_node`] (not obvhs' 10⁻⁴).
+use crate::cwbvh_node::NODE_TMIN;
 
 #[derive(Clone, Copy, Debug)]
 #[repr(C, align(64))]

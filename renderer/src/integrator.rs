@@ -9,7 +9,7 @@
 use crate::accel::{Hit, MAX_BATCH};
 use crate::bsdf::{Bsdf, BsdfSample};
 use crate::light::emitted;
-use crate::math::{balance_heuristic, offset_ray_origin, power_heuristic, Frame, Vec2, Vec3, SHADOW_EPSILON};
+use crate::math::{balance_heuristic, power_heuristic, Frame, Vec2, Vec3, SHADOW_EPSILON};
 use crate::sampler::{dims, PixelSample};
 use crate::scene::Scene;
 use crate::settings::{IntegratorKind, MisHeuristic, RenderSettings};
@@ -430,7 +430,7 @@ impl Path {
         if sp.ng.dot(wo_world) < 0.0 {
             bsdf.eta = 1.0 / bsdf.eta;
         }
-        let origin = offset_ray_origin(sp.p, ng);
+        let origin = scene.offset_ray_origin(sp.p, ng);
         // The other side is only needed by rays that go through the surface (glass).
 
         // BSDF sampling for the next segment, done before next-event estimation although used
@@ -501,7 +501,7 @@ impl Path {
                 let below = bsdf.transmits() && wi.z < 0.0 && ls.wi.dot(ng) < 0.0;
                 if ls.le != Vec3::ZERO && (above || below) {
                     let (f, bsdf_pdf) = bsdf.eval_pdf(wo, wi);
-                    let origin = if above { origin } else { offset_ray_origin(p, -ng) };
+                    let origin = if above { origin } else { scene.offset_ray_origin(p, -ng) };
                     if f != Vec3::ZERO {
                         *rays += 1;
                         let to_light = if ls.delta && ls.dist.is_finite() {
@@ -515,7 +515,7 @@ impl Path {
                             // An area light: aim just off its surface and stop a relative
                             // SHADOW_EPSILON short, so the emitter's own triangle (or a coplanar
                             // neighbour) is never reported as the occluder (see SHADOW_EPSILON).
-                            let target = offset_ray_origin(ls.p, ls.n);
+                            let target = scene.offset_ray_origin(ls.p, ls.n);
                             let to = target - origin;
                             let dist = to.length();
                             (dist > 0.0).then(|| (origin, to / dist, dist * (1.0 - SHADOW_EPSILON)))
@@ -571,7 +571,7 @@ impl Path {
             self.medium = if ng_winding.dot(wo_world) > 0.0 { absorption } else { Vec3::ZERO };
         }
         self.prev = if bs.delta { None } else { Some((p, ns, bs.pdf)) };
-        self.o = if transmitted { offset_ray_origin(p, -ng) } else { origin };
+        self.o = if transmitted { scene.offset_ray_origin(p, -ng) } else { origin };
         self.d = wi_world;
         self.depth += 1;
 

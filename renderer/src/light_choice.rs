@@ -38,7 +38,7 @@ use crate::bsdf::Bsdf;
 use crate::camera::Camera;
 use crate::light::{LightSamplerKind, LightSet};
 use crate::material::Material;
-use crate::math::{cosine_hemisphere_pdf, luminance, offset_ray_origin, power_heuristic, Frame, Vec2, Vec3};
+use crate::math::{cosine_hemisphere_pdf, luminance, power_heuristic, Frame, Vec2, Vec3};
 use crate::mesh::Mesh;
 use crate::sampler::dims;
 use crate::scene::Scene;
@@ -105,7 +105,7 @@ fn camera_points(scene: &Scene, view: Option<(Camera, u32, u32)>) -> Vec<PilotPo
         if bsdf.is_delta_only() {
             continue;
         }
-        out.push(PilotPoint { p: offset_ray_origin(sp.p, n), n, wo: -d, bsdf: Some(bsdf) });
+        out.push(PilotPoint { p: scene.offset_ray_origin(sp.p, n), n, wo: -d, bsdf: Some(bsdf) });
     }
     out
 }
@@ -139,7 +139,7 @@ fn surface_points(mesh: &Mesh, materials: &[Material]) -> Vec<PilotPoint> {
             let b = crate::math::sample_uniform_triangle(Vec2::new(rand(2, k), rand(3, k)));
             let (p, ng, _) = mesh.position_normal_uv(tris[j], b.y, b.z);
             let n = if rand(4, k) < 0.5 { ng } else { -ng };
-            PilotPoint { p: offset_ray_origin(p, n), n, wo: n, bsdf: None }
+            PilotPoint { p: crate::math::offset_ray_origin(p, n), n, wo: n, bsdf: None }
         })
         .collect()
 }

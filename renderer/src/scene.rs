@@ -22,6 +22,8 @@ pub struct Scene {
     pub accel: Accel,
     pub lights: LightSet,
     pub bounds: (Vec3, Vec3),
+    /// The ray-origin offset's scale for these bounds ([`crate::math::offset_scale`]).
+    offset_scale: f32,
     /// Some material is MASK or BLEND (computed once: it is asked on every ray).
     transparent: bool,
     /// Per material, its BSDF when no texture feeds it ([`Material::uniform_bsdf`]).
@@ -40,6 +42,11 @@ pub struct Scene {
     pose_key: Option<(u32, u32, Option<String>)>,
     /// Overrides [`Scene::batches_paths`]' rule (tests; images are the same either way).
     batch_paths: Option<bool>,
+}
+
+/// [`crate::math::offset_scale`] of the largest coordinate within `bounds`.
+fn offset_scale_of((min, max): (Vec3, Vec3)) -> f32 {
+    crate::math::offset_scale(min.abs().max(max.abs()).max_element())
 }
 
 impl Scene {
@@ -62,6 +69,7 @@ impl Scene {
             accel,
             lights,
             bounds: (min, max),
+            offset_scale: offset_scale_of((min, max)),
             transparent,
             uniform_bsdfs,
             warnings: Vec::new(),
@@ -190,6 +198,7 @@ impl Scene {
         self.accel.rebuild_top(&self.mesh);
         if let Some(b) = self.mesh.world_bounds() {
             self.bounds = b;
+            self.offset_scale = offset_scale_of(b);
         }
         let rebuilt = clock.elapsed();
         self.set_punctual(punctual);
@@ -454,7 +463,14 @@ impl Scene {
     fn pass_through(&self, hit: &Hit, d: Vec3) -> Vec3 {
         let sp = self.surface_point(hit);
         let n = if sp.ng.dot(d) > 0.0 { sp.ng } else { -sp.ng };
-        crate::math::offset_ray_origin(sp.p, n)
+        self.offset_ray_origin(sp.p, n)
+    }
+
+    /// Moves a ray origin off a surface at `p` to the side `n` points to
+    /// ([`crate::math::offset_ray_origin_scaled`], scaled to this scene's size).
+    #[inline(always)]
+    pub fn offset_ray_origin(&self, p: Vec3, n: Vec3) -> Vec3 {
+        crate::math::offset_ray_origin_scaled(p, n, self.offset_scale)
     }
 
     /// The camera to render through: the file's camera `index`, or a framing default when the file

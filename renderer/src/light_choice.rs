@@ -112,7 +112,8 @@ fn camera_points(scene: &Scene, view: Option<(Camera, u32, u32)>) -> Vec<PilotPo
 
 /// Deterministic area-weighted points on non-emissive world triangles, either side (instances'
 /// object-space triangles are left out: the camera's view points cover them).
-fn surface_points(mesh: &Mesh, materials: &[Material]) -> Vec<PilotPoint> {
+fn surface_points(scene: &Scene) -> Vec<PilotPoint> {
+    let (mesh, materials) = (&scene.mesh, &scene.materials);
     let mut cdf = Vec::new();
     let mut tris = Vec::new();
     let mut total = 0.0f64;
@@ -139,7 +140,7 @@ fn surface_points(mesh: &Mesh, materials: &[Material]) -> Vec<PilotPoint> {
             let b = crate::math::sample_uniform_triangle(Vec2::new(rand(2, k), rand(3, k)));
             let (p, ng, _) = mesh.position_normal_uv(tris[j], b.y, b.z);
             let n = if rand(4, k) < 0.5 { ng } else { -ng };
-            PilotPoint { p: crate::math::offset_ray_origin(p, n), n, wo: n, bsdf: None }
+            PilotPoint { p: scene.offset_ray_origin(p, n), n, wo: n, bsdf: None }
         })
         .collect()
 }
@@ -219,7 +220,7 @@ pub fn choose(scene: &mut Scene, view: Option<(Camera, u32, u32)>) -> (LightSamp
     }
     let mut points = camera_points(scene, view);
     if points.len() < PILOT_POINTS as usize / 8 {
-        points.extend(surface_points(&scene.mesh, &scene.materials));
+        points.extend(surface_points(scene));
     }
     let mut scores = Vec::new();
     for kind in [LightSamplerKind::Power, LightSamplerKind::Uniform, LightSamplerKind::Tree] {

@@ -85,11 +85,10 @@ pub fn offset_ray_origin(p: Vec3, n: Vec3) -> Vec3 {
 /// within `max_abs` of the origin: the largest power of two not above `max_abs`, and 1 from
 /// `max_abs` = 1 up (so scenes that large keep Wächter & Binder's constants, and their images).
 ///
-/// Why: near the origin (within 1/32) Wächter & Binder offset by an absolute 2⁻¹⁶, sized for the
-/// rounding error of points on triangles whose vertices are about 1 from the origin. In a scene
-/// modelled a thousand times smaller (a room a millimetre across, or a Blender export scaled by
-/// 0.01), that is 3 % of the room, and the image came out 5.5 % brighter than the same room at
-/// full size (`renderer/tests/scale.rs`). Scaled by a power of two, the offsets of a scene scaled
+/// Why: near the origin (within 1/32) Wächter & Binder offset by an absolute 2⁻¹⁶, a distance
+/// that is small only in a scene about 1 unit across or more. In a room a millimetre across (or
+/// a Blender export scaled by 0.01) it is 1.5 % of the room's width, and the image came out
+/// 5.5 % brighter than the same room at full size (`renderer/tests/scale.rs`). Scaled by a power of two, the offsets of a scene scaled
 /// by a power of two are that scene's offsets scaled exactly, so its image is the same.
 pub fn offset_scale(max_abs: f32) -> f32 {
     if !(max_abs < 1.0) || !(max_abs > 0.0) {

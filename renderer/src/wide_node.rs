@@ -25,8 +25,9 @@ use glam::Vec3A;
 use obvhs::cwbvh::node::CwBvhNode;
 use obvhs::ray::Ray;
 
-/// The lower bound on a child's entry distance: 0, as in [`crate::cwbvh_node`] (not obvhs' 10⁻⁴).
-use crate::cwbvh_node::NODE_TMIN;
+// The lower bound on a child's entry distance (0, not obvhs' 10⁻⁴), the scalar lane operations
+// and the scalar mask: shared with the compressed node's test.
+use crate::cwbvh_node::{mask_and_entry, simd_max, simd_min, NODE_TMIN};
 
 #[derive(Clone, Copy, Debug)]
 #[repr(C, align(64))]
@@ -132,16 +133,7 @@ impl WideNode {
     /// AVX2 is missing.
     pub fn intersect_scalar(&self, ray: &Ray, inv_far: Vec3A, oct_inv4: u32) -> (u32, [f32; 8]) {
         let index8 = self.index8 ^ ((oct_inv4 as u64 | (oct_inv4 as u64) << 32) & self.inner8);
-        let byte = |x: u64, slot: usize| ((x >> (8 * slot)) & 0xff) as u32;
-        let (mut mask, mut entry) = (0u32, [0f32; 8]);
-        for (slot, e) in entry.iter_mut().enumerate() {
-            let (tmin, tmax) = self.slot_interval(slot, ray, inv_far);
-            *e = tmin;
-            if tmin <= tmax {
-                mask |= byte(self.child_bits8, slot) << byte(index8, slot);
-            }
-        }
-        (mask, entry)
+        mask_and_entry(self.child_bits8, index8, |slot| self.slot_interval(slot, ray, inv_far))
     }
 
     /// The part of the ray inside child `slot`'s box, as the SIMD test computes it lane by lane
@@ -166,26 +158,6 @@ pub fn far_inverse(ray: &Ray) -> Vec3A {
     const U: f32 = f32::EPSILON * 0.5;
     const GAMMA3: f32 = 3.0 * U / (1.0 - 3.0 * U);
     ray.inv_direction * (1.0 + 4.0 * GAMMA3)
-}
-
-/// `_mm256_max_ps(a, b)` on one lane: b when either is NaN.
-#[inline(always)]
-fn simd_max(a: f32, b: f32) -> f32 {
-    if a > b {
-        a
-    } else {
-        b
-    }
-}
-
-/// `_mm256_min_ps(a, b)` on one lane: b when either is NaN.
-#[inline(always)]
-fn simd_min(a: f32, b: f32) -> f32 {
-    if a < b {
-        a
-    } else {
-        b
-    }
 }
 
 /// The largest f32 ≤ x.

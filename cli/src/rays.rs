@@ -33,14 +33,16 @@ pub struct RaysArgs {
     #[arg(long, default_value_t = 5)]
     pub runs: usize,
     /// Write the workload and Tessera's hit distances (raw little-endian f32 arrays) into this
-    /// folder: vertices.f32 (triangles × 3 × xyz), origins.f32, directions.f32, t_closest.f32.
+    /// folder: vertices.f32 (triangles × 3 × xyz), origins.f32, directions.f32, t_closest.f32
+    /// (infinite for a ray that hits nothing); with `--scene`, also the occlusion rays'
+    /// shadow_directions.f32 and shadow_tmax.f32 (they start at the same origins).
     #[arg(long)]
     pub dump: Option<PathBuf>,
     /// A glTF scene instead of the icosphere, with a path tracer's kind of rays: each starts just
     /// off a random point of a random triangle (area-weighted), the closest-hit ray in a
     /// cosine-distributed direction on the side the triangle faces, the occlusion ray toward a
     /// random point of another random triangle, stopping just short of it.
-    #[arg(long, conflicts_with = "dump")]
+    #[arg(long)]
     pub scene: Option<PathBuf>,
 }
 
@@ -104,6 +106,7 @@ fn run_scene(a: &RaysArgs, path: &Path) -> Result<()> {
         a.runs
     );
     println!("{:<16} {:>10} {:>16} {:>16}", "accel", "build s", "closest Mrays/s", "occluded Mrays/s");
+    let mut closest_t = Vec::new();
     for kind in [AccelKind::Obvhs, AccelKind::ObvhsCompressed, AccelKind::Own] {
         let t = Instant::now();
         let accel = Accel::build_with(mesh, kind);
@@ -115,6 +118,13 @@ fn run_scene(a: &RaysArgs, path: &Path) -> Result<()> {
             hits =
                 origins.iter().zip(&dirs).filter(|(o, d)| accel.intersect(**o, **d, f32::INFINITY).is_some()).count();
             let secs = t.elapsed().as_secs_f64();
+            if run == 0 && kind == AccelKind::Obvhs {
+                closest_t = origins
+                    .iter()
+                    .zip(&dirs)
+                    .map(|(o, d)| accel.intersect(*o, *d, f32::INFINITY).map_or(f32::INFINITY, |h| h.t))
+                    .collect();
+            }
             let t = Instant::now();
             let blocked = origins.iter().zip(&shadow).filter(|(o, (d, len))| accel.occluded(**o, *d, *len)).count();
             let secs_occ = t.elapsed().as_secs_f64();
@@ -135,6 +145,25 @@ fn run_scene(a: &RaysArgs, path: &Path) -> Result<()> {
             batched.print(&accel, a.runs);
         }
     }
+    if let Some(dir) = &a.dump {
+        dump(dir, mesh, &origins, &dirs, &closest_t)?;
+        write_f32s(&dir.join("shadow_directions.f32"), shadow_dirs.iter().flat_map(|v| v.to_array()))?;
+        write_f32s(&dir.join("shadow_tmax.f32"), shadow_tmax.iter().copied())?;
+    }
+    Ok(())
+}
+
+/// `--dump`'s files common to both workloads (see [`RaysArgs::dump`]).
+fn dump(dir: &Path, mesh: &Mesh, origins: &[Vec3], dirs: &[Vec3], closest_t: &[f32]) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    write_f32s(
+        &dir.join("vertices.f32"),
+        (0..mesh.triangles.len() as u32).flat_map(|i| mesh.vertices(i)).flat_map(|v| v.to_array()),
+    )?;
+    write_f32s(&dir.join("origins.f32"), origins.iter().flat_map(|v| v.to_array()))?;
+    write_f32s(&dir.join("directions.f32"), dirs.iter().flat_map(|v| v.to_array()))?;
+    write_f32s(&dir.join("t_closest.f32"), closest_t.iter().copied())?;
+    println!("workload written to {}", dir.display());
     Ok(())
 }
 
@@ -305,15 +334,7 @@ pub fn run(a: RaysArgs) -> Result<()> {
         }
     }
     if let Some(dir) = &a.dump {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-        write_f32s(
-            &dir.join("vertices.f32"),
-            (0..mesh.triangles.len() as u32).flat_map(|i| mesh.vertices(i)).flat_map(|v| v.to_array()),
-        )?;
-        write_f32s(&dir.join("origins.f32"), origins.iter().flat_map(|v| v.to_array()))?;
-        write_f32s(&dir.join("directions.f32"), dirs.iter().flat_map(|v| v.to_array()))?;
-        write_f32s(&dir.join("t_closest.f32"), closest_t.into_iter())?;
-        println!("workload written to {}", dir.display());
+        dump(dir, &mesh, &origins, &dirs, &closest_t)?;
     }
     Ok(())
 }

@@ -147,6 +147,27 @@ fn bench_rays_on_a_scene_compares_the_accelerators() {
     for row in ["  paired", "  batch of 4", &full] {
         assert!(stdout.lines().any(|l| l.starts_with(row) && l.ends_with("one at a time: true)")), "{row}: {stdout}");
     }
+    // `--dump` writes what scenes/references/bench_embree.py --scene reads: 2000 rays' origins,
+    // directions, closest-hit distances (as many finite as the obvhs row's hits) and occlusion rays.
+    let dump = tmp.join("dump");
+    let (ok, stdout, err) = tessera(
+        &["bench", "rays", "--scene", scene.to_str().unwrap(), "--rays", "2000", "--runs", "1", "--dump", "dump"],
+        &tmp,
+    );
+    assert!(ok, "{err}");
+    let floats = |name: &str| -> Vec<f32> {
+        let bytes = std::fs::read(dump.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+        bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect()
+    };
+    for (name, len) in
+        [("origins.f32", 6000), ("directions.f32", 6000), ("shadow_directions.f32", 6000), ("shadow_tmax.f32", 2000)]
+    {
+        assert_eq!(floats(name).len(), len, "{name}");
+    }
+    assert_eq!(floats("vertices.f32").len() % 9, 0);
+    let finite = floats("t_closest.f32").iter().filter(|t| t.is_finite()).count();
+    let obvhs = stdout.lines().find(|l| l.starts_with("obvhs ")).unwrap_or_default();
+    assert!(obvhs.ends_with(&format!("({finite} closest hits)")), "{finite} finite distances: {stdout}");
     let (ok, _, err) = tessera(&["bench", "rays", "--scene", "missing.gltf", "--rays", "10"], &tmp);
     assert!(!ok && err.contains("missing.gltf"), "{err}");
 }

@@ -112,19 +112,14 @@ fn run_scene(a: &RaysArgs, path: &Path) -> Result<()> {
         let accel = Accel::build_with(mesh, kind);
         let build = t.elapsed().as_secs_f64();
         let (mut closest, mut occluded) = (Vec::new(), Vec::new());
-        let mut hits = 0usize;
+        // Each ray's closest-hit distance (infinite: none), as the icosphere's `run` keeps them.
+        let mut ts = vec![f32::INFINITY; origins.len()];
         for run in 0..=a.runs {
             let t = Instant::now();
-            hits =
-                origins.iter().zip(&dirs).filter(|(o, d)| accel.intersect(**o, **d, f32::INFINITY).is_some()).count();
-            let secs = t.elapsed().as_secs_f64();
-            if run == 0 && kind == AccelKind::Obvhs {
-                closest_t = origins
-                    .iter()
-                    .zip(&dirs)
-                    .map(|(o, d)| accel.intersect(*o, *d, f32::INFINITY).map_or(f32::INFINITY, |h| h.t))
-                    .collect();
+            for (i, (o, d)) in origins.iter().zip(&dirs).enumerate() {
+                ts[i] = accel.intersect(*o, *d, f32::INFINITY).map_or(f32::INFINITY, |h| h.t);
             }
+            let secs = t.elapsed().as_secs_f64();
             let t = Instant::now();
             let blocked = origins.iter().zip(&shadow).filter(|(o, (d, len))| accel.occluded(**o, *d, *len)).count();
             let secs_occ = t.elapsed().as_secs_f64();
@@ -134,6 +129,7 @@ fn run_scene(a: &RaysArgs, path: &Path) -> Result<()> {
             }
             std::hint::black_box(blocked);
         }
+        let hits = ts.iter().filter(|t| t.is_finite()).count();
         println!(
             "{:<16} {:>10.3} {:>16.3} {:>16.3}  ({hits} closest hits)",
             kind.name(),
@@ -143,6 +139,7 @@ fn run_scene(a: &RaysArgs, path: &Path) -> Result<()> {
         );
         if kind == AccelKind::Obvhs {
             batched.print(&accel, a.runs);
+            closest_t = ts;
         }
     }
     if let Some(dir) = &a.dump {

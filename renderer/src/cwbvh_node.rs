@@ -56,7 +56,8 @@ pub fn intersect_entry(node: &CwBvhNode, ray: &Ray, oct_inv4: u32) -> (u32, [f32
 /// reference that test is held to, and the test where AVX2 is missing.
 pub fn intersect_scalar(node: &CwBvhNode, ray: &Ray, oct_inv4: u32) -> (u32, [f32; 8]) {
     let (child_bits8, bit_index8) = node.get_child_and_index_bits(oct_inv4);
-    mask_and_entry(child_bits8, bit_index8, |slot| slot_interval(node, slot, ray))
+    let intervals = slot_intervals(node, ray);
+    mask_and_entry(child_bits8, bit_index8, |slot| intervals[slot])
 }
 
 /// A scalar node test's answer (hit mask, entry distances by slot) from each child's interval
@@ -81,9 +82,9 @@ pub(crate) fn child_bits(child_bits8: u64, index8: u64, slot: usize) -> u32 {
     byte(child_bits8) << byte(index8)
 }
 
-/// The part of the ray inside child `slot`'s box, as the SIMD test computes it lane by lane (the
-/// child is hit when the first is at most the second).
-fn slot_interval(node: &CwBvhNode, slot: usize, ray: &Ray) -> (f32, f32) {
+/// The part of the ray inside each child's box, by slot, as the SIMD test computes it lane by
+/// lane (a child is hit when the first is at most the second).
+fn slot_intervals(node: &CwBvhNode, ray: &Ray) -> [(f32, f32); 8] {
     let adj_dir = node.compute_extent() * ray.inv_direction;
     let adj_org = (glam::Vec3A::from(node.p) - ray.origin) * ray.inv_direction;
     let planes = [
@@ -91,16 +92,18 @@ fn slot_interval(node: &CwBvhNode, slot: usize, ray: &Ray) -> (f32, f32) {
         (&node.child_min_y, &node.child_max_y),
         (&node.child_min_z, &node.child_max_z),
     ];
-    let t = |axis: usize, far: bool| {
-        let (lo, hi) = planes[axis];
-        let upper = (ray.direction[axis] < 0.0) != far;
-        let q = if upper { hi[slot] } else { lo[slot] } as f32;
-        q * adj_dir[axis] + adj_org[axis]
-    };
-    // The SIMD operand order, which decides what a NaN does.
-    let tmin = simd_max(simd_max(t(0, false), simd_max(t(1, false), t(2, false))), NODE_TMIN);
-    let tmax = simd_min(simd_min(t(0, true), simd_min(t(1, true), t(2, true))), ray.tmax);
-    (tmin, tmax)
+    std::array::from_fn(|slot| {
+        let t = |axis: usize, far: bool| {
+            let (lo, hi) = planes[axis];
+            let upper = (ray.direction[axis] < 0.0) != far;
+            let q = if upper { hi[slot] } else { lo[slot] } as f32;
+            q * adj_dir[axis] + adj_org[axis]
+        };
+        // The SIMD operand order, which decides what a NaN does.
+        let tmin = simd_max(simd_max(t(0, false), simd_max(t(1, false), t(2, false))), NODE_TMIN);
+        let tmax = simd_min(simd_min(t(0, true), simd_min(t(1, true), t(2, true))), ray.tmax);
+        (tmin, tmax)
+    })
 }
 
 /// `_mm256_max_ps(a, b)` on one lane: b when either is NaN.
@@ -179,9 +182,9 @@ mod tests {
             if i % 4 == 0 {
                 // Moved to 5·10⁻⁵ before where it leaves the first child box it crosses (of
                 // some node): that child ends before obvhs' 10⁻⁴.
-                let crossed = (0..bvh.nodes.len()).flat_map(|n| (0..8).map(move |s| (n, s))).find_map(|(n, s)| {
-                    let (t0, t1) = slot_interval(&bvh.nodes[(n + i as usize) % bvh.nodes.len()], s, &ray);
-                    (t0 <= t1 && t1.is_finite() && t1 > 1e-3).then_some(t1)
+                let crossed = (0..bvh.nodes.len()).find_map(|n| {
+                    let intervals = slot_intervals(&bvh.nodes[(n + i as usize) % bvh.nodes.len()], &ray);
+                    intervals.into_iter().find(|&(t0, t1)| t0 <= t1 && t1.is_finite() && t1 > 1e-3).map(|(_, t1)| t1)
                 });
                 if let Some(t1) = crossed {
                     ray = obvhs::ray::Ray::new(ray.origin + ray.direction * (t1 - 5e-5), ray.direction, 0.0, ray.tmax);
@@ -192,11 +195,11 @@ mod tests {
             for (n, node) in bvh.nodes.iter().enumerate() {
                 let (ours, entry) = intersect_entry(node, &ray, oct);
                 let (reference, ref_entry) = intersect_scalar(node, &ray, oct);
+                let intervals = slot_intervals(node, &ray);
                 assert_eq!(ours, reference, "ray {i} node {n}: SIMD against the scalar reference");
                 let bits = |e: [f32; 8]| e.map(f32::to_bits);
                 // Entry distances only matter for hit children; compare those.
-                for slot in 0..8 {
-                    let (t0, t1) = slot_interval(node, slot, &ray);
+                for (slot, &(t0, t1)) in intervals.iter().enumerate() {
                     if t0 <= t1 {
                         assert_eq!(bits(entry)[slot], bits(ref_entry)[slot], "ray {i} node {n} slot {slot}");
                     }
@@ -206,9 +209,8 @@ mod tests {
                 if ours != theirs {
                     // Every child only we hit ends before obvhs' 10⁻⁴.
                     let (child_bits8, bit_index8) = node.get_child_and_index_bits(oct);
-                    for slot in 0..8 {
+                    for (slot, &(_, t1)) in intervals.iter().enumerate() {
                         if child_bits(child_bits8, bit_index8, slot) & ours & !theirs != 0 {
-                            let (_, t1) = slot_interval(node, slot, &ray);
                             assert!(t1 < 1e-4, "ray {i} node {n} slot {slot}: ends at {t1}");
                         }
                     }

@@ -775,13 +775,9 @@ mod tests {
         let (mut none, mut some) = (0, 0);
         for count in [1, 2, 3, 7, MAX_WALKS, MAX_WALKS + 1, 40] {
             let pts: Vec<_> = (0..count).map(|k| point(count * 100 + k)).collect();
-            let (p, n, u): (Vec<_>, Vec<_>, Vec<_>) =
-                pts.iter().fold((vec![], vec![], vec![]), |(mut p, mut n, mut u), x| {
-                    p.push(x.0);
-                    n.push(x.1);
-                    u.push(x.2);
-                    (p, n, u)
-                });
+            let p: Vec<_> = pts.iter().map(|x| x.0).collect();
+            let n: Vec<_> = pts.iter().map(|x| x.1).collect();
+            let u: Vec<_> = pts.iter().map(|x| x.2).collect();
             let mut out = vec![Some((usize::MAX, -1.0)); count];
             tree.sample_batch(&p, &n, &u, &mut out);
             for k in 0..count {

@@ -88,8 +88,9 @@ pub fn offset_ray_origin(p: Vec3, n: Vec3) -> Vec3 {
 /// Why: near the origin (within 1/32) Wächter & Binder offset by an absolute 2⁻¹⁶, a distance
 /// that is small only in a scene about 1 unit across or more. In a room a millimetre across (or
 /// a Blender export scaled by 0.01) it is 1.5 % of the room's width, and the image came out
-/// 5.5 % brighter than the same room at full size (`renderer/tests/scale.rs`). Scaled by a power of two, the offsets of a scene scaled
-/// by a power of two are that scene's offsets scaled exactly, so its image is the same.
+/// 5.5 % brighter than the same room at full size (`renderer/tests/scale.rs`). With the scale a
+/// power of two, a scene scaled by a power of two is offset by its own offsets scaled exactly,
+/// so its image is the same.
 pub fn offset_scale(max_abs: f32) -> f32 {
     if !(max_abs < 1.0) || !(max_abs > 0.0) {
         return 1.0;

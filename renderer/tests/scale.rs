@@ -142,9 +142,9 @@ fn a_closed_room_lets_no_sky_in_at_any_scale() {
 
 /// Radiance does not depend on the unit a scene is modelled in: the same lit room at 2⁻¹⁰, 2⁻⁶,
 /// 2⁻⁴ and 2¹⁰ times its size (powers of two, so every coordinate scales exactly) renders the
-/// image it renders at size 1,
-/// within its noise per pixel and within 0.5 % over the whole image (the sample sequences are the
-/// same, so the paths correspond one to one and their noise largely cancels in the difference).
+/// image it renders at size 1, within its noise per pixel and within 0.5 % over the whole image
+/// (the sample sequences are the same, so the paths correspond one to one and their noise
+/// largely cancels in the difference).
 #[test]
 fn a_lit_room_renders_the_same_at_any_scale() {
     let render = |side: f32| {

@@ -17,6 +17,7 @@ use clap::Args;
 use renderer::accel::{Accel, AccelKind};
 use renderer::math::Vec3;
 use renderer::mesh::{Mesh, Triangle};
+use renderer::scene::Scene;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -54,7 +55,8 @@ struct SurfaceRays {
     shadow: Vec<(Vec3, f32)>,
 }
 
-fn surface_rays(mesh: &Mesh, n: u32) -> Result<SurfaceRays> {
+fn surface_rays(scene: &Scene, n: u32) -> Result<SurfaceRays> {
+    let mesh = &scene.mesh;
     let u = renderer::sampler::hash_unit;
     let areas: Vec<f32> = (0..mesh.triangles.len() as u32).map(|i| mesh.area(i)).collect();
     let cdf: Vec<f64> = areas
@@ -76,9 +78,12 @@ fn surface_rays(mesh: &Mesh, n: u32) -> Result<SurfaceRays> {
     for i in 0..n as u64 {
         let k = 16 * i;
         let tri = pick(u(k));
-        let [p0, p1, p2] = mesh.vertices(tri);
-        let ng = (p1 - p0).cross(p2 - p0).normalize_or_zero();
-        let o = renderer::math::offset_ray_origin(point(tri, u(k + 1), u(k + 2)), ng);
+        // Leaving the triangle as the renderer's paths do (`Scene::spawn_origin`).
+        let (a, b) = (u(k + 1), u(k + 2));
+        let (a, b) = if a + b > 1.0 { (1.0 - a, 1.0 - b) } else { (a, b) };
+        let sp = mesh.surface_point(tri, a, b);
+        let ng = sp.ng;
+        let o = scene.spawn_origin(sp.p, ng, sp.plane_error);
         let local = renderer::math::sample_cosine_hemisphere(renderer::math::Vec2::new(u(k + 3), u(k + 4)));
         let d = renderer::math::Frame::from_normal(ng).to_world(local);
         let target = point(pick(u(k + 5)), u(k + 6), u(k + 7));
@@ -95,7 +100,7 @@ fn surface_rays(mesh: &Mesh, n: u32) -> Result<SurfaceRays> {
 fn run_scene(a: &RaysArgs, path: &Path) -> Result<()> {
     let scene = renderer::gltf_loader::load(path).with_context(|| format!("cannot load {}", path.display()))?;
     let mesh = &scene.mesh;
-    let SurfaceRays { origins, dirs, shadow } = surface_rays(mesh, a.rays)?;
+    let SurfaceRays { origins, dirs, shadow } = surface_rays(&scene, a.rays)?;
     let (shadow_dirs, shadow_tmax): (Vec<Vec3>, Vec<f32>) = shadow.iter().copied().unzip();
     let batched = Batched { origins: &origins, dirs: &dirs, shadow_dirs: &shadow_dirs, shadow_tmax: &shadow_tmax };
     println!(

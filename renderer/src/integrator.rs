@@ -203,6 +203,8 @@ enum LightChoice {
 #[derive(Clone, Copy)]
 struct Vertex {
     p: Vec3,
+    /// How far off its triangle's plane a ray leaving `p` starts (`SurfacePoint::plane_error`).
+    plane_error: f32,
     /// The geometric normal as wound (front face: counter-clockwise): which side is the mesh's
     /// inside, for glass and its medium.
     ng_winding: Vec3,
@@ -430,7 +432,7 @@ impl Path {
         if sp.ng.dot(wo_world) < 0.0 {
             bsdf.eta = 1.0 / bsdf.eta;
         }
-        let origin = scene.offset_ray_origin(sp.p, ng);
+        let origin = scene.spawn_origin(sp.p, ng, sp.plane_error);
         // The other side is only needed by rays that go through the surface (glass).
 
         // BSDF sampling for the next segment, done before next-event estimation although used
@@ -442,6 +444,7 @@ impl Path {
         let nee = settings.integrator != IntegratorKind::Bsdf && !scene.lights.is_empty() && !bsdf.is_delta_only();
         Some(Vertex {
             p: sp.p,
+            plane_error: sp.plane_error,
             ng_winding: sp.ng,
             ng,
             ns,
@@ -480,7 +483,7 @@ impl Path {
         rays: &mut u64,
     ) -> bool {
         let (mesh, materials, textures) = (&scene.mesh, &scene.materials, &scene.textures);
-        let Vertex { p, ng_winding, ng, ns, frame, wo, bsdf, origin, next, absorption, nee } = v;
+        let Vertex { p, plane_error, ng_winding, ng, ns, frame, wo, bsdf, origin, next, absorption, nee } = v;
         let wo_world = -self.d;
 
         // Next-event estimation.
@@ -501,7 +504,7 @@ impl Path {
                 let below = bsdf.transmits() && wi.z < 0.0 && ls.wi.dot(ng) < 0.0;
                 if ls.le != Vec3::ZERO && (above || below) {
                     let (f, bsdf_pdf) = bsdf.eval_pdf(wo, wi);
-                    let origin = if above { origin } else { scene.offset_ray_origin(p, -ng) };
+                    let origin = if above { origin } else { scene.spawn_origin(p, -ng, plane_error) };
                     if f != Vec3::ZERO {
                         *rays += 1;
                         let to_light = if ls.delta && ls.dist.is_finite() {
@@ -571,7 +574,7 @@ impl Path {
             self.medium = if ng_winding.dot(wo_world) > 0.0 { absorption } else { Vec3::ZERO };
         }
         self.prev = if bs.delta { None } else { Some((p, ns, bs.pdf)) };
-        self.o = if transmitted { scene.offset_ray_origin(p, -ng) } else { origin };
+        self.o = if transmitted { scene.spawn_origin(p, -ng, plane_error) } else { origin };
         self.d = wi_world;
         self.depth += 1;
 

@@ -105,7 +105,7 @@ fn camera_points(scene: &Scene, view: Option<(Camera, u32, u32)>) -> Vec<PilotPo
         if bsdf.is_delta_only() {
             continue;
         }
-        out.push(PilotPoint { p: scene.offset_ray_origin(sp.p, n), n, wo: -d, bsdf: Some(bsdf) });
+        out.push(PilotPoint { p: scene.spawn_origin(sp.p, n, sp.plane_error), n, wo: -d, bsdf: Some(bsdf) });
     }
     out
 }
@@ -138,9 +138,9 @@ fn surface_points(scene: &Scene) -> Vec<PilotPoint> {
             let u = rand(1, k) as f64 * total;
             let j = cdf.partition_point(|&c| c <= u).min(tris.len() - 1);
             let b = crate::math::sample_uniform_triangle(Vec2::new(rand(2, k), rand(3, k)));
-            let (p, ng, _) = mesh.position_normal_uv(tris[j], b.y, b.z);
-            let n = if rand(4, k) < 0.5 { ng } else { -ng };
-            PilotPoint { p: scene.offset_ray_origin(p, n), n, wo: n, bsdf: None }
+            let sp = mesh.surface_point(tris[j], b.y, b.z);
+            let n = if rand(4, k) < 0.5 { sp.ng } else { -sp.ng };
+            PilotPoint { p: scene.spawn_origin(sp.p, n, sp.plane_error), n, wo: n, bsdf: None }
         })
         .collect()
 }

@@ -463,7 +463,16 @@ impl Scene {
     fn pass_through(&self, hit: &Hit, d: Vec3) -> Vec3 {
         let sp = self.surface_point(hit);
         let n = if sp.ng.dot(d) > 0.0 { sp.ng } else { -sp.ng };
-        self.offset_ray_origin(sp.p, n)
+        self.spawn_origin(sp.p, n, sp.plane_error)
+    }
+
+    /// The origin of a ray leaving a surface point `p` to the side `n` (± the geometric normal)
+    /// points to: lifted off the triangle's plane by the point's `plane_error`
+    /// ([`crate::mesh::SurfacePoint::plane_error`]), then moved on by the ulp offset, which also
+    /// covers the rounding of that lift.
+    #[inline(always)]
+    pub fn spawn_origin(&self, p: Vec3, n: Vec3, plane_error: f32) -> Vec3 {
+        self.offset_ray_origin(p + n * plane_error, n)
     }
 
     /// Moves a ray origin off a surface at `p` to the side `n` points to

@@ -119,7 +119,7 @@ pub fn sobol_4d(index: u32, seed: u32) -> [f32; 4] {
 fn sobol_int4_rev(index_rev: u32, seed: u32) -> [u32; 4] {
     use sobol_burley::parts::{hash, owen_scramble_rev};
     let rev = owen_scramble_rev(index_rev, hash(seed ^ 0x79c6_8e4a));
-    let tables = &*SOBOL_BYTE_TABLES;
+    let tables = &SOBOL_BYTE_TABLES;
     let (hi, lo) = (tables[1][(rev >> 24) as usize], tables[0][((rev >> 16) & 0xff) as usize]);
     [hi[0] ^ lo[0], hi[1] ^ lo[1], hi[2] ^ lo[2], hi[3] ^ lo[3]]
 }
@@ -217,18 +217,19 @@ fn set_hash(set: u32, block: u32) -> u32 {
 /// Sets [`set_hash`] tabulates.
 const SET_HASHES: usize = 256;
 
-static SET_HASH_TABLE: std::sync::LazyLock<[u32; SET_HASHES]> =
-    std::sync::LazyLock::new(|| std::array::from_fn(|set| hash_u32((set as u32).wrapping_mul(0x9e37_79b9))));
-
-/// Sobol dimensions 0–3 of each value of the reversed index's bits 16–23 (`[0]`) and 24–31 (`[1]`).
-static SOBOL_BYTE_TABLES: std::sync::LazyLock<Box<[[[u32; 4]; 256]; 2]>> = std::sync::LazyLock::new(|| {
-    let mut t = Box::new([[[0u32; 4]; 256]; 2]);
-    for b in 0..256u32 {
-        t[0][b as usize] = sobol_burley::parts::sobol_int4_rev(b << 16, 0).into();
-        t[1][b as usize] = sobol_burley::parts::sobol_int4_rev(b << 24, 0).into();
+/// Worked out at compile time: a lazily built table would cost a check of its initialisation on
+/// every read.
+static SET_HASH_TABLE: [u32; SET_HASHES] = {
+    let mut t = [0u32; SET_HASHES];
+    let mut set = 0;
+    while set < SET_HASHES {
+        t[set] = hash_u32((set as u32).wrapping_mul(0x9e37_79b9));
+        set += 1;
     }
     t
-});
+};
+
+include!(concat!(env!("OUT_DIR"), "/sobol_byte_tables.rs"));
 
 /// Maps 32 random bits to [0, 1) with 24 bits of precision (never returns 1.0).
 #[inline]
@@ -271,7 +272,7 @@ impl Pcg32 {
 
 /// SplitMix64 finalizer: a well-mixed 64-bit hash.
 #[inline]
-pub fn hash_u64(mut x: u64) -> u64 {
+pub const fn hash_u64(mut x: u64) -> u64 {
     x = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
     x = (x ^ (x >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
     x = (x ^ (x >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
@@ -285,7 +286,7 @@ pub fn hash_unit(x: u64) -> f32 {
 }
 
 #[inline]
-fn hash_u32(x: u32) -> u32 {
+const fn hash_u32(x: u32) -> u32 {
     hash_u64(x as u64) as u32
 }
 

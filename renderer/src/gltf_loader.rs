@@ -789,6 +789,7 @@ impl Loader {
         if needs_tangents && tangents.is_none() {
             mesh.generate_tangents(first..mesh.triangles.len());
         }
+        mesh.drop_flat_normals(first..mesh.triangles.len());
         Ok(())
     }
 

@@ -53,11 +53,15 @@ fn sample_models_load() {
     let gltf = load(&root().join("scenes/cornell/cornell.gltf")).expect("cornell.gltf");
     assert_eq!(glb.mesh.positions, gltf.mesh.positions);
     assert_eq!(glb.cameras.len(), 1);
+    // Its walls carry a NORMAL per corner, all flat: the loader leaves them to the winding normal
+    // (`Mesh::drop_flat_normals`), while the helmet's smooth ones stay.
+    assert!(gltf.mesh.triangles.iter().all(|t| t.flags & flags::NORMALS == 0), "cornell's flat normals dropped");
     let h = load(&root().join("scenes/khronos/DamagedHelmet/DamagedHelmet.gltf")).expect("DamagedHelmet");
     assert_eq!(h.mesh.triangles.len(), 46_356 / 3);
     assert!(!h.lights.is_empty(), "the helmet's emissive texture makes lights");
     // Normal map without TANGENT: tangents were generated.
     assert!(h.mesh.triangles.iter().all(|t| t.flags & flags::TANGENTS != 0));
+    assert!(h.mesh.triangles.iter().all(|t| t.flags & flags::NORMALS != 0));
     assert!(h.mesh.tangents.iter().any(|t| t.truncate().length() > 0.5));
 }
 

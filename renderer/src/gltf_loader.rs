@@ -603,6 +603,9 @@ impl Loader {
                         for t in &mut mesh.triangles[first..] {
                             t.flags |= flags::OBJECT_SPACE;
                         }
+                        // Rigid placements keep a flat triangle's normals its own (not so a
+                        // skinned or morphed one's, re-posed above with their normals).
+                        mesh.drop_flat_normals(first..mesh.triangles.len());
                         mesh.prototypes.push(first as u32..mesh.triangles.len() as u32);
                         let p = mesh.prototypes.len() as u32 - 1;
                         prototype_of.insert(mi, p);
@@ -620,10 +623,12 @@ impl Loader {
                 }
                 continue;
             }
+            let first = mesh.triangles.len();
             for prim in m.primitives() {
                 let what = format!("{mesh_name} primitive {} (node {node_index})", prim.index());
                 self.primitive(doc, &prim, &what, world, buffers, &mut mesh, &materials, default_material)?;
             }
+            mesh.drop_flat_normals(first..mesh.triangles.len());
         }
         if mesh.triangles.len() > MAX_TRIANGLES {
             return Err(self.invalid(format!("{} triangles (the limit is {MAX_TRIANGLES})", mesh.triangles.len())));
@@ -789,7 +794,6 @@ impl Loader {
         if needs_tangents && tangents.is_none() {
             mesh.generate_tangents(first..mesh.triangles.len());
         }
-        mesh.drop_flat_normals(first..mesh.triangles.len());
         Ok(())
     }
 

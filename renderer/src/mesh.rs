@@ -27,6 +27,9 @@ pub struct Instance {
     pub to_object: Mat4,
     /// Inverse transpose of `to_world`'s linear part: object normals to world normals.
     pub normal_matrix: Mat3,
+    /// An upper bound on how much `to_world` stretches a distance (its linear part's Frobenius
+    /// norm): what an object-space [`SurfacePoint::plane_error`] becomes in world space.
+    pub stretch: f32,
     /// False while an animation gives it a singular transform (scaled to nothing): not traced.
     pub visible: bool,
 }
@@ -41,11 +44,14 @@ impl Instance {
         }
         let to_object = to_world.inverse();
         let normal_matrix = linear.inverse().transpose();
+        let stretch =
+            (linear.x_axis.length_squared() + linear.y_axis.length_squared() + linear.z_axis.length_squared()).sqrt();
         (to_object.is_finite() && normal_matrix.is_finite()).then_some(Instance {
             prototype,
             to_world,
             to_object,
             normal_matrix,
+            stretch,
             visible: true,
         })
     }
@@ -283,11 +289,9 @@ impl Mesh {
         let mut sp = self.surface_point(tri, b1, b2);
         sp.p = inst.to_world.transform_point3(sp.p);
         // The bound holds in object space, where the instance's triangle test runs; a world
-        // distance of it times the transform's largest stretch (at most its Frobenius norm) is at
-        // least that far off the plane there.
-        let m = Mat3::from_mat4(inst.to_world);
-        let stretch = (m.x_axis.length_squared() + m.y_axis.length_squared() + m.z_axis.length_squared()).sqrt();
-        sp.plane_error *= stretch;
+        // distance of it times the transform's largest stretch is at least that far off the plane
+        // there.
+        sp.plane_error *= inst.stretch;
         let n = |v: Vec3, fallback: Vec3| {
             let w = (inst.normal_matrix * v).normalize_or_zero();
             if w == Vec3::ZERO || !w.is_finite() {
@@ -316,19 +320,11 @@ impl Mesh {
             if t.flags & flags::NORMALS == 0 || t.flags & flags::TANGENTS != 0 {
                 continue;
             }
-            let [i0, i1, i2] = t.v.map(|i| i as usize);
-            let (Some(&n0), Some(&n1), Some(&n2)) = (self.normals.get(i0), self.normals.get(i1), self.normals.get(i2))
-            else {
-                continue;
-            };
-            let (Some(&p0), Some(&p1), Some(&p2)) =
-                (self.positions.get(i0), self.positions.get(i1), self.positions.get(i2))
-            else {
-                continue;
-            };
+            // The loader has checked every index, and a triangle with NORMALS has its normals.
+            let [n0, n1, n2] = t.v.map(|i| self.normals[i as usize]);
+            let [p0, p1, p2] = t.v.map(|i| self.positions[i as usize]);
             let ng = (p1 - p0).cross(p2 - p0).normalize_or_zero();
-            let n = n0.normalize_or_zero();
-            if n0 == n1 && n1 == n2 && n.dot(ng) >= 1.0 - 1e-6 {
+            if n0 == n1 && n1 == n2 && n0.normalize_or_zero().dot(ng) >= 1.0 - 1e-6 {
                 t.flags &= !flags::NORMALS;
             }
         }

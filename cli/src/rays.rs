@@ -69,24 +69,20 @@ fn surface_rays(scene: &Scene, n: u32) -> Result<SurfaceRays> {
     let total = cdf.last().copied().unwrap_or(0.0);
     anyhow::ensure!(total > 0.0, "the scene has no triangle with an area");
     let pick = |x: f32| cdf.partition_point(|&c| c < x as f64 * total).min(cdf.len() - 1) as u32;
+    // A point of triangle `tri` from two uniform numbers (the square's upper half folded in).
     let point = |tri: u32, a: f32, b: f32| {
-        let [p0, p1, p2] = mesh.vertices(tri);
         let (a, b) = if a + b > 1.0 { (1.0 - a, 1.0 - b) } else { (a, b) };
-        p0 + (p1 - p0) * a + (p2 - p0) * b
+        mesh.surface_point(tri, a, b)
     };
     let (mut origins, mut dirs, mut shadow) = (Vec::new(), Vec::new(), Vec::new());
     for i in 0..n as u64 {
         let k = 16 * i;
-        let tri = pick(u(k));
-        // Leaving the triangle as the renderer's paths do (`Scene::spawn_origin`).
-        let (a, b) = (u(k + 1), u(k + 2));
-        let (a, b) = if a + b > 1.0 { (1.0 - a, 1.0 - b) } else { (a, b) };
-        let sp = mesh.surface_point(tri, a, b);
-        let ng = sp.ng;
-        let o = scene.spawn_origin(sp.p, ng, sp.plane_error);
+        let sp = point(pick(u(k)), u(k + 1), u(k + 2));
+        // Leaving the triangle as the renderer's paths do.
+        let o = scene.spawn_origin(sp.p, sp.ng, sp.plane_error);
         let local = renderer::math::sample_cosine_hemisphere(renderer::math::Vec2::new(u(k + 3), u(k + 4)));
-        let d = renderer::math::Frame::from_normal(ng).to_world(local);
-        let target = point(pick(u(k + 5)), u(k + 6), u(k + 7));
+        let d = renderer::math::Frame::from_normal(sp.ng).to_world(local);
+        let target = point(pick(u(k + 5)), u(k + 6), u(k + 7)).p;
         let to = target - o;
         let len = to.length();
         origins.push(o);

@@ -111,8 +111,8 @@ pub struct SurfacePoint {
 /// ulps of the largest such distance, δt). The origin offset's 16 ulps of the point's coordinates
 /// fall short of it wherever those are small next to the triangle: on the Veach scene's plate,
 /// 8 units wide and straddling y = 0, 0.4 % of the rays leaving it hit it again
-/// (`renderer/tests/self_intersection.rs`: 850 of 2·10⁵ rays without the lift, 10 with 1 unit
-/// roundoff, none from 2; 32 leaves a margin of 16 for slivers and grazing rays, and is still only
+/// (`renderer/tests/self_intersection.rs`: 862 of about 2·10⁵ rays without the lift, 9 with 1
+/// unit roundoff, none from 2; as an instance 100 times its size, 1 290, 2 and none; 32 leaves a margin of 16 for slivers and grazing rays, and is still only
 /// 2·10⁻⁶ of the triangle's size).
 pub const PLANE_ERROR_ULPS: f32 = 32.0;
 

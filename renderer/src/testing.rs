@@ -294,3 +294,22 @@ pub fn sum_bits(p: &crate::film::PartialSums) -> Vec<u64> {
         .chain(p.sum_lum_sq.iter().map(|v| v.to_bits()))
         .collect()
 }
+
+/// The rays `o + t d` traced the way renders of large scenes trace them, in batches of up to 16:
+/// each ray's first surface ([`Scene::intersect_surface_batch`], seed 0) and its visibility up to
+/// `tmax` ([`Scene::visibility_batch`]: 0 blocked, 1 clear). Turns batching on for `scene`.
+pub fn trace_in_batches(
+    scene: &mut Scene,
+    o: &[Vec3],
+    d: &[Vec3],
+    tmax: f32,
+) -> (Vec<Option<crate::accel::Hit>>, Vec<f32>) {
+    scene.set_batch_rays(true);
+    let (mut hits, mut seen) = (vec![None; o.len()], vec![0f32; o.len()]);
+    for s in (0..o.len()).step_by(16) {
+        let e = (s + 16).min(o.len());
+        scene.intersect_surface_batch(&o[s..e], &d[s..e], &[0; 16][..e - s], &mut hits[s..e]);
+        scene.visibility_batch(&o[s..e], &d[s..e], &[tmax; 16][..e - s], &mut seen[s..e]);
+    }
+    (hits, seen)
+}

@@ -20,7 +20,7 @@ use renderer::film::Rect;
 use renderer::math::Vec3;
 use renderer::sampler::hash_unit as u;
 use renderer::scene::Scene;
-use renderer::testing::{lambert, SceneBuilder};
+use renderer::testing::{lambert, trace_in_batches, SceneBuilder};
 use renderer::{render_tile, RenderSettings};
 
 /// Room sides tested, in scene units: a millimetre to a kilometre in glTF's metres.
@@ -82,16 +82,9 @@ fn rays_toward_a_near_corner_hit_the_neighbouring_wall() {
             // The same rays in batches (the renderer's path for large scenes), where the BVH has them.
             let (mut batch_misses, mut batch_unblocked) = (0, 0);
             if kind != AccelKind::Own {
-                scene.set_batch_rays(true);
-                for s in (0..o.len()).step_by(16) {
-                    let e = (s + 16).min(o.len());
-                    let mut hits = [None; 16];
-                    scene.intersect_surface_batch(&o[s..e], &d[s..e], &[0; 16][..e - s], &mut hits[..e - s]);
-                    batch_misses += hits[..e - s].iter().filter(|h| h.is_none()).count();
-                    let mut seen = [0f32; 16];
-                    scene.visibility_batch(&o[s..e], &d[s..e], &[side; 16][..e - s], &mut seen[..e - s]);
-                    batch_unblocked += seen[..e - s].iter().filter(|&&v| v != 0.0).count();
-                }
+                let (hits, seen) = trace_in_batches(&mut scene, &o, &d, side);
+                batch_misses = hits.iter().filter(|h| h.is_none()).count();
+                batch_unblocked = seen.iter().filter(|&&v| v != 0.0).count();
             }
             assert_eq!(
                 (misses, unblocked, batch_misses, batch_unblocked),

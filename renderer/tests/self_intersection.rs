@@ -17,7 +17,7 @@ use renderer::accel::AccelKind;
 use renderer::math::{sample_cosine_hemisphere, Frame, Vec2, Vec3};
 use renderer::sampler::hash_unit as u;
 use renderer::scene::Scene;
-use renderer::testing::{lambert, SceneBuilder};
+use renderer::testing::{lambert, trace_in_batches, SceneBuilder};
 
 /// The Veach scene's `plate1`, vertex for vertex as `scenes/veach/veach.gltf` has it: its centre
 /// and the half extents across and along it (`SceneBuilder::quad`'s corners c ∓ u ∓ v).
@@ -96,45 +96,34 @@ fn self_hits(mut scene: Scene, kind: AccelKind, scale: f32) -> ([usize; 4], usiz
         found[1] += scene.occluded(o[k], d[k], reach) as usize;
     }
     if kind != AccelKind::Own {
-        scene.set_batch_rays(true);
-        for s in (0..o.len()).step_by(16) {
-            let e = (s + 16).min(o.len());
-            let mut hits = [None; 16];
-            scene.intersect_surface_batch(&o[s..e], &d[s..e], &[0; 16][..e - s], &mut hits[..e - s]);
-            found[2] +=
-                hits[..e - s].iter().zip(&inst[s..e]).filter(|(h, i)| h.is_some_and(|h| h.instance == **i)).count();
-            let mut seen = [0f32; 16];
-            scene.visibility_batch(&o[s..e], &d[s..e], &[reach; 16][..e - s], &mut seen[..e - s]);
-            found[3] += seen[..e - s].iter().filter(|&&v| v == 0.0).count();
-        }
+        let (hits, seen) = trace_in_batches(&mut scene, &o, &d, reach);
+        found[2] = hits.iter().zip(&inst).filter(|(h, i)| h.is_some_and(|h| h.instance == **i)).count();
+        found[3] = seen.iter().filter(|&&v| v == 0.0).count();
     }
     (found, o.len())
 }
 
-#[test]
-fn rays_leaving_a_large_tilted_plate_never_hit_it() {
+/// [`self_hits`] with every BVH: none of the rays may hit what they leave or be blocked by it.
+fn assert_no_self_hits(scene: impl Fn() -> Scene, scale: f32, what: &str) {
     for kind in [AccelKind::Obvhs, AccelKind::ObvhsCompressed, AccelKind::Own] {
-        let (found, rays) = self_hits(veach_plate(), kind, 1.0);
+        let (found, rays) = self_hits(scene(), kind, scale);
         assert_eq!(
             found,
             [0; 4],
-            "{}: of {rays} rays leaving the plate, (hit it, blocked by it) alone and in batches",
+            "{}: of {rays} rays leaving {what}, (hit it, blocked by it) alone and in batches",
             kind.name()
         );
     }
+}
+
+#[test]
+fn rays_leaving_a_large_tilted_plate_never_hit_it() {
+    assert_no_self_hits(veach_plate, 1.0, "the plate");
 }
 
 /// The plate as an instance 100 times its size: the triangle test runs in object space, so the
 /// lift must be the object-space bound scaled up to world space.
 #[test]
 fn rays_leaving_a_scaled_instance_never_hit_it() {
-    for kind in [AccelKind::Obvhs, AccelKind::ObvhsCompressed, AccelKind::Own] {
-        let (found, rays) = self_hits(instanced_plate(), kind, 100.0);
-        assert_eq!(
-            found,
-            [0; 4],
-            "{}: of {rays} rays leaving the instanced plate, (hit it, blocked by it) alone and in batches",
-            kind.name()
-        );
-    }
+    assert_no_self_hits(instanced_plate, 100.0, "the instanced plate");
 }

@@ -38,6 +38,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 from equal_time import TESSERA  # noqa: E402
+from ray_agreement import disagreeing, finish  # noqa: E402
 
 
 def main():
@@ -98,19 +99,14 @@ def main():
 
     t_emb = np.asarray(res["tfar"], dtype=np.float64)
     hit = np.asarray(res["primID"]) >= 0
-    tess_hit = np.isfinite(t_tess)
-    bad = (hit != tess_hit) | (hit & (np.abs(t_emb - t_tess) > 1e-4 * np.maximum(t_emb, 1e-3)))
+    bad = disagreeing(hit, t_emb, t_tess)
     print(f"hits agree: {len(orig) - bad.sum()} of {len(orig)} rays (both miss, or closest t within 1e-4 relative;"
           f" {int(hit.sum())} hits)")
     for k, (b, c, o) in tess.items():
         build_ratio = f"build time {b / emb[0]:.2f}x, " if b is not None else ""
         print(f"tessera {k:<16} over embree: {build_ratio}closest-hit rays/s {c / emb[1]:.2f}x, "
               f"occlusion rays/s {o / emb[2]:.2f}x")
-    if bad.sum() > 0:
-        i = np.flatnonzero(bad)[:5]
-        print("disagreeing rays (index, embree t, tessera t):", [(int(k), float(t_emb[k]), float(t_tess[k])) for k in i])
-    if bad.sum() > len(orig) // 10_000:
-        sys.exit(1)
+    finish(bad, t_emb, t_tess, "embree")
 
 
 if __name__ == "__main__":

@@ -100,6 +100,7 @@ pub fn radiance_batch(
         let mut queries = 0;
         for j in 0..count {
             let k = live[j] as usize;
+            paths[k].draw_held_sets(scene, &samplers[k], &hits[j]);
             vertices[j] = paths[k].shade(scene, settings, hits[j]);
             if let Some((p, n, u)) = vertices[j].as_ref().and_then(|v| paths[k].light_query(v)) {
                 (qp[queries], qn[queries], qu[queries]) = (p, Some(n), u);
@@ -252,6 +253,7 @@ impl Path {
         loop {
             let seed = self.begin_bounce(scene, sampler, rays);
             let hit = scene.intersect_surface(self.o, self.d, seed);
+            self.draw_held_sets(scene, sampler, &hit);
             if !self.after_hit(scene, settings, hit, rays) {
                 break;
             }
@@ -272,6 +274,26 @@ impl Path {
         }
     }
 
+    /// Draws the current bounce's two 4D sample sets (the light set only where it is used).
+    #[inline(always)]
+    fn draw_sets(&mut self, sampler: &PixelSample) {
+        let base = dims::BOUNCE_BASE + dims::BOUNCE_STRIDE * self.depth;
+        (self.u_bsdf, self.u_light) = if self.draws_light_set {
+            sampler.get_4d_pair((base + dims::BSDF_DIR) / 4, (base + dims::LIGHT_POS) / 4)
+        } else {
+            (sampler.get_4d((base + dims::BSDF_DIR) / 4), [0.0; 4])
+        };
+    }
+
+    /// Draws the camera ray's sample sets once it has hit something ([`Path::begin_bounce`]
+    /// holds them back: a camera ray that escapes needs none).
+    #[inline(always)]
+    fn draw_held_sets(&mut self, scene: &Scene, sampler: &PixelSample, hit: &Option<Hit>) {
+        if self.depth == 0 && hit.is_some() && !scene.has_transparency() {
+            self.draw_sets(sampler);
+        }
+    }
+
     /// Counts the bounce's ray and draws its sample sets; returns the stochastic-transparency seed
     /// its ray is traced with.
     #[inline(always)]
@@ -280,13 +302,12 @@ impl Path {
         // The bounce's two 4D sets, drawn before its ray is traced although only the vertex it
         // finds uses them: they do not depend on the hit, and each is a chain of hashes that can
         // then overlap the traversal instead of holding up the shading (Cornell box 3–4 % faster,
-        // same bits; ARCHITECTURE.md). A path that ends at this hit wastes them.
-        let base = dims::BOUNCE_BASE + dims::BOUNCE_STRIDE * self.depth;
-        (self.u_bsdf, self.u_light) = if self.draws_light_set {
-            sampler.get_4d_pair((base + dims::BSDF_DIR) / 4, (base + dims::LIGHT_POS) / 4)
-        } else {
-            (sampler.get_4d((base + dims::BSDF_DIR) / 4), [0.0; 4])
-        };
+        // same bits; ARCHITECTURE.md). A path that ends at this hit wastes them, so the camera
+        // ray's, which misses everything in open scenes, wait for its hit
+        // ([`Path::draw_held_sets`]), unless stochastic transparency needs their bits to trace it.
+        if self.depth > 0 || scene.has_transparency() {
+            self.draw_sets(sampler);
+        }
         // Per-bounce random bits for stochastic (BLEND) transparency, only drawn when it can matter.
         if scene.has_transparency() {
             self.u_light[(dims::SPARE % 4) as usize].to_bits()

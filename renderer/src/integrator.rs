@@ -285,11 +285,18 @@ impl Path {
         };
     }
 
-    /// Draws the camera ray's sample sets once it has hit something ([`Path::begin_bounce`]
-    /// holds them back: a camera ray that escapes needs none).
+    /// Whether [`Path::begin_bounce`] holds the bounce's sample sets back until its ray has hit
+    /// something: the camera ray's (one that escapes needs none), unless stochastic transparency
+    /// needs their bits to trace it.
+    #[inline(always)]
+    fn holds_sets(&self, scene: &Scene) -> bool {
+        self.depth == 0 && !scene.has_transparency()
+    }
+
+    /// Draws the sample sets [`Path::holds_sets`] held back, once the ray has hit something.
     #[inline(always)]
     fn draw_held_sets(&mut self, scene: &Scene, sampler: &PixelSample, hit: &Option<Hit>) {
-        if self.depth == 0 && hit.is_some() && !scene.has_transparency() {
+        if hit.is_some() && self.holds_sets(scene) {
             self.draw_sets(sampler);
         }
     }
@@ -303,9 +310,8 @@ impl Path {
         // finds uses them: they do not depend on the hit, and each is a chain of hashes that can
         // then overlap the traversal instead of holding up the shading (Cornell box 3–4 % faster,
         // same bits; ARCHITECTURE.md). A path that ends at this hit wastes them, so the camera
-        // ray's, which misses everything in open scenes, wait for its hit
-        // ([`Path::draw_held_sets`]), unless stochastic transparency needs their bits to trace it.
-        if self.depth > 0 || scene.has_transparency() {
+        // ray's, which in an open scene may hit nothing, wait for its hit (`holds_sets`).
+        if !self.holds_sets(scene) {
             self.draw_sets(sampler);
         }
         // Per-bounce random bits for stochastic (BLEND) transparency, only drawn when it can matter.

@@ -112,8 +112,8 @@ pub struct SurfacePoint {
 /// fall short of it wherever those are small next to the triangle: on the Veach scene's plate,
 /// 8 units wide and straddling y = 0, 0.4 % of the rays leaving it hit it again
 /// (`renderer/tests/self_intersection.rs`: 862 of about 2·10⁵ rays without the lift, 9 with 1
-/// unit roundoff, none from 2; as an instance 100 times its size, 1 290, 2 and none; 32 leaves a margin of 16 for slivers and grazing rays, and is still only
-/// 2·10⁻⁶ of the triangle's size).
+/// unit roundoff, none from 2; as an instance 100 times its size, 1 290, 2 and none; 32 leaves a
+/// margin of 16 for slivers and grazing rays, and is still only 2·10⁻⁶ of the triangle's size).
 pub const PLANE_ERROR_ULPS: f32 = 32.0;
 
 /// [`SurfacePoint::plane_error`] of a triangle with edges `e1` and `e2` from its first vertex:

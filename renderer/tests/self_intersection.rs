@@ -2,8 +2,9 @@
 //!
 //! Found by `bench_embree.py --scene scenes/veach/veach.gltf` (session 35): 1 019 of 10⁶ rays
 //! leaving the Veach scene's surfaces hit the plate they had just left, at t = 6·10⁻⁹ to 2.6·10⁻⁶
-//! (in f64 the same rays meet its plane behind them, t = −2.5·10⁻⁷ to −1.1·10⁻⁶): about 0.6 % of
-//! the rays leaving that plate. The plate is 8 units wide and tilted (normal (0, 0.963, 0.27)), and
+//! (in f64 the same rays meet its plane behind them, t = −2.5·10⁻⁷ to −1.1·10⁻⁶); the rays start
+//! area-weighted and each plate is 21.9 % of the scene's area, so about half a percent of the rays
+//! leaving that plate. The plate is 8 units wide and tilted (normal (0, 0.963, 0.27)), and
 //! it straddles y = 0, so its points' coordinates are small next to its size: the origin offset,
 //! 16 ulps of each coordinate (Wächter & Binder), lifts them off the plane by less than the
 //! rounding error of the triangle test, which grows with the triangle's size, not with the point's

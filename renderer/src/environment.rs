@@ -31,10 +31,10 @@ pub struct Environment {
 }
 
 /// An environment map's texels: as f16 when every channel of every texel is exactly an f16 (a
-/// half-float EXR, which most HDRIs are, is), else as f32. The values are the same either way
-/// (f16 → f32 is exact), so are the images; the half copy is 8 bytes a texel instead of 12, and
-/// a row's texel and its right neighbour are one 16-byte load. The map is the part of an
-/// environment-lit render that misses cache (scenes/envlit's 1024×512 map: 6 MB of f32 texels
+/// half-float EXR's are; both maps under scenes/env are), else as f32. The values are the same
+/// either way (f16 → f32 is exact), so are the images; the half copy is 8 bytes a texel instead
+/// of 12, and a row's texel and its right neighbour are one 16-byte load. The map is the part of
+/// an environment-lit render that misses cache (scenes/envlit's 1024×512 map: 6 MB of f32 texels
 /// against a core's 1 MB of L2; `Environment::eval_uv` was 7 % of its time in `perf`, most of
 /// it on the texel loads).
 enum Texels {
@@ -47,12 +47,13 @@ impl Texels {
     /// The half copy when every value survives it exactly (NaN and infinity are not expected:
     /// `load` has replaced them with 0).
     fn new(texels: Vec<Vec3>) -> Self {
-        let exact = |x: f32| half::f16::from_f32(x).to_f32().to_bits() == x.to_bits();
-        if texels.len() > 1 && texels.iter().all(|t| exact(t.x) && exact(t.y) && exact(t.z)) {
-            let bits = |x: f32| half::f16::from_f32(x).to_bits();
-            Texels::Half(texels.iter().map(|t| [bits(t.x), bits(t.y), bits(t.z), 0]).collect())
-        } else {
-            Texels::Full(texels)
+        let half = |x: f32| {
+            let h = half::f16::from_f32(x);
+            (h.to_f32().to_bits() == x.to_bits()).then_some(h.to_bits())
+        };
+        match texels.iter().map(|t| Some([half(t.x)?, half(t.y)?, half(t.z)?, 0])).collect() {
+            Some(h) => Texels::Half(h),
+            None => Texels::Full(texels),
         }
     }
 
@@ -60,13 +61,16 @@ impl Texels {
     fn get(&self, i: usize) -> Vec3 {
         match self {
             Texels::Full(t) => t[i],
-            Texels::Half(t) => {
-                let [r, g, b, _] = t[i];
-                let f = |x: u16| half::f16::from_bits(x).to_f32();
-                Vec3::new(f(r), f(g), f(b))
-            }
+            Texels::Half(t) => half_texel(&t[i]).into(),
         }
     }
+}
+
+/// One texel of a half copy as f32 lanes (R, G, B).
+#[inline(always)]
+fn half_texel(&[r, g, b, _]: &[u16; 4]) -> Vec3A {
+    let f = |x: u16| half::f16::from_bits(x).to_f32();
+    Vec3A::new(f(r), f(g), f(b))
 }
 
 /// Texels `i` and `j` of a half copy as f32 lanes (R, G, B, 0). With F16C (x86-64-v3) a row's
@@ -81,20 +85,11 @@ fn half_pair(t: &[[u16; 4]], i: usize, j: usize) -> (Vec3A, Vec3A) {
             // (checked above), so the 16 bytes read are theirs; unaligned load.
             unsafe {
                 let v = _mm256_cvtph_ps(_mm_loadu_si128(t.as_ptr().add(i) as *const __m128i));
-                let (lo, hi) = (_mm256_castps256_ps128(v), _mm256_extractf128_ps::<1>(v));
-                let (mut a, mut b) = ([0f32; 4], [0f32; 4]);
-                _mm_storeu_ps(a.as_mut_ptr(), lo);
-                _mm_storeu_ps(b.as_mut_ptr(), hi);
-                return (Vec3A::new(a[0], a[1], a[2]), Vec3A::new(b[0], b[1], b[2]));
+                return (_mm256_castps256_ps128(v).into(), _mm256_extractf128_ps::<1>(v).into());
             }
         }
     }
-    let f = |k: usize| {
-        let h = |x: u16| half::f16::from_bits(x).to_f32();
-        let [r, g, b, _] = t[k];
-        Vec3A::new(h(r), h(g), h(b))
-    };
-    (f(i), f(j))
+    (half_texel(&t[i]), half_texel(&t[j]))
 }
 
 /// Settings of the environment: a map file or a uniform color, scaled and rotated.

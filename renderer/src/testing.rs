@@ -295,7 +295,8 @@ pub fn sum_bits(p: &crate::film::PartialSums) -> Vec<u64> {
         .collect()
 }
 
-/// The rays `o + t d` traced the way renders of large scenes trace them, in batches of up to 16:
+/// The rays `o + t d` traced the way renders of large scenes trace them, in batches of up to
+/// [`crate::accel::MAX_BATCH`]:
 /// each ray's first surface ([`Scene::intersect_surface_batch`], seed 0) and its visibility up to
 /// `tmax` ([`Scene::visibility_batch`]: 0 blocked, 1 clear). Turns batching on for `scene`.
 pub fn trace_in_batches(
@@ -304,12 +305,13 @@ pub fn trace_in_batches(
     d: &[Vec3],
     tmax: f32,
 ) -> (Vec<Option<crate::accel::Hit>>, Vec<f32>) {
+    use crate::accel::MAX_BATCH;
     scene.set_batch_rays(true);
     let (mut hits, mut seen) = (vec![None; o.len()], vec![0f32; o.len()]);
-    for s in (0..o.len()).step_by(16) {
-        let e = (s + 16).min(o.len());
-        scene.intersect_surface_batch(&o[s..e], &d[s..e], &[0; 16][..e - s], &mut hits[s..e]);
-        scene.visibility_batch(&o[s..e], &d[s..e], &[tmax; 16][..e - s], &mut seen[s..e]);
+    for s in (0..o.len()).step_by(MAX_BATCH) {
+        let e = (s + MAX_BATCH).min(o.len());
+        scene.intersect_surface_batch(&o[s..e], &d[s..e], &[0; MAX_BATCH][..e - s], &mut hits[s..e]);
+        scene.visibility_batch(&o[s..e], &d[s..e], &[tmax; MAX_BATCH][..e - s], &mut seen[s..e]);
     }
     (hits, seen)
 }

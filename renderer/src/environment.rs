@@ -44,8 +44,9 @@ enum Texels {
 }
 
 impl Texels {
-    /// The half copy when every value survives it exactly (NaN and infinity are not expected:
-    /// `load` has replaced them with 0).
+    /// The half copy when every value survives it bit for bit (`load` has replaced NaN and
+    /// infinite inputs with 0; a product with the strength that overflows to infinity is an f16
+    /// too).
     fn new(texels: Vec<Vec3>) -> Self {
         let half = |x: f32| {
             let h = half::f16::from_f32(x);
@@ -119,7 +120,8 @@ impl EnvironmentSettings {
 }
 
 /// Direction → (u, v) in [0,1)² before rotation. The arctangent and arcsine are polynomial
-/// ([`atan2`]); libm's `atan2f` was 1.9 % of an environment-lit render (`perf`, scenes/envlit).
+/// ([`atan2`]); libm's arctangent (`atanf` in `perf`) was 1.9 % of an environment-lit render
+/// (scenes/envlit).
 #[inline]
 fn dir_to_uv(d: Vec3) -> Vec2 {
     let y = d.y.clamp(-1.0, 1.0);

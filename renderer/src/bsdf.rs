@@ -138,7 +138,7 @@ impl Bsdf {
     /// bit for bit (a test compares on random directions). The general path was 18 % of a
     /// Cornell-box render in `perf` (eval 8.8 %, sample 6.6 %, pdf 3.0 %).
     #[inline]
-    fn is_lambert(&self) -> bool {
+    pub(crate) fn is_lambert(&self) -> bool {
         self.metallic == 0.0 && self.specular == 0.0 && self.transmission == 0.0 && !self.layered()
     }
 

@@ -15,7 +15,7 @@ use crate::scene::Scene;
 use crate::settings::{IntegratorKind, MisHeuristic, RenderSettings};
 
 #[inline]
-fn mis_weight(h: MisHeuristic, f: f32, g: f32) -> f32 {
+pub(crate) fn mis_weight(h: MisHeuristic, f: f32, g: f32) -> f32 {
     match h {
         MisHeuristic::Power => power_heuristic(f, g),
         MisHeuristic::Balance => balance_heuristic(f, g),

@@ -19,15 +19,15 @@ use crate::texture::Texture;
 pub struct AreaLight {
     /// First vertex and the two edges from it (`Mesh::position_normal_uv`'s arithmetic, so a
     /// sampled point is bit for bit the one the mesh would give).
-    p0: Vec3,
-    e1: Vec3,
-    e2: Vec3,
+    pub(crate) p0: Vec3,
+    pub(crate) e1: Vec3,
+    pub(crate) e2: Vec3,
     /// Unit winding normal (`Mesh::position_normal_uv`'s).
-    ng: Vec3,
+    pub(crate) ng: Vec3,
     pub triangle: u32,
     pub area: f32,
     pub two_sided: bool,
-    material: u32,
+    pub(crate) material: u32,
 }
 
 /// A point sampled on a light, seen from a reference point.

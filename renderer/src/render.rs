@@ -150,6 +150,12 @@ pub fn render_tile_counted(
         .unwrap_or_else(|_| crate::camera::Camera::framing(scene.bounds.0, scene.bounds.1));
     let raster = camera.raster(settings.width, settings.height);
     let batches = scene.batches_paths();
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    let lanes = if std::env::var_os("TESSERA_EXP_NO_SPMD").is_some() {
+        None
+    } else {
+        crate::spmd::LambertScene::new(scene, settings)
+    };
     // Per pixel: its sums, its sample count, and the rays traced and non-finite samples met, which
     // go to the shared counters once per tile rather than once per pixel (threads adding to the
     // same atomics contend for their cache line).
@@ -161,6 +167,25 @@ pub fn render_tile_counted(
             let mut rays = 0u64;
             let mut sums = PixelSums::default();
             let mut s = samples.start;
+            #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+            if let Some(tables) = &lanes {
+                use crate::lanes::LANES;
+                let mut samplers = [PixelSample::new(settings.sampler, settings.seed, (x, y), 0); LANES];
+                let (mut dirs, mut l) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
+                while s < samples.end {
+                    let n = ((samples.end - s) as usize).min(LANES);
+                    for k in 0..n {
+                        (samplers[k], dirs[k]) = camera_ray(settings, &raster, (x, y), s + k as u32);
+                    }
+                    crate::spmd::radiance8(
+                        scene, tables, settings, camera.origin, &dirs, &samplers, n, &mut rays, &mut l,
+                    );
+                    for lk in &l[..n] {
+                        sums.add(*lk);
+                    }
+                    s += n as u32;
+                }
+            }
             if batches {
                 // Up to MAX_BATCH samples' paths at a time, added in sample order: the same sums
                 // as one at a time.

@@ -482,6 +482,16 @@ impl Scene {
         crate::math::offset_ray_origin_scaled(p, n, self.offset_scale)
     }
 
+    /// The scale [`Self::offset_ray_origin`] offsets by ([`crate::math::offset_scale`]).
+    pub fn offset_scale(&self) -> f32 {
+        self.offset_scale
+    }
+
+    /// Material `material`'s BSDF where no texture or vertex colour varies it, if so.
+    pub fn uniform_bsdf(&self, material: u32) -> Option<Bsdf> {
+        self.uniform_bsdfs.get(material as usize).copied().flatten()
+    }
+
     /// The camera to render through: the file's camera `index`, or a framing default when the file
     /// has none and no index was asked for.
     pub fn camera(&self, index: Option<usize>) -> Result<Camera, (usize, usize)> {

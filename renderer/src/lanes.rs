@@ -1,0 +1,300 @@
+//! Eight f32 lanes on one AVX register: the numbers of [`crate::spmd`]'s eight paths side by side.
+//!
+//! Every operation is the IEEE operation the scalar code does on each lane (no fused multiply-add,
+//! comparisons with Rust's NaN semantics, `max` and `min` with the operand order that makes
+//! `f32::max`'s NaN answer), so a lane's result is the scalar code's bit for bit when the scalar
+//! code's operations are written in the same order.
+
+#![cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+
+use std::arch::x86_64::*;
+use std::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
+
+use crate::math::Vec3;
+
+pub const LANES: usize = 8;
+
+/// Eight f32 lanes.
+#[derive(Clone, Copy)]
+pub struct F8(pub __m256);
+
+/// Eight lane masks (all ones or all zeros per lane), kept in a float register for the blends.
+#[derive(Clone, Copy)]
+pub struct M8(pub __m256);
+
+// SAFETY (for every `unsafe` block in this file): the file is only compiled with AVX2 enabled
+// (`cfg` above), so the AVX/AVX2 intrinsics are available; loads and stores go through arrays of
+// exactly eight lanes.
+
+impl F8 {
+    #[inline(always)]
+    pub fn splat(x: f32) -> F8 {
+        F8(unsafe { _mm256_set1_ps(x) })
+    }
+    #[inline(always)]
+    pub fn zero() -> F8 {
+        F8(unsafe { _mm256_setzero_ps() })
+    }
+    #[inline(always)]
+    pub fn from_array(a: [f32; LANES]) -> F8 {
+        F8(unsafe { _mm256_loadu_ps(a.as_ptr()) })
+    }
+    #[inline(always)]
+    pub fn to_array(self) -> [f32; LANES] {
+        let mut a = [0.0; LANES];
+        unsafe { _mm256_storeu_ps(a.as_mut_ptr(), self.0) };
+        a
+    }
+    #[inline(always)]
+    pub fn sqrt(self) -> F8 {
+        F8(unsafe { _mm256_sqrt_ps(self.0) })
+    }
+    #[inline(always)]
+    pub fn abs(self) -> F8 {
+        F8(unsafe { _mm256_andnot_ps(_mm256_set1_ps(-0.0), self.0) })
+    }
+    /// `f32::max(self, other)` for a finite `other`: a NaN `self` gives `other` (vmaxps returns
+    /// its second operand when either is NaN).
+    #[inline(always)]
+    pub fn max_finite(self, other: F8) -> F8 {
+        F8(unsafe { _mm256_max_ps(self.0, other.0) })
+    }
+    /// `f32::min(self, other)` for a finite `other`.
+    #[inline(always)]
+    pub fn min_finite(self, other: F8) -> F8 {
+        F8(unsafe { _mm256_min_ps(self.0, other.0) })
+    }
+    /// 1.0 with the sign of each lane (`f32::copysign(1.0, x)`).
+    #[inline(always)]
+    pub fn sign_one(self) -> F8 {
+        unsafe {
+            let sign = _mm256_and_ps(self.0, _mm256_set1_ps(-0.0));
+            F8(_mm256_or_ps(sign, _mm256_set1_ps(1.0)))
+        }
+    }
+    #[inline(always)]
+    pub fn lt(self, o: F8) -> M8 {
+        M8(unsafe { _mm256_cmp_ps::<_CMP_LT_OQ>(self.0, o.0) })
+    }
+    #[inline(always)]
+    pub fn le(self, o: F8) -> M8 {
+        M8(unsafe { _mm256_cmp_ps::<_CMP_LE_OQ>(self.0, o.0) })
+    }
+    #[inline(always)]
+    pub fn gt(self, o: F8) -> M8 {
+        M8(unsafe { _mm256_cmp_ps::<_CMP_GT_OQ>(self.0, o.0) })
+    }
+    #[inline(always)]
+    pub fn eq(self, o: F8) -> M8 {
+        M8(unsafe { _mm256_cmp_ps::<_CMP_EQ_OQ>(self.0, o.0) })
+    }
+    /// `!=` as Rust has it: true for NaN.
+    #[inline(always)]
+    pub fn ne(self, o: F8) -> M8 {
+        M8(unsafe { _mm256_cmp_ps::<_CMP_NEQ_UQ>(self.0, o.0) })
+    }
+    /// Lanes that are neither infinite nor NaN.
+    #[inline(always)]
+    pub fn is_finite(self) -> M8 {
+        self.abs().lt(F8::splat(f32::INFINITY))
+    }
+    /// `f32::to_bits` per lane, then `as i32` arithmetic: `self`'s bits moved by `delta` ulps.
+    #[inline(always)]
+    pub fn add_to_bits(self, delta: I8) -> F8 {
+        F8(unsafe { _mm256_castsi256_ps(_mm256_add_epi32(_mm256_castps_si256(self.0), delta.0)) })
+    }
+    /// `x as i32` for lanes within i32's range (truncation toward zero).
+    #[inline(always)]
+    pub fn to_i32_in_range(self) -> I8 {
+        I8(unsafe { _mm256_cvttps_epi32(self.0) })
+    }
+}
+
+/// Eight i32 lanes.
+#[derive(Clone, Copy)]
+pub struct I8(pub __m256i);
+
+impl I8 {
+    #[inline(always)]
+    pub fn neg(self) -> I8 {
+        I8(unsafe { _mm256_sub_epi32(_mm256_setzero_si256(), self.0) })
+    }
+    /// Lane by lane, `a` where `m` is set, else `b`.
+    #[inline(always)]
+    pub fn select(m: M8, a: I8, b: I8) -> I8 {
+        unsafe {
+            I8(_mm256_castps_si256(_mm256_blendv_ps(
+                _mm256_castsi256_ps(b.0),
+                _mm256_castsi256_ps(a.0),
+                m.0,
+            )))
+        }
+    }
+}
+
+impl M8 {
+    #[inline(always)]
+    pub fn none() -> M8 {
+        M8(unsafe { _mm256_setzero_ps() })
+    }
+    #[inline(always)]
+    pub fn all() -> M8 {
+        M8(unsafe { _mm256_castsi256_ps(_mm256_set1_epi32(-1)) })
+    }
+    /// A mask from the low eight bits of `bits` (lane k: bit k).
+    #[inline(always)]
+    pub fn from_bits(bits: u32) -> M8 {
+        unsafe {
+            let lane = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+            let b = _mm256_and_si256(_mm256_set1_epi32(bits as i32), lane);
+            M8(_mm256_castsi256_ps(_mm256_cmpeq_epi32(b, lane)))
+        }
+    }
+    /// Lane k's flag as bit k.
+    #[inline(always)]
+    pub fn bits(self) -> u32 {
+        unsafe { _mm256_movemask_ps(self.0) as u32 }
+    }
+    #[inline(always)]
+    pub fn any(self) -> bool {
+        self.bits() != 0
+    }
+    #[inline(always)]
+    pub fn and_not(self, o: M8) -> M8 {
+        M8(unsafe { _mm256_andnot_ps(o.0, self.0) })
+    }
+}
+
+impl BitAnd for M8 {
+    type Output = M8;
+    #[inline(always)]
+    fn bitand(self, o: M8) -> M8 {
+        M8(unsafe { _mm256_and_ps(self.0, o.0) })
+    }
+}
+
+impl BitOr for M8 {
+    type Output = M8;
+    #[inline(always)]
+    fn bitor(self, o: M8) -> M8 {
+        M8(unsafe { _mm256_or_ps(self.0, o.0) })
+    }
+}
+
+impl Not for M8 {
+    type Output = M8;
+    #[inline(always)]
+    fn not(self) -> M8 {
+        M8(unsafe { _mm256_xor_ps(self.0, _mm256_castsi256_ps(_mm256_set1_epi32(-1))) })
+    }
+}
+
+/// Lane by lane, `a` where `m` is set, else `b`.
+#[inline(always)]
+pub fn select(m: M8, a: F8, b: F8) -> F8 {
+    F8(unsafe { _mm256_blendv_ps(b.0, a.0, m.0) })
+}
+
+macro_rules! binop {
+    ($t:ident, $f:ident, $i:ident) => {
+        impl $t for F8 {
+            type Output = F8;
+            #[inline(always)]
+            fn $f(self, o: F8) -> F8 {
+                F8(unsafe { $i(self.0, o.0) })
+            }
+        }
+    };
+}
+binop!(Add, add, _mm256_add_ps);
+binop!(Sub, sub, _mm256_sub_ps);
+binop!(Mul, mul, _mm256_mul_ps);
+binop!(Div, div, _mm256_div_ps);
+
+impl Neg for F8 {
+    type Output = F8;
+    #[inline(always)]
+    fn neg(self) -> F8 {
+        F8(unsafe { _mm256_xor_ps(self.0, _mm256_set1_ps(-0.0)) })
+    }
+}
+
+/// Eight 3-vectors, one coordinate a register. Operations follow glam's `Vec3` component by
+/// component (its `dot` is `(x·x + y·y) + z·z`).
+#[derive(Clone, Copy)]
+pub struct V8 {
+    pub x: F8,
+    pub y: F8,
+    pub z: F8,
+}
+
+impl V8 {
+    #[inline(always)]
+    pub fn splat(v: Vec3) -> V8 {
+        V8 { x: F8::splat(v.x), y: F8::splat(v.y), z: F8::splat(v.z) }
+    }
+    #[inline(always)]
+    pub fn zero() -> V8 {
+        V8 { x: F8::zero(), y: F8::zero(), z: F8::zero() }
+    }
+    #[inline(always)]
+    pub fn from_lanes(v: &[Vec3; LANES]) -> V8 {
+        V8 {
+            x: F8::from_array(v.map(|v| v.x)),
+            y: F8::from_array(v.map(|v| v.y)),
+            z: F8::from_array(v.map(|v| v.z)),
+        }
+    }
+    #[inline(always)]
+    pub fn to_lanes(self) -> [Vec3; LANES] {
+        let (x, y, z) = (self.x.to_array(), self.y.to_array(), self.z.to_array());
+        std::array::from_fn(|k| Vec3::new(x[k], y[k], z[k]))
+    }
+    #[inline(always)]
+    pub fn dot(self, o: V8) -> F8 {
+        self.x * o.x + self.y * o.y + self.z * o.z
+    }
+    #[inline(always)]
+    pub fn scale(self, s: F8) -> V8 {
+        V8 { x: self.x * s, y: self.y * s, z: self.z * s }
+    }
+    #[inline(always)]
+    pub fn div(self, s: F8) -> V8 {
+        V8 { x: self.x / s, y: self.y / s, z: self.z / s }
+    }
+    #[inline(always)]
+    pub fn mul(self, o: V8) -> V8 {
+        V8 { x: self.x * o.x, y: self.y * o.y, z: self.z * o.z }
+    }
+    #[inline(always)]
+    pub fn add(self, o: V8) -> V8 {
+        V8 { x: self.x + o.x, y: self.y + o.y, z: self.z + o.z }
+    }
+    #[inline(always)]
+    pub fn sub(self, o: V8) -> V8 {
+        V8 { x: self.x - o.x, y: self.y - o.y, z: self.z - o.z }
+    }
+    #[inline(always)]
+    pub fn neg(self) -> V8 {
+        V8 { x: -self.x, y: -self.y, z: -self.z }
+    }
+    /// `Vec3 != Vec3::ZERO`: some coordinate not zero (NaN included).
+    #[inline(always)]
+    pub fn ne_zero(self) -> M8 {
+        let z = F8::zero();
+        self.x.ne(z) | self.y.ne(z) | self.z.ne(z)
+    }
+    #[inline(always)]
+    pub fn is_finite(self) -> M8 {
+        self.x.is_finite() & self.y.is_finite() & self.z.is_finite()
+    }
+    /// glam's `max_element` for non-NaN lanes: `x.max(y.max(z))`.
+    #[inline(always)]
+    pub fn max_element(self) -> F8 {
+        F8(unsafe { _mm256_max_ps(self.x.0, _mm256_max_ps(self.y.0, self.z.0)) })
+    }
+    #[inline(always)]
+    pub fn select(m: M8, a: V8, b: V8) -> V8 {
+        V8 { x: select(m, a.x, b.x), y: select(m, a.y, b.y), z: select(m, a.z, b.z) }
+    }
+}

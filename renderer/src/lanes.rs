@@ -122,13 +122,7 @@ impl I8 {
     /// Lane by lane, `a` where `m` is set, else `b`.
     #[inline(always)]
     pub fn select(m: M8, a: I8, b: I8) -> I8 {
-        unsafe {
-            I8(_mm256_castps_si256(_mm256_blendv_ps(
-                _mm256_castsi256_ps(b.0),
-                _mm256_castsi256_ps(a.0),
-                m.0,
-            )))
-        }
+        unsafe { I8(_mm256_castps_si256(_mm256_blendv_ps(_mm256_castsi256_ps(b.0), _mm256_castsi256_ps(a.0), m.0))) }
     }
 }
 
@@ -239,11 +233,7 @@ impl V8 {
     }
     #[inline(always)]
     pub fn from_lanes(v: &[Vec3; LANES]) -> V8 {
-        V8 {
-            x: F8::from_array(v.map(|v| v.x)),
-            y: F8::from_array(v.map(|v| v.y)),
-            z: F8::from_array(v.map(|v| v.z)),
-        }
+        V8 { x: F8::from_array(v.map(|v| v.x)), y: F8::from_array(v.map(|v| v.y)), z: F8::from_array(v.map(|v| v.z)) }
     }
     #[inline(always)]
     pub fn to_lanes(self) -> [Vec3; LANES] {

@@ -151,11 +151,7 @@ pub fn render_tile_counted(
     let raster = camera.raster(settings.width, settings.height);
     let batches = scene.batches_paths();
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-    let lanes = if std::env::var_os("TESSERA_EXP_NO_SPMD").is_some() {
-        None
-    } else {
-        crate::spmd::LambertScene::new(scene, settings)
-    };
+    let lanes = if std::env::var_os("TESSERA_EXP_NO_SPMD").is_some() { None } else { scene.lanes(settings) };
     // Per pixel: its sums, its sample count, and the rays traced and non-finite samples met, which
     // go to the shared counters once per tile rather than once per pixel (threads adding to the
     // same atomics contend for their cache line).
@@ -168,7 +164,7 @@ pub fn render_tile_counted(
             let mut sums = PixelSums::default();
             let mut s = samples.start;
             #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-            if let Some(tables) = &lanes {
+            if let Some(materials) = lanes {
                 use crate::lanes::LANES;
                 let mut samplers = [PixelSample::new(settings.sampler, settings.seed, (x, y), 0); LANES];
                 let (mut dirs, mut l) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
@@ -178,7 +174,15 @@ pub fn render_tile_counted(
                         (samplers[k], dirs[k]) = camera_ray(settings, &raster, (x, y), s + k as u32);
                     }
                     crate::spmd::radiance8(
-                        scene, tables, settings, camera.origin, &dirs, &samplers, n, &mut rays, &mut l,
+                        scene,
+                        materials,
+                        settings,
+                        camera.origin,
+                        &dirs,
+                        &samplers,
+                        n,
+                        &mut rays,
+                        &mut l,
                     );
                     for lk in &l[..n] {
                         sums.add(*lk);

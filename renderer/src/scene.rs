@@ -42,6 +42,11 @@ pub struct Scene {
     pose_key: Option<(u32, u32, Option<String>)>,
     /// Overrides [`Scene::batches_paths`]' rule (tests; images are the same either way).
     batch_paths: Option<bool>,
+    /// Per material, what the eight-lane kernel reads of it, when every surface the mesh uses is
+    /// one it renders ([`crate::spmd::LambertMaterial::table`]; fixed with the materials).
+    lambert: Option<Vec<crate::spmd::LambertMaterial>>,
+    /// False when [`Self::set_scalar_reference`] or [`Self::set_lanes`] turned the kernel off.
+    lanes: bool,
 }
 
 /// [`crate::math::offset_scale`] of the largest coordinate within `bounds`.
@@ -60,7 +65,8 @@ impl Scene {
         let lights = LightSet::build(&mesh, &materials, &textures, Vec::new(), None, (max - min).length() * 0.5);
         tracing::debug!(triangles = mesh.triangles.len(), lights = lights.lights.len(), "scene built");
         let transparent = materials.iter().any(|m| m.alpha_mode != AlphaMode::Opaque);
-        let uniform_bsdfs = materials.iter().map(Material::uniform_bsdf).collect();
+        let uniform_bsdfs: Vec<Option<Bsdf>> = materials.iter().map(Material::uniform_bsdf).collect();
+        let lambert = crate::spmd::LambertMaterial::table(&mesh, &materials, &uniform_bsdfs);
         Scene {
             mesh,
             materials,
@@ -77,6 +83,8 @@ impl Scene {
             time: 0.0,
             pose_key: None,
             batch_paths: None,
+            lambert,
+            lanes: true,
             generator: None,
             light_units: crate::punctual::LightUnits::Gltf,
         }
@@ -146,6 +154,30 @@ impl Scene {
     pub fn set_scalar_reference(&mut self, on: bool) {
         self.accel.set_scalar_reference(on);
         self.lights.set_scalar_reference(on);
+        self.lanes = !on;
+    }
+
+    /// Turns the eight-lane kernel ([`crate::spmd`]) on (the default) or off; the images are the
+    /// same either way (`renderer/tests/spmd.rs`). Also set by [`Self::set_scalar_reference`].
+    pub fn set_lanes(&mut self, on: bool) {
+        self.lanes = on;
+    }
+
+    /// The eight-lane kernel's material table when it renders this scene with `settings`
+    /// ([`crate::spmd::radiance8`]): every surface a plain Lambert material, lit by emissive
+    /// triangles alone (no environment, no punctual light), with the MIS integrator.
+    pub fn lanes(&self, settings: &crate::RenderSettings) -> Option<&[crate::spmd::LambertMaterial]> {
+        let usable = self.lanes
+            && settings.integrator == crate::settings::IntegratorKind::Mis
+            && !self.transparent
+            && self.lights.environment.is_none()
+            && self.lights.punctual.is_empty()
+            && !self.lights.is_empty();
+        if usable {
+            self.lambert.as_deref()
+        } else {
+            None
+        }
     }
 
     /// Overrides whether renders trace a pixel's samples' paths as a batch (by default only above

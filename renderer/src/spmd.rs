@@ -11,91 +11,50 @@
 
 #![cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 
-use crate::lanes::{select, F8, M8, V8, LANES};
+use crate::bsdf::Bsdf;
+use crate::lanes::{select, F8, LANES, M8, V8};
+use crate::material::Material;
 use crate::math::{Vec3, INV_PI, PI, SHADOW_EPSILON};
-use crate::mesh::flags;
+use crate::mesh::Mesh;
 use crate::sampler::{dims, PixelSample};
 use crate::scene::Scene;
-use crate::settings::{IntegratorKind, MisHeuristic, RenderSettings};
+use crate::settings::{MisHeuristic, RenderSettings};
 
-/// What the kernel reads of a scene it can render: per material its albedo and whether NEE runs
-/// there, per area light its triangle and emission.
-pub struct LambertScene {
-    /// Per material: base colour (the Lambert BSDF's), emission (zero if none), and whether
-    /// next-event estimation samples a light at a vertex of it.
-    albedo: Vec<Vec3>,
-    nee: Vec<bool>,
-    /// Per area light: p0, e1, e2, ng, area, emitted radiance, two-sidedness, emissive.
-    light_p0: Vec<Vec3>,
-    light_e1: Vec<Vec3>,
-    light_e2: Vec<Vec3>,
-    light_ng: Vec<Vec3>,
-    light_area: Vec<f32>,
-    light_le: Vec<Vec3>,
-    light_two_sided: Vec<bool>,
+/// What the kernel reads of a material: its Lambert albedo and whether next-event estimation
+/// samples a light at a vertex of it (not on a black, smooth one: `Bsdf::is_delta_only`).
+#[derive(Clone, Copy, Debug)]
+pub struct LambertMaterial {
+    albedo: Vec3,
+    nee: bool,
 }
 
-impl LambertScene {
-    /// The kernel's tables, or None when the scene or settings need something it does not do:
-    /// textures, vertex colours or tangents, non-Lambert or unlit materials, transparency,
-    /// punctual or environment lights, an integrator other than MIS.
-    pub fn new(scene: &Scene, settings: &RenderSettings) -> Option<LambertScene> {
-        if settings.integrator != IntegratorKind::Mis
-            || scene.has_transparency()
-            || scene.lights.environment.is_some()
-            || !scene.lights.punctual.is_empty()
-            || scene.lights.is_empty()
-            || !scene.mesh.instances.is_empty()
-        {
+impl LambertMaterial {
+    /// The table for a scene (`uniform_bsdfs`: `Material::uniform_bsdf` of each material), or
+    /// None when some triangle needs what the kernel does not do: instances, vertex colours or
+    /// tangents, a material that is textured, unlit, normal-mapped or not plain Lambert
+    /// (`Bsdf::is_lambert`: metal, specular, transmission, coat or sheen). Materials no triangle
+    /// uses do not count (the loader's default one among them).
+    pub fn table(mesh: &Mesh, materials: &[Material], uniform_bsdfs: &[Option<Bsdf>]) -> Option<Vec<LambertMaterial>> {
+        if !mesh.instances.is_empty() || !mesh.tangents.is_empty() || !mesh.colors.is_empty() {
             return None;
         }
-        if scene.mesh.triangles.iter().any(|t| t.flags & (flags::TANGENTS | flags::COLORS) != 0) {
-            return None;
-        }
-        let mut used = vec![false; scene.materials.len()];
-        for t in &scene.mesh.triangles {
+        let mut used = vec![false; materials.len()];
+        for t in &mesh.triangles {
             *used.get_mut(t.material as usize)? = true;
         }
-        let mut albedo = Vec::with_capacity(scene.materials.len());
-        let mut nee = Vec::with_capacity(scene.materials.len());
-        for (i, m) in scene.materials.iter().enumerate() {
+        let mut table = Vec::with_capacity(materials.len());
+        for (i, m) in materials.iter().enumerate() {
             if !used[i] {
-                // Never hit: its entry is never read.
-                albedo.push(Vec3::ZERO);
-                nee.push(false);
+                table.push(LambertMaterial { albedo: Vec3::ZERO, nee: false });
                 continue;
             }
-            let b = scene.uniform_bsdf(i as u32)?;
+            let b = (*uniform_bsdfs.get(i)?)?;
             if m.unlit || !b.is_lambert() || m.normal_texture.is_some() || m.emissive_texture.is_some() {
                 return None;
             }
-            albedo.push(b.base_color);
-            nee.push(!b.is_delta_only());
+            table.push(LambertMaterial { albedo: b.base_color, nee: !b.is_delta_only() });
         }
-        let lights = &scene.lights.lights;
-        let mut s = LambertScene {
-            albedo,
-            nee,
-            light_p0: Vec::with_capacity(lights.len()),
-            light_e1: Vec::with_capacity(lights.len()),
-            light_e2: Vec::with_capacity(lights.len()),
-            light_ng: Vec::with_capacity(lights.len()),
-            light_area: Vec::with_capacity(lights.len()),
-            light_le: Vec::with_capacity(lights.len()),
-            light_two_sided: Vec::with_capacity(lights.len()),
-        };
-        for l in lights {
-            let m = scene.materials.get(l.material as usize)?;
-            s.light_p0.push(l.p0);
-            s.light_e1.push(l.e1);
-            s.light_e2.push(l.e2);
-            s.light_ng.push(l.ng);
-            s.light_area.push(l.area);
-            // `light::emitted`: zero from a material that does not emit.
-            s.light_le.push(if m.is_emissive() { m.emissive } else { Vec3::ZERO });
-            s.light_two_sided.push(m.double_sided);
-        }
-        Some(s)
+        Some(table)
     }
 }
 
@@ -209,7 +168,7 @@ fn mis_weight(h: MisHeuristic, f: F8, g: F8) -> F8 {
 #[allow(clippy::too_many_arguments)]
 pub fn radiance8(
     scene: &Scene,
-    tables: &LambertScene,
+    materials: &[LambertMaterial],
     settings: &RenderSettings,
     o: Vec3,
     d: &[Vec3; LANES],
@@ -233,7 +192,8 @@ pub fn radiance8(
     let mut depth = 0u32;
     let scale = scene.offset_scale();
     while alive != 0 {
-        // One lane at a time: the sample sets, the ray, the surface point and the emission met.
+        // One lane at a time: the sample sets, then the rays (together where the BVH batches
+        // them: `Scene::intersect_surface_batch`), the surface points and the emission met.
         let dirs = rd.to_lanes();
         let mut u_bsdf = [[0f32; LANES]; 4];
         let mut u_light = [[0f32; LANES]; 4];
@@ -246,25 +206,36 @@ pub fn radiance8(
         let mut shading = 0u32;
         let base = dims::BOUNCE_BASE + dims::BOUNCE_STRIDE * depth;
         let sets = ((base + dims::BSDF_DIR) / 4, (base + dims::LIGHT_POS) / 4);
+        let mut draw = |k: usize| {
+            let (a, b) = samplers[k].get_4d_pair(sets.0, sets.1);
+            for i in 0..4 {
+                u_bsdf[i][k] = a[i];
+                u_light[i][k] = b[i];
+            }
+        };
+        // The live lanes, in lane order, and their rays.
+        let (mut lane, mut count) = ([0u8; LANES], 0);
+        let (mut qo, mut qd) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
         let mut bits = alive;
         while bits != 0 {
             let k = bits.trailing_zeros() as usize;
             bits &= bits - 1;
             *rays += 1;
-            let draw = |u_bsdf: &mut [[f32; LANES]; 4], u_light: &mut [[f32; LANES]; 4]| {
-                let (a, b) = samplers[k].get_4d_pair(sets.0, sets.1);
-                for i in 0..4 {
-                    u_bsdf[i][k] = a[i];
-                    u_light[i][k] = b[i];
-                }
-            };
+            // As `Path::begin_bounce`: drawn before the trace, but for the camera ray's.
             if depth > 0 {
-                draw(&mut u_bsdf, &mut u_light);
+                draw(k);
             }
+            (lane[count], qo[count], qd[count]) = (k as u8, ro[k], dirs[k]);
+            count += 1;
+        }
+        let mut hits = [None; LANES];
+        scene.intersect_surface_batch(&qo[..count], &qd[..count], &[0; LANES][..count], &mut hits[..count]);
+        for (j, hit) in hits[..count].iter().enumerate() {
+            let k = lane[j] as usize;
             // A lane that finds nothing, or stops here, is not shading: it is not alive next round.
-            let Some(hit) = scene.accel.intersect(ro[k], dirs[k], f32::INFINITY) else { continue };
+            let Some(hit) = hit else { continue };
             if depth == 0 {
-                draw(&mut u_bsdf, &mut u_light);
+                draw(k);
             }
             let sp = scene.mesh.surface_point(hit.triangle, hit.b1, hit.b2);
             let material_id = scene.mesh.triangles[hit.triangle as usize].material as usize;
@@ -274,8 +245,7 @@ pub fn radiance8(
                 if le != Vec3::ZERO {
                     emit[k] = le;
                     if has_prev {
-                        let light_pdf =
-                            scene.lights.pdf(hit.triangle, prev_p[k], Some(prev_n[k]), sp.p, sp.ng);
+                        let light_pdf = scene.lights.pdf(hit.triangle, prev_p[k], Some(prev_n[k]), sp.p, sp.ng);
                         emit_w[k] = crate::integrator::mis_weight(settings.mis_heuristic, prev_pdf[k], light_pdf);
                     }
                 }
@@ -285,8 +255,9 @@ pub fn radiance8(
             }
             shading |= 1 << k;
             (p[k], ng[k], ns[k], plane_error[k]) = (sp.p, sp.ng, sp.ns, sp.plane_error);
-            albedo[k] = tables.albedo[material_id];
-            if tables.nee[material_id] {
+            let m = materials[material_id];
+            albedo[k] = m.albedo;
+            if m.nee {
                 nee_bits |= 1 << k;
             }
         }
@@ -324,7 +295,10 @@ pub fn radiance8(
         let f_lambert = V8::zero().add(albedo.scale(F8::splat(INV_PI)));
 
         // BSDF sample (Lambert: cosine hemisphere), drawn before NEE as the scalar path does.
-        let u_dir = (F8::from_array(u_bsdf[(dims::BSDF_DIR % 4) as usize]), F8::from_array(u_bsdf[(dims::BSDF_DIR % 4 + 1) as usize]));
+        let u_dir = (
+            F8::from_array(u_bsdf[(dims::BSDF_DIR % 4) as usize]),
+            F8::from_array(u_bsdf[(dims::BSDF_DIR % 4 + 1) as usize]),
+        );
         let wi = sample_cosine_hemisphere(u_dir.0, u_dir.1);
         let bsdf_pdf = wi.z.max_finite(zero) * F8::splat(INV_PI);
         let has_next = act & wi.z.gt(zero) & bsdf_pdf.gt(zero) & bsdf_pdf.is_finite();
@@ -333,25 +307,39 @@ pub fn radiance8(
         let nee = act & M8::from_bits(nee_bits);
         if nee.any() {
             let u_sel = u_light[(dims::LIGHT_SELECT % 4) as usize];
-            let (mut lp0, mut le1, mut le2, mut lng) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
+            let (mut lp0, mut le1, mut le2, mut lng) =
+                ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
             let (mut larea, mut lpmf) = ([1f32; LANES], [0f32; LANES]);
             let mut lle = [Vec3::ZERO; LANES];
             let mut two_sided = 0u32;
             let mut chosen = 0u32;
             let (pl, nl) = (pv.to_lanes(), nsv.to_lanes());
+            // The lanes' light choices together (a light tree's walks interleaved), as
+            // `LightSet::sample` makes them: at the vertex, with its shading normal.
+            let (mut lane, mut count) = ([0u8; LANES], 0);
+            let (mut qp, mut qn, mut qu) = ([Vec3::ZERO; LANES], [None; LANES], [0f32; LANES]);
             let mut bits = nee.bits();
             while bits != 0 {
                 let k = bits.trailing_zeros() as usize;
                 bits &= bits - 1;
-                let Some((idx, pmf)) = scene.lights.select(pl[k], Some(nl[k]), u_sel[k]) else { continue };
-                if idx >= tables.light_p0.len() {
-                    continue;
-                }
+                (lane[count], qp[count], qn[count], qu[count]) = (k as u8, pl[k], Some(nl[k]), u_sel[k]);
+                count += 1;
+            }
+            let mut selected = [None; LANES];
+            scene.lights.select_batch(&qp[..count], &qn[..count], &qu[..count], &mut selected[..count]);
+            for (j, choice) in selected[..count].iter().enumerate() {
+                let k = lane[j] as usize;
+                // Only area lights (`Scene::lanes`: no punctual or environment light).
+                let Some(light) = choice.and_then(|(idx, _)| scene.lights.lights.get(idx)) else { continue };
+                let Some(m) = scene.materials.get(light.material as usize) else { continue };
                 chosen |= 1 << k;
-                (lp0[k], le1[k], le2[k], lng[k]) =
-                    (tables.light_p0[idx], tables.light_e1[idx], tables.light_e2[idx], tables.light_ng[idx]);
-                (larea[k], lpmf[k], lle[k]) = (tables.light_area[idx], pmf, tables.light_le[idx]);
-                if tables.light_two_sided[idx] {
+                (lp0[k], le1[k], le2[k], lng[k]) = (light.p0, light.e1, light.e2, light.ng);
+                (larea[k], lle[k]) = (
+                    light.area,
+                    if m.is_emissive() { m.emission(&scene.textures, Default::default()) } else { Vec3::ZERO },
+                );
+                lpmf[k] = choice.map_or(0.0, |c| c.1);
+                if m.double_sided {
                     two_sided |= 1 << k;
                 }
             }
@@ -396,15 +384,23 @@ pub fn radiance8(
                 let w = mis_weight(settings.mis_heuristic, lpdf, f_pdf);
                 let unshadowed = beta.mul(f).mul(lle);
                 let sc = wil.z.abs() * w / lpdf;
-                // Shadow rays one lane at a time.
+                // The shadow rays together where the BVH batches them (`Scene::visibility_batch`).
                 let (so, sdl, tm) = (origin.to_lanes(), sd.to_lanes(), tmax.to_array());
-                let mut visible = 0u32;
+                let (mut lane, mut count) = ([0u8; LANES], 0);
+                let (mut qo, mut qd, mut qt) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [0f32; LANES]);
                 let mut bits = ok.bits();
                 while bits != 0 {
                     let k = bits.trailing_zeros() as usize;
                     bits &= bits - 1;
-                    if scene.visibility(so[k], sdl[k], tm[k]) != 0.0 {
-                        visible |= 1 << k;
+                    (lane[count], qo[count], qd[count], qt[count]) = (k as u8, so[k], sdl[k], tm[k]);
+                    count += 1;
+                }
+                let mut seen = [0f32; LANES];
+                scene.visibility_batch(&qo[..count], &qd[..count], &qt[..count], &mut seen[..count]);
+                let mut visible = 0u32;
+                for j in 0..count {
+                    if seen[j] != 0.0 {
+                        visible |= 1 << lane[j];
                     }
                 }
                 let shadow = ok & M8::from_bits(visible);

@@ -15,7 +15,7 @@ use crate::bsdf::Bsdf;
 use crate::lanes::{select, F8, LANES, M8, V8};
 use crate::material::Material;
 use crate::math::{Vec3, INV_PI, PI, SHADOW_EPSILON};
-use crate::mesh::Mesh;
+use crate::mesh::{flags, Mesh};
 use crate::sampler::{dims, PixelSample};
 use crate::scene::Scene;
 use crate::settings::{MisHeuristic, RenderSettings};
@@ -35,11 +35,14 @@ impl LambertMaterial {
     /// (`Bsdf::is_lambert`: metal, specular, transmission, coat or sheen). Materials no triangle
     /// uses do not count (the loader's default one among them).
     pub fn table(mesh: &Mesh, materials: &[Material], uniform_bsdfs: &[Option<Bsdf>]) -> Option<Vec<LambertMaterial>> {
-        if !mesh.instances.is_empty() || !mesh.tangents.is_empty() || !mesh.colors.is_empty() {
+        if !mesh.instances.is_empty() {
             return None;
         }
         let mut used = vec![false; materials.len()];
         for t in &mesh.triangles {
+            if t.flags & (flags::TANGENTS | flags::COLORS) != 0 {
+                return None;
+            }
             *used.get_mut(t.material as usize)? = true;
         }
         let mut table = Vec::with_capacity(materials.len());

@@ -1,0 +1,172 @@
+//! The eight-lane kernel (`spmd::radiance8`: eight paths in lock step, their shading on AVX
+//! registers) changes no bit of any image it renders: each lane does the scalar path's
+//! arithmetic in its order. Every test scene it renders, and programmatic scenes at the
+//! extremes (black and white albedo, smooth shading normals, one-sided emitters seen from behind, a tiny bright light,
+//! a millimetre-sized room, a mesh large enough that the BVH batches its rays, every light
+//! sampler, both MIS heuristics, depths 0 to 8, roulette from the first bounce), is rendered with
+//! the kernel and with the scalar path and compared sum for sum.
+
+#![cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+
+use renderer::accel::BATCH_RAYS_ABOVE;
+use renderer::film::Rect;
+use renderer::light::LightSamplerKind;
+use renderer::math::Vec3;
+use renderer::mesh::flags;
+use renderer::scene::Scene;
+use renderer::settings::MisHeuristic;
+use renderer::testing::{
+    emitter, lambert, load_bit_test_scene, metal, one_sided_emitter, sum_bits, SceneBuilder, BIT_TEST_SCENES,
+};
+use renderer::{render_tile, IntegratorKind, RenderSettings};
+use std::path::Path;
+
+fn root() -> &'static Path {
+    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
+}
+
+/// Renders `scene` with the kernel and without; panics naming `what` if the kernel does not take
+/// the scene or a bit differs.
+fn same_with_lanes_or_not(scene: &mut Scene, settings: &RenderSettings, what: &str) {
+    let rect = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
+    scene.set_lanes(true);
+    assert!(scene.lanes(settings).is_some(), "{what}: the kernel must take this scene");
+    let lanes = render_tile(scene, settings, rect, 0..settings.spp);
+    scene.set_lanes(false);
+    assert!(scene.lanes(settings).is_none());
+    let single = render_tile(scene, settings, rect, 0..settings.spp);
+    scene.set_lanes(true);
+    let total: f64 = single.sum_rgb.iter().flatten().sum();
+    assert!(total > 0.0, "{what}: a black image tests nothing");
+    assert!(total.is_finite(), "{what}: not finite");
+    assert!(sum_bits(&lanes) == sum_bits(&single), "{what}: the eight-lane kernel changed the image");
+}
+
+#[test]
+fn eight_lanes_render_every_test_scene_they_take_bit_for_bit() {
+    let mut taken = Vec::new();
+    for (i, entry) in BIT_TEST_SCENES.into_iter().enumerate() {
+        for light_sampler in [LightSamplerKind::Auto, LightSamplerKind::Tree] {
+            // A pass of 13 leaves a pixel's last five samples in a part-filled register.
+            let spp = [5, 8, 13][i % 3];
+            let mut settings =
+                RenderSettings { width: 40, height: 30, spp, seed: 11, light_sampler, ..RenderSettings::default() };
+            let mut scene = load_bit_test_scene(root(), entry, &mut settings);
+            if scene.lanes(&settings).is_none() {
+                continue;
+            }
+            same_with_lanes_or_not(&mut scene, &settings, &format!("{} ({light_sampler:?})", entry.0));
+            taken.push(entry.0);
+        }
+    }
+    taken.dedup();
+    for must in ["cornell", "many_lights", "sphere_light", "sphere_lights"] {
+        assert!(taken.iter().any(|t| t.contains(must)), "the kernel no longer takes {must} ({taken:?})");
+    }
+}
+
+/// A box of Lambert walls (albedo `wall`) around a sphere, lit by a two-sided quad and a
+/// one-sided one turned away from the camera's side of the room, `size` across.
+fn room(wall: Vec3, size: f32, light_radiance: f32) -> Scene {
+    let mut b = SceneBuilder::default();
+    let w = b.material(lambert(wall));
+    let red = b.material(lambert(Vec3::new(0.9, 0.1, 0.1)));
+    let white = b.material(lambert(Vec3::ONE));
+    let black = b.material(lambert(Vec3::ZERO));
+    let e = b.material(emitter(Vec3::splat(light_radiance)));
+    let back = b.material(one_sided_emitter(Vec3::new(3.0, 2.0, 1.0)));
+    let s = size;
+    for (c, u, v) in [
+        (Vec3::new(0.0, -s, 0.0), Vec3::X, Vec3::NEG_Z),
+        (Vec3::new(0.0, s, 0.0), Vec3::X, Vec3::Z),
+        (Vec3::new(-s, 0.0, 0.0), Vec3::Z, Vec3::Y),
+        (Vec3::new(0.0, 0.0, -s), Vec3::X, Vec3::Y),
+    ] {
+        b.quad(c, u * s, v * s, w);
+    }
+    b.quad(Vec3::new(s, 0.0, 0.0), Vec3::Y * s, Vec3::Z * s, red);
+    // Smooth-shaded (vertex normals, coarse): shading normals that send some directions below
+    // the true surface.
+    let (first_vertex, first_triangle) = (b.mesh.positions.len(), b.mesh.triangles.len());
+    let centre = Vec3::new(-0.4, -0.6, -0.2) * s;
+    b.sphere(centre, 0.35 * s, 1, false, white);
+    for v in first_vertex..b.mesh.positions.len() {
+        b.mesh.normals[v] = (b.mesh.positions[v] - centre).normalize();
+    }
+    for t in &mut b.mesh.triangles[first_triangle..] {
+        t.flags |= flags::NORMALS;
+    }
+    b.sphere(Vec3::new(0.45, -0.7, 0.3) * s, 0.25 * s, 1, false, black);
+    b.quad(Vec3::new(0.0, 0.99 * s, 0.0), Vec3::X * 0.2 * s, Vec3::Z * 0.2 * s, e);
+    // Faces −x: lit side away from most of the room, so many samples see its back.
+    b.quad(Vec3::new(-0.5 * s, 0.3 * s, -0.5 * s), Vec3::Z * 0.15 * s, Vec3::Y * 0.15 * s, back);
+    b.look_at(Vec3::new(0.0, 0.0, 3.5 * s), Vec3::ZERO, 45.0);
+    b.build()
+}
+
+#[test]
+fn eight_lanes_match_the_scalar_path_at_the_extremes() {
+    let base = RenderSettings { width: 24, height: 18, spp: 11, seed: 5, ..RenderSettings::default() };
+    let cases: [(&str, Vec3, f32, f32); 4] = [
+        ("grey room", Vec3::splat(0.6), 1.0, 5.0),
+        ("white room (albedo 1)", Vec3::ONE, 1.0, 5.0),
+        ("black room", Vec3::ZERO, 1.0, 5.0),
+        ("millimetre room, 1e4 light", Vec3::splat(0.5), 1e-3, 1e4),
+    ];
+    for (what, wall, size, le) in cases {
+        let mut scene = room(wall, size, le);
+        for kind in [LightSamplerKind::Power, LightSamplerKind::Uniform, LightSamplerKind::Tree] {
+            scene.set_light_sampler(kind);
+            for (max_depth, rr_depth, mis_heuristic) in [
+                (0, 5, MisHeuristic::Power),
+                (1, 5, MisHeuristic::Power),
+                (8, 1, MisHeuristic::Power),
+                (5, 0, MisHeuristic::Balance),
+            ] {
+                let s = RenderSettings { max_depth, rr_depth, mis_heuristic, light_sampler: kind, ..base.clone() };
+                let what = format!("{what}, {kind:?}, depth {max_depth}, rr {rr_depth}, {mis_heuristic:?}");
+                if max_depth == 0 && wall == Vec3::ZERO {
+                    continue;
+                }
+                same_with_lanes_or_not(&mut scene, &s, &what);
+            }
+        }
+    }
+}
+
+/// A mesh above `BATCH_RAYS_ABOVE` triangles: the kernel's rays go to the BVH in batches.
+#[test]
+fn eight_lanes_match_where_the_bvh_batches_rays() {
+    let mut b = SceneBuilder::default();
+    let grey = b.material(lambert(Vec3::splat(0.7)));
+    let e = b.material(emitter(Vec3::splat(4.0)));
+    b.sphere(Vec3::ZERO, 1.0, 7, false, grey);
+    b.sphere(Vec3::ZERO, 6.0, 1, true, grey);
+    b.quad(Vec3::new(0.0, 3.0, 0.0), Vec3::X, Vec3::NEG_Z, e);
+    b.look_at(Vec3::new(0.0, 0.5, 3.5), Vec3::ZERO, 40.0);
+    let mut scene = b.build();
+    assert!(scene.mesh.triangles.len() > BATCH_RAYS_ABOVE);
+    assert!(scene.batches_rays());
+    let s = RenderSettings { width: 16, height: 12, spp: 9, ..RenderSettings::default() };
+    same_with_lanes_or_not(&mut scene, &s, "level-7 sphere");
+}
+
+/// What the kernel does not do, it leaves to the scalar path: other materials, other
+/// integrators, the scalar reference.
+#[test]
+fn eight_lanes_take_only_what_they_render() {
+    let s = RenderSettings::default();
+    let mut plain = room(Vec3::splat(0.5), 1.0, 5.0);
+    assert!(plain.lanes(&s).is_some());
+    for integrator in [IntegratorKind::Nee, IntegratorKind::Bsdf] {
+        assert!(plain.lanes(&RenderSettings { integrator, ..s.clone() }).is_none(), "{integrator:?}");
+    }
+    plain.set_scalar_reference(true);
+    assert!(plain.lanes(&s).is_none(), "the scalar reference must not run the kernel");
+    let mut b = SceneBuilder::default();
+    let m = b.material(metal(Vec3::ONE, 0.3));
+    let e = b.material(emitter(Vec3::ONE));
+    b.quad(Vec3::ZERO, Vec3::X, Vec3::Y, m);
+    b.quad(Vec3::Z, Vec3::X, Vec3::NEG_Y, e);
+    assert!(b.build().lanes(&s).is_none(), "a metal surface");
+}

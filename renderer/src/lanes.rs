@@ -114,11 +114,16 @@ impl F8 {
 #[derive(Clone, Copy)]
 pub struct I8(pub __m256i);
 
-impl I8 {
+impl Neg for I8 {
+    type Output = I8;
+    /// Wrapping, as `i32`'s negation in a release build.
     #[inline(always)]
-    pub fn neg(self) -> I8 {
+    fn neg(self) -> I8 {
         I8(unsafe { _mm256_sub_epi32(_mm256_setzero_si256(), self.0) })
     }
+}
+
+impl I8 {
     /// Lane by lane, `a` where `m` is set, else `b`.
     #[inline(always)]
     pub fn select(m: M8, a: I8, b: I8) -> I8 {
@@ -248,26 +253,6 @@ impl V8 {
     pub fn scale(self, s: F8) -> V8 {
         V8 { x: self.x * s, y: self.y * s, z: self.z * s }
     }
-    #[inline(always)]
-    pub fn div(self, s: F8) -> V8 {
-        V8 { x: self.x / s, y: self.y / s, z: self.z / s }
-    }
-    #[inline(always)]
-    pub fn mul(self, o: V8) -> V8 {
-        V8 { x: self.x * o.x, y: self.y * o.y, z: self.z * o.z }
-    }
-    #[inline(always)]
-    pub fn add(self, o: V8) -> V8 {
-        V8 { x: self.x + o.x, y: self.y + o.y, z: self.z + o.z }
-    }
-    #[inline(always)]
-    pub fn sub(self, o: V8) -> V8 {
-        V8 { x: self.x - o.x, y: self.y - o.y, z: self.z - o.z }
-    }
-    #[inline(always)]
-    pub fn neg(self) -> V8 {
-        V8 { x: -self.x, y: -self.y, z: -self.z }
-    }
     /// `Vec3 != Vec3::ZERO`: some coordinate not zero (NaN included).
     #[inline(always)]
     pub fn ne_zero(self) -> M8 {
@@ -286,5 +271,45 @@ impl V8 {
     #[inline(always)]
     pub fn select(m: M8, a: V8, b: V8) -> V8 {
         V8 { x: select(m, a.x, b.x), y: select(m, a.y, b.y), z: select(m, a.z, b.z) }
+    }
+}
+
+impl Div<F8> for V8 {
+    type Output = V8;
+    #[inline(always)]
+    fn div(self, s: F8) -> V8 {
+        V8 { x: self.x / s, y: self.y / s, z: self.z / s }
+    }
+}
+
+impl Mul for V8 {
+    type Output = V8;
+    #[inline(always)]
+    fn mul(self, o: V8) -> V8 {
+        V8 { x: self.x * o.x, y: self.y * o.y, z: self.z * o.z }
+    }
+}
+
+impl Add for V8 {
+    type Output = V8;
+    #[inline(always)]
+    fn add(self, o: V8) -> V8 {
+        V8 { x: self.x + o.x, y: self.y + o.y, z: self.z + o.z }
+    }
+}
+
+impl Sub for V8 {
+    type Output = V8;
+    #[inline(always)]
+    fn sub(self, o: V8) -> V8 {
+        V8 { x: self.x - o.x, y: self.y - o.y, z: self.z - o.z }
+    }
+}
+
+impl Neg for V8 {
+    type Output = V8;
+    #[inline(always)]
+    fn neg(self) -> V8 {
+        V8 { x: -self.x, y: -self.y, z: -self.z }
     }
 }

@@ -12,13 +12,14 @@
 #![cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 
 use crate::bsdf::Bsdf;
-use crate::lanes::{select, F8, LANES, M8, V8};
+use crate::lanes::{select, F8, I8, LANES, M8, V8};
 use crate::material::Material;
 use crate::math::{Vec3, INV_PI, PI, SHADOW_EPSILON};
 use crate::mesh::{flags, Mesh};
 use crate::sampler::{dims, PixelSample};
 use crate::scene::Scene;
 use crate::settings::{MisHeuristic, RenderSettings};
+use std::ops::{Add, Div, Mul, Neg, Sub};
 
 /// What the kernel reads of a material: its Lambert albedo and whether next-event estimation
 /// samples a light at a vertex of it (not on a black, smooth one: `Bsdf::is_delta_only`).
@@ -123,11 +124,11 @@ impl Frame8 {
         Frame8 { s, t, n }
     }
     #[inline(always)]
-    fn to_local(&self, v: V8) -> V8 {
+    fn to_local(self, v: V8) -> V8 {
         V8 { x: v.dot(self.s), y: v.dot(self.t), z: v.dot(self.n) }
     }
     #[inline(always)]
-    fn to_world(&self, v: V8) -> V8 {
+    fn to_world(self, v: V8) -> V8 {
         self.s.scale(v.x).add(self.t.scale(v.y)).add(self.n.scale(v.z))
     }
     #[inline(always)]
@@ -145,7 +146,7 @@ fn offset_ray_origin(p: V8, n: V8, scale: f32) -> V8 {
     let zero = F8::zero();
     let axis = |p: F8, n: F8| {
         let o = (int_scale * n).to_i32_in_range();
-        let o = crate::lanes::I8::select(p.lt(zero), o.neg(), o);
+        let o = I8::select(p.lt(zero), o.neg(), o);
         let pi = p.add_to_bits(o);
         select(p.abs().lt(near), p + float_scale * n, pi)
     };

@@ -151,7 +151,8 @@ pub fn render_tile_counted(
     let raster = camera.raster(settings.width, settings.height);
     let batches = scene.batches_paths();
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-    let lanes = if std::env::var_os("TESSERA_EXP_NO_SPMD").is_some() { None } else { scene.lanes(settings) };
+    // Eight paths in lock step where the kernel renders the scene (same sums: `tests/spmd.rs`).
+    let lanes = scene.lanes(settings);
     // Per pixel: its sums, its sample count, and the rays traced and non-finite samples met, which
     // go to the shared counters once per tile rather than once per pixel (threads adding to the
     // same atomics contend for their cache line).

@@ -4,7 +4,7 @@
 //! extremes (black and white albedo, smooth shading normals, one-sided emitters seen from behind, a tiny bright light,
 //! a millimetre-sized room, a mesh large enough that the BVH batches its rays, every light
 //! sampler, both MIS heuristics, depths 0 to 8, roulette from the first bounce), is rendered with
-//! the kernel and with the scalar path and compared sum for sum.
+//! the kernel and with the scalar path and compared sum for sum, and ray count for ray count.
 
 #![cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 
@@ -13,13 +13,15 @@ use renderer::film::Rect;
 use renderer::light::LightSamplerKind;
 use renderer::math::Vec3;
 use renderer::mesh::flags;
+use renderer::render::render_tile_counted;
 use renderer::scene::Scene;
 use renderer::settings::MisHeuristic;
 use renderer::testing::{
     emitter, lambert, load_bit_test_scene, metal, one_sided_emitter, sum_bits, SceneBuilder, BIT_TEST_SCENES,
 };
-use renderer::{render_tile, IntegratorKind, RenderSettings};
+use renderer::{Counters, IntegratorKind, RenderSettings};
 use std::path::Path;
+use std::sync::atomic::Ordering;
 
 fn root() -> &'static Path {
     Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
@@ -31,11 +33,14 @@ fn same_with_lanes_or_not(scene: &mut Scene, settings: &RenderSettings, what: &s
     let rect = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
     scene.set_lanes(true);
     assert!(scene.lanes(settings).is_some(), "{what}: the kernel must take this scene");
-    let lanes = render_tile(scene, settings, rect, 0..settings.spp);
+    let (lane_count, single_count) = (Counters::default(), Counters::default());
+    let lanes = render_tile_counted(scene, settings, rect, 0..settings.spp, &lane_count);
     scene.set_lanes(false);
     assert!(scene.lanes(settings).is_none());
-    let single = render_tile(scene, settings, rect, 0..settings.spp);
+    let single = render_tile_counted(scene, settings, rect, 0..settings.spp, &single_count);
     scene.set_lanes(true);
+    let rays = |c: &Counters| c.rays.load(Ordering::Relaxed);
+    assert_eq!(rays(&lane_count), rays(&single_count), "{what}: the kernel counted other rays");
     let total: f64 = single.sum_rgb.iter().flatten().sum();
     assert!(total > 0.0, "{what}: a black image tests nothing");
     assert!(total.is_finite(), "{what}: not finite");

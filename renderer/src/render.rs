@@ -150,8 +150,8 @@ pub fn render_tile_counted(
         .unwrap_or_else(|_| crate::camera::Camera::framing(scene.bounds.0, scene.bounds.1));
     let raster = camera.raster(settings.width, settings.height);
     let batches = scene.batches_paths();
-    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     // Eight paths in lock step where the kernel renders the scene (same sums: `tests/spmd.rs`).
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     let lanes = scene.lanes(settings);
     // Per pixel: its sums, its sample count, and the rays traced and non-finite samples met, which
     // go to the shared counters once per tile rather than once per pixel (threads adding to the

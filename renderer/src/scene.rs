@@ -167,7 +167,8 @@ impl Scene {
     /// ([`crate::spmd::radiance8`]): every surface a plain Lambert material, lit by emissive
     /// triangles alone (no environment, no punctual light), with the MIS integrator.
     pub fn lanes(&self, settings: &crate::RenderSettings) -> Option<&[crate::spmd::LambertMaterial]> {
-        let usable = self.lanes
+        let usable = cfg!(all(target_arch = "x86_64", target_feature = "avx2"))
+            && self.lanes
             && settings.integrator == crate::settings::IntegratorKind::Mis
             && !self.transparent
             && self.lights.environment.is_none()

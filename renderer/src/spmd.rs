@@ -9,21 +9,31 @@
 //! the BSDF's sample and value, the point on the light, the pdfs and MIS weights, the ray
 //! offsets, the throughput and Russian roulette.
 
-#![cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+//!
+//! The table of what the kernel can render is built on every target; the kernel itself needs AVX2
+//! (`Scene::lanes` answers None without it).
 
 use crate::bsdf::Bsdf;
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use crate::lanes::{select, F8, I8, LANES, M8, V8};
 use crate::material::Material;
-use crate::math::{Vec3, INV_PI, PI, SHADOW_EPSILON};
+use crate::math::Vec3;
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+use crate::math::{INV_PI, PI, SHADOW_EPSILON};
 use crate::mesh::{flags, Mesh};
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use crate::sampler::{dims, PixelSample};
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use crate::scene::Scene;
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use crate::settings::{MisHeuristic, RenderSettings};
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use std::ops::{Add, Div, Mul, Neg, Sub};
 
 /// What the kernel reads of a material: its Lambert albedo and whether next-event estimation
 /// samples a light at a vertex of it (not on a black, smooth one: `Bsdf::is_delta_only`).
 #[derive(Clone, Copy, Debug)]
+#[cfg_attr(not(all(target_arch = "x86_64", target_feature = "avx2")), allow(dead_code))]
 pub struct LambertMaterial {
     albedo: Vec3,
     nee: bool,
@@ -63,6 +73,7 @@ impl LambertMaterial {
 }
 
 /// `math::sin_cos_quarter`, eight lanes.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[inline(always)]
 fn sin_cos_quarter(x: F8) -> (F8, F8) {
     let z = x * x;
@@ -73,6 +84,7 @@ fn sin_cos_quarter(x: F8) -> (F8, F8) {
 }
 
 /// `math::sample_cosine_hemisphere`, eight lanes (both wedges worked out, one kept).
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[inline(always)]
 fn sample_cosine_hemisphere(ux: F8, uy: F8) -> V8 {
     let (two, one, zero) = (F8::splat(2.0), F8::splat(1.0), F8::zero());
@@ -90,6 +102,7 @@ fn sample_cosine_hemisphere(ux: F8, uy: F8) -> V8 {
 }
 
 /// `math::sample_uniform_triangle`'s b1 and b2, eight lanes.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[inline(always)]
 fn sample_uniform_triangle(ux: F8, uy: F8) -> (F8, F8) {
     let half = F8::splat(2.0);
@@ -104,6 +117,7 @@ fn sample_uniform_triangle(ux: F8, uy: F8) -> (F8, F8) {
 }
 
 /// `math::Frame`, eight lanes.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[derive(Clone, Copy)]
 struct Frame8 {
     s: V8,
@@ -111,6 +125,7 @@ struct Frame8 {
     n: V8,
 }
 
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 impl Frame8 {
     /// `Frame::from_normal` (Duff et al. 2017).
     #[inline(always)]
@@ -138,6 +153,7 @@ impl Frame8 {
 }
 
 /// `math::offset_ray_origin_scaled`, eight lanes.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[inline(always)]
 fn offset_ray_origin(p: V8, n: V8, scale: f32) -> V8 {
     let near = F8::splat((1.0 / 32.0) * scale);
@@ -154,6 +170,7 @@ fn offset_ray_origin(p: V8, n: V8, scale: f32) -> V8 {
 }
 
 /// `integrator::mis_weight`, eight lanes.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[inline(always)]
 fn mis_weight(h: MisHeuristic, f: F8, g: F8) -> F8 {
     let (zero, one) = (F8::zero(), F8::splat(1.0));
@@ -169,6 +186,7 @@ fn mis_weight(h: MisHeuristic, f: F8, g: F8) -> F8 {
 
 /// [`crate::integrator::radiance`] for eight samples of one pixel at once (`d[k]` with
 /// `samplers[k]`; lanes from `n` on are empty), into `out[..n]`. Adds the rays traced to `rays`.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[allow(clippy::too_many_arguments)]
 pub fn radiance8(
     scene: &Scene,

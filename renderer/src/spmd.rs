@@ -283,7 +283,7 @@ pub fn radiance8(
                 nee_bits |= 1 << k;
             }
         }
-        // Emission found (each lane's l += β·Le·w; lanes without add zero).
+        // Emission found: l += β·Le·w on the lanes that met some (w = 1 after the camera ray).
         let emit_v = V8::from_lanes(&emit);
         let w = F8::from_array(emit_w);
         let add = beta.mul(emit_v).scale(w);

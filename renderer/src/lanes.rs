@@ -11,8 +11,7 @@ use std::arch::x86_64::*;
 use std::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
 
 use crate::math::Vec3;
-
-pub const LANES: usize = 8;
+use crate::spmd::LANES;
 
 /// Eight f32 lanes.
 #[derive(Clone, Copy)]
@@ -25,6 +24,18 @@ pub struct M8(pub __m256);
 // SAFETY (for every `unsafe` block in this file): the file is only compiled with AVX2 enabled
 // (`cfg` above), so the AVX/AVX2 intrinsics are available; loads and stores go through arrays of
 // exactly eight lanes.
+
+/// A lane-by-lane comparison with the predicate Rust's operator has (ordered: false with a NaN,
+/// but for `!=`).
+macro_rules! cmp {
+    ($name:ident, $pred:ident, $doc:expr) => {
+        #[doc = $doc]
+        #[inline(always)]
+        pub fn $name(self, o: F8) -> M8 {
+            M8(unsafe { _mm256_cmp_ps::<$pred>(self.0, o.0) })
+        }
+    };
+}
 
 impl F8 {
     #[inline(always)]
@@ -59,11 +70,6 @@ impl F8 {
     pub fn max_finite(self, other: F8) -> F8 {
         F8(unsafe { _mm256_max_ps(self.0, other.0) })
     }
-    /// `f32::min(self, other)` for a finite `other`.
-    #[inline(always)]
-    pub fn min_finite(self, other: F8) -> F8 {
-        F8(unsafe { _mm256_min_ps(self.0, other.0) })
-    }
     /// 1.0 with the sign of each lane (`f32::copysign(1.0, x)`).
     #[inline(always)]
     pub fn sign_one(self) -> F8 {
@@ -72,27 +78,11 @@ impl F8 {
             F8(_mm256_or_ps(sign, _mm256_set1_ps(1.0)))
         }
     }
-    #[inline(always)]
-    pub fn lt(self, o: F8) -> M8 {
-        M8(unsafe { _mm256_cmp_ps::<_CMP_LT_OQ>(self.0, o.0) })
-    }
-    #[inline(always)]
-    pub fn le(self, o: F8) -> M8 {
-        M8(unsafe { _mm256_cmp_ps::<_CMP_LE_OQ>(self.0, o.0) })
-    }
-    #[inline(always)]
-    pub fn gt(self, o: F8) -> M8 {
-        M8(unsafe { _mm256_cmp_ps::<_CMP_GT_OQ>(self.0, o.0) })
-    }
-    #[inline(always)]
-    pub fn eq(self, o: F8) -> M8 {
-        M8(unsafe { _mm256_cmp_ps::<_CMP_EQ_OQ>(self.0, o.0) })
-    }
-    /// `!=` as Rust has it: true for NaN.
-    #[inline(always)]
-    pub fn ne(self, o: F8) -> M8 {
-        M8(unsafe { _mm256_cmp_ps::<_CMP_NEQ_UQ>(self.0, o.0) })
-    }
+    cmp!(lt, _CMP_LT_OQ, "`<`");
+    cmp!(le, _CMP_LE_OQ, "`<=`");
+    cmp!(gt, _CMP_GT_OQ, "`>`");
+    cmp!(eq, _CMP_EQ_OQ, "`==`");
+    cmp!(ne, _CMP_NEQ_UQ, "`!=` as Rust has it: true for NaN");
     /// Lanes that are neither infinite nor NaN.
     #[inline(always)]
     pub fn is_finite(self) -> M8 {
@@ -132,14 +122,6 @@ impl I8 {
 }
 
 impl M8 {
-    #[inline(always)]
-    pub fn none() -> M8 {
-        M8(unsafe { _mm256_setzero_ps() })
-    }
-    #[inline(always)]
-    pub fn all() -> M8 {
-        M8(unsafe { _mm256_castsi256_ps(_mm256_set1_epi32(-1)) })
-    }
     /// A mask from the low eight bits of `bits` (lane k: bit k).
     #[inline(always)]
     pub fn from_bits(bits: u32) -> M8 {

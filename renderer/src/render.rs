@@ -150,9 +150,14 @@ pub fn render_tile_counted(
         .unwrap_or_else(|_| crate::camera::Camera::framing(scene.bounds.0, scene.bounds.1));
     let raster = camera.raster(settings.width, settings.height);
     let batches = scene.batches_paths();
-    // Eight paths in lock step where the kernel renders the scene (same sums: `tests/spmd.rs`).
-    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    // Eight paths in lock step where the kernel renders the scene (`spmd`), else sixteen a batch
+    // where it pays (`radiance_batch`), else one at a time: the same sums all three ways.
     let lanes = scene.lanes(settings);
+    let width = match (lanes, batches) {
+        (Some(_), _) => crate::spmd::LANES,
+        (None, true) => MAX_BATCH,
+        (None, false) => 1,
+    };
     // Per pixel: its sums, its sample count, and the rays traced and non-finite samples met, which
     // go to the shared counters once per tile rather than once per pixel (threads adding to the
     // same atomics contend for their cache line).
@@ -164,45 +169,33 @@ pub fn render_tile_counted(
             let mut rays = 0u64;
             let mut sums = PixelSums::default();
             let mut s = samples.start;
-            #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-            if let Some(materials) = lanes {
-                use crate::lanes::LANES;
-                let mut samplers = [PixelSample::new(settings.sampler, settings.seed, (x, y), 0); LANES];
-                let (mut dirs, mut l) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
-                while s < samples.end {
-                    let n = ((samples.end - s) as usize).min(LANES);
-                    for k in 0..n {
-                        (samplers[k], dirs[k]) = camera_ray(settings, &raster, (x, y), s + k as u32);
-                    }
-                    crate::spmd::radiance8(
-                        scene,
-                        materials,
-                        settings,
-                        camera.origin,
-                        &dirs,
-                        &samplers,
-                        n,
-                        &mut rays,
-                        &mut l,
-                    );
-                    for lk in &l[..n] {
-                        sums.add(*lk);
-                    }
-                    s += n as u32;
-                }
-            }
-            if batches {
-                // Up to MAX_BATCH samples' paths at a time, added in sample order: the same sums
-                // as one at a time.
+            if width > 1 {
+                // `width` samples' paths at a time, added in sample order: the same sums as one
+                // at a time. A batch leaves a pixel's last sample to the single path (a batch of
+                // one is that path with bookkeeping); the kernel takes it in a lane.
                 let mut samplers = [PixelSample::new(settings.sampler, settings.seed, (x, y), 0); MAX_BATCH];
                 let (mut dirs, mut l) = ([Vec3::ZERO; MAX_BATCH], [Vec3::ZERO; MAX_BATCH]);
-                while s + 1 < samples.end {
-                    let n = ((samples.end - s) as usize).min(MAX_BATCH);
+                while s + 1 < samples.end || (lanes.is_some() && s < samples.end) {
+                    let n = ((samples.end - s) as usize).min(width);
                     for k in 0..n {
                         (samplers[k], dirs[k]) = camera_ray(settings, &raster, (x, y), s + k as u32);
                     }
-                    radiance_batch(scene, settings, camera.origin, &dirs[..n], &samplers[..n], &mut rays, &mut l[..n]);
-                    for lk in &l[..n] {
+                    let (dirs, samplers, l) = (&dirs[..n], &samplers[..n], &mut l[..n]);
+                    match lanes {
+                        #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+                        Some(materials) => crate::spmd::radiance8(
+                            scene,
+                            materials,
+                            settings,
+                            camera.origin,
+                            dirs,
+                            samplers,
+                            &mut rays,
+                            l,
+                        ),
+                        _ => radiance_batch(scene, settings, camera.origin, dirs, samplers, &mut rays, l),
+                    }
+                    for lk in l.iter() {
                         sums.add(*lk);
                     }
                     s += n as u32;

@@ -15,7 +15,7 @@
 
 use crate::bsdf::Bsdf;
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-use crate::lanes::{select, F8, I8, LANES, M8, V8};
+use crate::lanes::{select, F8, I8, M8, V8};
 use crate::material::Material;
 use crate::math::Vec3;
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
@@ -29,6 +29,9 @@ use crate::scene::Scene;
 use crate::settings::{MisHeuristic, RenderSettings};
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use std::ops::{Add, Div, Mul, Neg, Sub};
+
+/// The paths [`radiance8`] runs side by side: one AVX register's f32 lanes.
+pub const LANES: usize = 8;
 
 /// What the kernel reads of a material: its Lambert albedo and whether next-event estimation
 /// samples a light at a vertex of it (not on a black, smooth one: `Bsdf::is_delta_only`).
@@ -72,6 +75,19 @@ impl LambertMaterial {
     }
 }
 
+/// The lanes whose bits are set in `bits`, in lane order.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[inline(always)]
+fn lanes_of(mut bits: u32) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (bits != 0).then(|| {
+            let k = bits.trailing_zeros() as usize;
+            bits &= bits - 1;
+            k
+        })
+    })
+}
+
 /// `math::sin_cos_quarter`, eight lanes.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[inline(always)]
@@ -105,11 +121,11 @@ fn sample_cosine_hemisphere(ux: F8, uy: F8) -> V8 {
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[inline(always)]
 fn sample_uniform_triangle(ux: F8, uy: F8) -> (F8, F8) {
-    let half = F8::splat(2.0);
+    let two = F8::splat(2.0);
     let first = ux.lt(uy);
-    let b0_a = ux / half;
+    let b0_a = ux / two;
     let b1_a = uy - b0_a;
-    let b1_b = uy / half;
+    let b1_b = uy / two;
     let b0_b = ux - b1_b;
     let (b0, b1) = (select(first, b0_a, b0_b), select(first, b1_a, b1_b));
     let b2 = F8::splat(1.0) - b0 - b1;
@@ -184,8 +200,8 @@ fn mis_weight(h: MisHeuristic, f: F8, g: F8) -> F8 {
     select(f.abs().eq(F8::splat(f32::INFINITY)), one, w)
 }
 
-/// [`crate::integrator::radiance`] for eight samples of one pixel at once (`d[k]` with
-/// `samplers[k]`; lanes from `n` on are empty), into `out[..n]`. Adds the rays traced to `rays`.
+/// [`crate::integrator::radiance`] for up to [`LANES`] samples of one pixel at once (`d[k]` with
+/// `samplers[k]` into `out[k]`; the lanes beyond them stay empty). Adds the rays traced to `rays`.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[allow(clippy::too_many_arguments)]
 pub fn radiance8(
@@ -193,9 +209,8 @@ pub fn radiance8(
     materials: &[LambertMaterial],
     settings: &RenderSettings,
     o: Vec3,
-    d: &[Vec3; LANES],
-    samplers: &[PixelSample; LANES],
-    n: usize,
+    d: &[Vec3],
+    samplers: &[PixelSample],
     rays: &mut u64,
     out: &mut [Vec3],
 ) {
@@ -206,11 +221,12 @@ pub fn radiance8(
     let mut prev_p = [Vec3::ZERO; LANES];
     let mut prev_n = [Vec3::ZERO; LANES];
     let mut prev_pdf = [0f32; LANES];
-    // Lanes whose last bounce left a previous vertex (all but the camera ray: Lambert has no delta).
-    let mut has_prev = false;
     let mut ro = [o; LANES];
-    let mut rd = V8::from_lanes(d);
-    let mut alive: u32 = (1u32 << n.min(LANES)) - 1;
+    let n = d.len().min(samplers.len()).min(out.len()).min(LANES);
+    let mut rd = [Vec3::ZERO; LANES];
+    rd[..n].copy_from_slice(&d[..n]);
+    let mut rd = V8::from_lanes(&rd);
+    let mut alive: u32 = (1u32 << n) - 1;
     let mut depth = 0u32;
     let scale = scene.offset_scale();
     while alive != 0 {
@@ -238,10 +254,7 @@ pub fn radiance8(
         // The live lanes, in lane order, and their rays.
         let (mut lane, mut count) = ([0u8; LANES], 0);
         let (mut qo, mut qd) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
-        let mut bits = alive;
-        while bits != 0 {
-            let k = bits.trailing_zeros() as usize;
-            bits &= bits - 1;
+        for k in lanes_of(alive) {
             *rays += 1;
             // As `Path::begin_bounce`: drawn before the trace, but for the camera ray's.
             if depth > 0 {
@@ -266,7 +279,9 @@ pub fn radiance8(
                 let le = crate::light::emitted(material, &scene.textures, sp.ng, sp.uv, -dirs[k]);
                 if le != Vec3::ZERO {
                     emit[k] = le;
-                    if has_prev {
+                    // Every bounce but the camera ray's leaves a previous vertex (Lambert has
+                    // no delta lobe).
+                    if depth > 0 {
                         let light_pdf = scene.lights.pdf(hit.triangle, prev_p[k], Some(prev_n[k]), sp.p, sp.ng);
                         emit_w[k] = crate::integrator::mis_weight(settings.mis_heuristic, prev_pdf[k], light_pdf);
                     }
@@ -300,6 +315,7 @@ pub fn radiance8(
         ngv = V8::select(flip, ngv.neg(), ngv);
         let flip = nsv.dot(ngv).lt(zero);
         nsv = V8::select(flip, nsv.neg(), nsv);
+        let ns_flipped = nsv.to_lanes();
         let frame_s = Frame8::from_normal(nsv);
         let wo_s = frame_s.to_local(wo_world);
         let back = wo_s.z.le(zero);
@@ -335,16 +351,12 @@ pub fn radiance8(
             let mut lle = [Vec3::ZERO; LANES];
             let mut two_sided = 0u32;
             let mut chosen = 0u32;
-            let (pl, nl) = (pv.to_lanes(), nsv.to_lanes());
             // The lanes' light choices together (a light tree's walks interleaved), as
             // `LightSet::sample` makes them: at the vertex, with its shading normal.
             let (mut lane, mut count) = ([0u8; LANES], 0);
             let (mut qp, mut qn, mut qu) = ([Vec3::ZERO; LANES], [None; LANES], [0f32; LANES]);
-            let mut bits = nee.bits();
-            while bits != 0 {
-                let k = bits.trailing_zeros() as usize;
-                bits &= bits - 1;
-                (lane[count], qp[count], qn[count], qu[count]) = (k as u8, pl[k], Some(nl[k]), u_sel[k]);
+            for k in lanes_of(nee.bits()) {
+                (lane[count], qp[count], qn[count], qu[count]) = (k as u8, p[k], Some(ns_flipped[k]), u_sel[k]);
                 count += 1;
             }
             let mut selected = [None; LANES];
@@ -391,9 +403,9 @@ pub fn radiance8(
             let wil = frame.to_local(lwi);
             let above = wil.z.gt(zero) & lwi.dot(ngv).gt(zero);
             let ok = ok & above & lle.ne_zero();
-            let f_pdf = wil.z.max_finite(zero) * F8::splat(INV_PI);
-            let f = V8::select(wo.z.le(zero) | wil.z.le(zero), V8::zero(), f_lambert);
-            let f_pdf = select(wo.z.le(zero) | wil.z.le(zero), zero, f_pdf);
+            // `Bsdf::eval_pdf`'s Lambert shortcut: wo.z > 0 on every shading lane and wil.z > 0
+            // on every `above` one, so f is base/π and the pdf cos/π there.
+            let (f, f_pdf) = (f_lambert, wil.z.max_finite(zero) * F8::splat(INV_PI));
             let ok = ok & f.ne_zero();
             if ok.any() {
                 *rays += ok.bits().count_ones() as u64;
@@ -410,10 +422,7 @@ pub fn radiance8(
                 let (so, sdl, tm) = (origin.to_lanes(), sd.to_lanes(), tmax.to_array());
                 let (mut lane, mut count) = ([0u8; LANES], 0);
                 let (mut qo, mut qd, mut qt) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [0f32; LANES]);
-                let mut bits = ok.bits();
-                while bits != 0 {
-                    let k = bits.trailing_zeros() as usize;
-                    bits &= bits - 1;
+                for k in lanes_of(ok.bits()) {
                     (lane[count], qo[count], qd[count], qt[count]) = (k as u8, so[k], sdl[k], tm[k]);
                     count += 1;
                 }
@@ -426,8 +435,9 @@ pub fn radiance8(
                     }
                 }
                 let shadow = ok & M8::from_bits(visible);
-                // `Path::add_direct`: β·f·Le, times visibility (1), times |cos|·w/pdf.
-                let add = unshadowed.scale(one).scale(sc);
+                // `Path::add_direct`: β·f·Le, times visibility, times |cos|·w/pdf; the visibility
+                // of an opaque scene is 1, and x·1 = x exactly, so it is left out.
+                let add = unshadowed.scale(sc);
                 l = V8::select(shadow, l.add(add), l);
             }
         }
@@ -441,17 +451,14 @@ pub fn radiance8(
         let nb = beta.mul(weight);
         let go = go & nb.is_finite() & nb.ne_zero();
         beta = V8::select(go, nb, beta);
-        let (pl, nl, pdfl) = (pv.to_lanes(), nsv.to_lanes(), bsdf_pdf.to_array());
-        prev_p = pl;
-        prev_n = nl;
-        prev_pdf = pdfl;
-        has_prev = true;
+        (prev_p, prev_n, prev_pdf) = (p, ns_flipped, bsdf_pdf.to_array());
         ro = origin.to_lanes();
         rd = wi_world;
         depth += 1;
         let mut go = go;
         if depth >= settings.rr_depth {
-            let m = beta.max_element() * one;
+            // β's largest channel times η² of the transmissions so far, 1 without glass (x·1 = x).
+            let m = beta.max_element();
             let low = m.lt(one);
             let q = (one - m).max_finite(zero);
             let u_rr = F8::from_array(u_bsdf[(dims::RUSSIAN_ROULETTE % 4) as usize]);

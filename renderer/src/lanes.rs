@@ -65,10 +65,37 @@ impl F8 {
         F8(unsafe { _mm256_andnot_ps(_mm256_set1_ps(-0.0), self.0) })
     }
     /// `f32::max(self, other)` for a finite `other`: a NaN `self` gives `other` (vmaxps returns
-    /// its second operand when either is NaN).
+    /// its second operand when either is NaN), in one instruction. Unlike `f32::max`, −0 against
+    /// +0 gives +0: for operands that cannot be −0 when `other` is ±0 ([`F8::max`] otherwise).
     #[inline(always)]
     pub fn max_finite(self, other: F8) -> F8 {
         F8(unsafe { _mm256_max_ps(self.0, other.0) })
+    }
+    /// `f32::max(self, other)` exactly: equal operands (±0) give `self`, a NaN gives the other.
+    #[inline(always)]
+    pub fn max(self, other: F8) -> F8 {
+        // vmaxps(a, b) is `a > b ? a : b`: `other > self ? other : self`, then NaN `self` fixed.
+        let m = F8(unsafe { _mm256_max_ps(other.0, self.0) });
+        select(self.ne(self), other, m)
+    }
+    /// `f32::min(self, other)` exactly: equal operands (±0) give `self`, a NaN gives the other.
+    #[inline(always)]
+    pub fn min(self, other: F8) -> F8 {
+        let m = F8(unsafe { _mm256_min_ps(other.0, self.0) });
+        select(self.ne(self), other, m)
+    }
+    /// `f32::clamp(self, lo, hi)`: `lo` where `self < lo`, then `hi` where `self > hi`; a NaN
+    /// stays NaN. vmaxps(lo, x) is `lo > x ? lo : x`, vminps(hi, x) is `hi < x ? hi : x`.
+    #[inline(always)]
+    pub fn clamp(self, lo: F8, hi: F8) -> F8 {
+        F8(unsafe { _mm256_min_ps(hi.0, _mm256_max_ps(lo.0, self.0)) })
+    }
+    /// `f32::round`: to the nearest integer, halves away from zero (not the even rounding of
+    /// vroundps's nearest mode). `x − trunc(x)` is exact, so its comparison with ½ is too.
+    #[inline(always)]
+    pub fn round(self) -> F8 {
+        let t = F8(unsafe { _mm256_round_ps::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(self.0) });
+        select((self - t).abs().ge(F8::splat(0.5)), t + self.sign_one(), t)
     }
     /// 1.0 with the sign of each lane (`f32::copysign(1.0, x)`).
     #[inline(always)]
@@ -81,6 +108,7 @@ impl F8 {
     cmp!(lt, _CMP_LT_OQ, "`<`");
     cmp!(le, _CMP_LE_OQ, "`<=`");
     cmp!(gt, _CMP_GT_OQ, "`>`");
+    cmp!(ge, _CMP_GE_OQ, "`>=`");
     cmp!(eq, _CMP_EQ_OQ, "`==`");
     cmp!(ne, _CMP_NEQ_UQ, "`!=` as Rust has it: true for NaN");
     /// Lanes that are neither infinite nor NaN.
@@ -114,6 +142,20 @@ impl Neg for I8 {
 }
 
 impl I8 {
+    #[inline(always)]
+    pub fn splat(x: i32) -> I8 {
+        I8(unsafe { _mm256_set1_epi32(x) })
+    }
+    /// `self & o`, lane by lane.
+    #[inline(always)]
+    pub fn and(self, o: I8) -> I8 {
+        I8(unsafe { _mm256_and_si256(self.0, o.0) })
+    }
+    /// `==`, lane by lane.
+    #[inline(always)]
+    pub fn eq(self, o: I8) -> M8 {
+        M8(unsafe { _mm256_castsi256_ps(_mm256_cmpeq_epi32(self.0, o.0)) })
+    }
     /// Lane by lane, `a` where `m` is set, else `b`.
     #[inline(always)]
     pub fn select(m: M8, a: I8, b: I8) -> I8 {

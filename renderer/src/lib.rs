@@ -28,6 +28,7 @@ pub mod accel;
 pub mod alias;
 pub mod animation;
 pub mod bsdf;
+pub mod bsdf8;
 pub mod budget;
 pub mod bundle;
 pub mod bvh;

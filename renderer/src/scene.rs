@@ -43,8 +43,8 @@ pub struct Scene {
     /// Overrides [`Scene::batches_paths`]' rule (tests; images are the same either way).
     batch_paths: Option<bool>,
     /// Per material, what the eight-lane kernel reads of it, when every surface the mesh uses is
-    /// one it renders ([`crate::spmd::LambertMaterial::table`]; fixed with the materials).
-    lambert: Option<Vec<crate::spmd::LambertMaterial>>,
+    /// one it renders ([`crate::spmd::LaneMaterial::table`]; fixed with the materials).
+    lane_materials: Option<Vec<crate::spmd::LaneMaterial>>,
     /// False when [`Self::set_scalar_reference`] or [`Self::set_lanes`] turned the kernel off.
     lanes: bool,
 }
@@ -66,7 +66,7 @@ impl Scene {
         tracing::debug!(triangles = mesh.triangles.len(), lights = lights.lights.len(), "scene built");
         let transparent = materials.iter().any(|m| m.alpha_mode != AlphaMode::Opaque);
         let uniform_bsdfs: Vec<Option<Bsdf>> = materials.iter().map(Material::uniform_bsdf).collect();
-        let lambert = crate::spmd::LambertMaterial::table(&mesh, &materials, &uniform_bsdfs);
+        let lane_materials = crate::spmd::LaneMaterial::table(&mesh, &materials, &uniform_bsdfs);
         Scene {
             mesh,
             materials,
@@ -83,7 +83,7 @@ impl Scene {
             time: 0.0,
             pose_key: None,
             batch_paths: None,
-            lambert,
+            lane_materials,
             lanes: true,
             generator: None,
             light_units: crate::punctual::LightUnits::Gltf,
@@ -164,18 +164,16 @@ impl Scene {
     }
 
     /// The eight-lane kernel's material table when it renders this scene with `settings`
-    /// ([`crate::spmd::radiance8`]): every surface a plain Lambert material, lit by emissive
-    /// triangles alone (no environment, no punctual light), with the MIS integrator.
-    pub fn lanes(&self, settings: &crate::RenderSettings) -> Option<&[crate::spmd::LambertMaterial]> {
+    /// ([`crate::spmd::radiance8`]): every surface an untextured, opaque metallic-roughness
+    /// material (Lambert, plastic or metal), with the MIS integrator and some light to sample.
+    pub fn lanes(&self, settings: &crate::RenderSettings) -> Option<&[crate::spmd::LaneMaterial]> {
         let usable = cfg!(all(target_arch = "x86_64", target_feature = "avx2"))
             && self.lanes
             && settings.integrator == crate::settings::IntegratorKind::Mis
             && !self.transparent
-            && self.lights.environment.is_none()
-            && self.lights.punctual.is_empty()
             && !self.lights.is_empty();
         if usable {
-            self.lambert.as_deref()
+            self.lane_materials.as_deref()
         } else {
             None
         }

@@ -1,19 +1,23 @@
 //! Eight paths in lock step, their shading done on eight-lane registers ([`crate::lanes`]): the
-//! first SPMD kernel of issue 15, for the scenes whose every surface is a plain Lambert material
-//! lit by emissive triangles (the Cornell box's kind).
+//! SPMD kernel of issue 15, for the scenes whose every surface is an untextured, opaque
+//! metallic-roughness material (Lambert, plastic, metal: [`crate::bsdf8`]), lit by emissive
+//! triangles, an environment or punctual lights (the Cornell box's, Veach's and envlit's kind).
 //!
 //! Each lane runs exactly [`crate::integrator::radiance`]'s arithmetic for its path, in its
 //! order, so a lane's radiance is bit-equal to the scalar path's (`renderer/tests/spmd.rs`
 //! compares whole images). What stays one lane at a time: drawing the sample sets, tracing the
-//! rays, the surface point and the light choice (table lookups); what goes eight-wide: the frame,
-//! the BSDF's sample and value, the point on the light, the pdfs and MIS weights, the ray
-//! offsets, the throughput and Russian roulette.
-
+//! rays, the surface point, the light choice (table lookups), the environment's and punctual
+//! lights' samples and the environment seen by escaping rays; what goes eight-wide: the frame,
+//! the BSDF's sample and value, the point on an area light, the pdfs and MIS weights, the ray
+//! offsets, the throughput and Russian roulette. Where every shading lane is plain Lambert the
+//! BSDF takes `Bsdf::is_lambert`'s shortcut, as the scalar path does.
 //!
 //! The table of what the kernel can render is built on every target; the kernel itself needs AVX2
 //! (`Scene::lanes` answers None without it).
 
 use crate::bsdf::Bsdf;
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+use crate::bsdf8::{sin_cos_quarter, OpaqueBsdf8, Sample8};
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use crate::lanes::{select, F8, I8, M8, V8};
 use crate::material::Material;
@@ -33,22 +37,38 @@ use std::ops::{Add, Div, Mul, Neg, Sub};
 /// The paths [`radiance8`] runs side by side: one AVX register's f32 lanes.
 pub const LANES: usize = 8;
 
-/// What the kernel reads of a material: its Lambert albedo and whether next-event estimation
-/// samples a light at a vertex of it (not on a black, smooth one: `Bsdf::is_delta_only`).
+/// What the kernel reads of a material: its opaque metallic-roughness parameters (`Bsdf` without
+/// transmission, coat or sheen), whether it is plain Lambert (`Bsdf::is_lambert`: the shading
+/// takes a shortcut when every lane's is), and whether next-event estimation samples a light at a
+/// vertex of it (not on a black or mirror one: `Bsdf::is_delta_only`).
 #[derive(Clone, Copy, Debug)]
 #[cfg_attr(not(all(target_arch = "x86_64", target_feature = "avx2")), allow(dead_code))]
-pub struct LambertMaterial {
-    albedo: Vec3,
+pub struct LaneMaterial {
+    base: Vec3,
+    metallic: f32,
+    specular: f32,
+    f0: Vec3,
+    alpha: f32,
+    lambert: bool,
     nee: bool,
 }
 
-impl LambertMaterial {
+impl LaneMaterial {
+    const UNUSED: LaneMaterial = LaneMaterial {
+        base: Vec3::ZERO,
+        metallic: 0.0,
+        specular: 0.0,
+        f0: Vec3::ZERO,
+        alpha: 1.0,
+        lambert: true,
+        nee: false,
+    };
+
     /// The table for a scene (`uniform_bsdfs`: `Material::uniform_bsdf` of each material), or
     /// None when some triangle needs what the kernel does not do: instances, vertex colours or
-    /// tangents, a material that is textured, unlit, normal-mapped or not plain Lambert
-    /// (`Bsdf::is_lambert`: metal, specular, transmission, coat or sheen). Materials no triangle
-    /// uses do not count (the loader's default one among them).
-    pub fn table(mesh: &Mesh, materials: &[Material], uniform_bsdfs: &[Option<Bsdf>]) -> Option<Vec<LambertMaterial>> {
+    /// tangents, a material that is textured, unlit, normal-mapped, transmissive, coated or
+    /// sheened. Materials no triangle uses do not count (the loader's default one among them).
+    pub fn table(mesh: &Mesh, materials: &[Material], uniform_bsdfs: &[Option<Bsdf>]) -> Option<Vec<LaneMaterial>> {
         if !mesh.instances.is_empty() {
             return None;
         }
@@ -62,14 +82,23 @@ impl LambertMaterial {
         let mut table = Vec::with_capacity(materials.len());
         for (i, m) in materials.iter().enumerate() {
             if !used[i] {
-                table.push(LambertMaterial { albedo: Vec3::ZERO, nee: false });
+                table.push(LaneMaterial::UNUSED);
                 continue;
             }
             let b = (*uniform_bsdfs.get(i)?)?;
-            if m.unlit || !b.is_lambert() || m.normal_texture.is_some() || m.emissive_texture.is_some() {
+            let opaque = b.transmission == 0.0 && b.coat.is_none() && b.sheen.is_none();
+            if m.unlit || !opaque || m.normal_texture.is_some() || m.emissive_texture.is_some() {
                 return None;
             }
-            table.push(LambertMaterial { albedo: b.base_color, nee: !b.is_delta_only() });
+            table.push(LaneMaterial {
+                base: b.base_color,
+                metallic: b.metallic,
+                specular: b.specular,
+                f0: b.f0_dielectric,
+                alpha: b.ggx.alpha,
+                lambert: b.is_lambert(),
+                nee: !b.is_delta_only(),
+            });
         }
         Some(table)
     }
@@ -86,17 +115,6 @@ fn lanes_of(mut bits: u32) -> impl Iterator<Item = usize> {
             k
         })
     })
-}
-
-/// `math::sin_cos_quarter`, eight lanes.
-#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-#[inline(always)]
-fn sin_cos_quarter(x: F8) -> (F8, F8) {
-    let z = x * x;
-    let c = F8::splat;
-    let s = ((c(-1.951_529_6e-4) * z + c(8.332_161e-3)) * z - c(1.666_665_5e-1)) * z * x + x;
-    let co = ((c(2.443_315_7e-5) * z - c(1.388_731_6e-3)) * z + c(4.166_664_6e-2)) * z * z - c(0.5) * z + c(1.0);
-    (s, co)
 }
 
 /// `math::sample_cosine_hemisphere`, eight lanes (both wedges worked out, one kept).
@@ -206,7 +224,7 @@ fn mis_weight(h: MisHeuristic, f: F8, g: F8) -> F8 {
 #[allow(clippy::too_many_arguments)]
 pub fn radiance8(
     scene: &Scene,
-    materials: &[LambertMaterial],
+    materials: &[LaneMaterial],
     settings: &RenderSettings,
     o: Vec3,
     d: &[Vec3],
@@ -221,6 +239,9 @@ pub fn radiance8(
     let mut prev_p = [Vec3::ZERO; LANES];
     let mut prev_n = [Vec3::ZERO; LANES];
     let mut prev_pdf = [0f32; LANES];
+    // The lanes whose last bounce left a previous vertex for MIS: not the camera ray's, not a
+    // mirror's (`Path::prev`).
+    let mut prev_bits = 0u32;
     let mut ro = [o; LANES];
     let n = d.len().min(samplers.len()).min(out.len()).min(LANES);
     let mut rd = [Vec3::ZERO; LANES];
@@ -238,7 +259,10 @@ pub fn radiance8(
         let (mut p, mut ng, mut ns) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
         let mut plane_error = [0f32; LANES];
         let mut albedo = [Vec3::ZERO; LANES];
+        let mut mat_id = [0usize; LANES];
         let mut nee_bits = 0u32;
+        // The shading lanes whose material is not plain Lambert.
+        let mut general = 0u32;
         let mut emit = [Vec3::ZERO; LANES];
         let mut emit_w = [1f32; LANES];
         let mut shading = 0u32;
@@ -268,7 +292,20 @@ pub fn radiance8(
         for (j, hit) in hits[..count].iter().enumerate() {
             let k = lane[j] as usize;
             // A lane that finds nothing, or stops here, is not shading: it is not alive next round.
-            let Some(hit) = hit else { continue };
+            let Some(hit) = hit else {
+                // The environment, seen by BSDF sampling (`Path::shade`'s escape).
+                if let Some(env) = &scene.lights.environment {
+                    if prev_bits & (1 << k) == 0 {
+                        emit[k] = env.eval(dirs[k]);
+                    } else if let Some((le, light_pdf)) =
+                        scene.lights.environment_eval_pdf(dirs[k], prev_p[k], Some(prev_n[k]))
+                    {
+                        emit[k] = le;
+                        emit_w[k] = crate::integrator::mis_weight(settings.mis_heuristic, prev_pdf[k], light_pdf);
+                    }
+                }
+                continue;
+            };
             if depth == 0 {
                 draw(k);
             }
@@ -279,9 +316,7 @@ pub fn radiance8(
                 let le = crate::light::emitted(material, &scene.textures, sp.ng, sp.uv, -dirs[k]);
                 if le != Vec3::ZERO {
                     emit[k] = le;
-                    // Every bounce but the camera ray's leaves a previous vertex (Lambert has
-                    // no delta lobe).
-                    if depth > 0 {
+                    if prev_bits & (1 << k) != 0 {
                         let light_pdf = scene.lights.pdf(hit.triangle, prev_p[k], Some(prev_n[k]), sp.p, sp.ng);
                         emit_w[k] = crate::integrator::mis_weight(settings.mis_heuristic, prev_pdf[k], light_pdf);
                     }
@@ -293,9 +328,12 @@ pub fn radiance8(
             shading |= 1 << k;
             (p[k], ng[k], ns[k], plane_error[k]) = (sp.p, sp.ng, sp.ns, sp.plane_error);
             let m = materials[material_id];
-            albedo[k] = m.albedo;
+            (albedo[k], mat_id[k]) = (m.base, material_id);
             if m.nee {
                 nee_bits |= 1 << k;
+            }
+            if !m.lambert {
+                general |= 1 << k;
             }
         }
         // Emission found: l += β·Le·w on the lanes that met some (w = 1 after the camera ray).
@@ -331,26 +369,56 @@ pub fn radiance8(
         let origin = offset_ray_origin(pv.add(ngv.scale(plane_error)), ngv, scale);
         let albedo = V8::from_lanes(&albedo);
         let f_lambert = V8::zero().add(albedo.scale(F8::splat(INV_PI)));
+        // Where some lane is not plain Lambert, every lane takes the general opaque BSDF (whose
+        // numbers are the Lambert shortcut's on a Lambert lane: `bsdf.rs`'s test).
+        let bsdf = (general != 0).then(|| {
+            let m = mat_id.map(|i| materials[i]);
+            OpaqueBsdf8 {
+                base: albedo,
+                metallic: F8::from_array(m.map(|m| m.metallic)),
+                specular: F8::from_array(m.map(|m| m.specular)),
+                f0: V8::from_lanes(&m.map(|m| m.f0)),
+                alpha: F8::from_array(m.map(|m| m.alpha)),
+            }
+        });
 
-        // BSDF sample (Lambert: cosine hemisphere), drawn before NEE as the scalar path does.
+        // BSDF sample, drawn before NEE as the scalar path does.
         let u_dir = (
             F8::from_array(u_bsdf[(dims::BSDF_DIR % 4) as usize]),
             F8::from_array(u_bsdf[(dims::BSDF_DIR % 4 + 1) as usize]),
         );
-        let wi = sample_cosine_hemisphere(u_dir.0, u_dir.1);
-        let bsdf_pdf = wi.z.max_finite(zero) * F8::splat(INV_PI);
-        let has_next = act & wi.z.gt(zero) & bsdf_pdf.gt(zero) & bsdf_pdf.is_finite();
+        let cosine = sample_cosine_hemisphere(u_dir.0, u_dir.1);
+        let next = match &bsdf {
+            // Lambert: the cosine hemisphere.
+            None => {
+                let pdf = cosine.z.max_finite(zero) * F8::splat(INV_PI);
+                let ok = cosine.z.gt(zero) & pdf.gt(zero) & pdf.is_finite();
+                Sample8 { wi: cosine, f: f_lambert, pdf, delta: M8::from_bits(0), ok }
+            }
+            Some(b) => {
+                let u_lobe = F8::from_array(u_bsdf[(dims::BSDF_LOBE % 4) as usize]);
+                b.sample(wo, u_lobe, u_dir.0, u_dir.1, cosine)
+            }
+        };
+        let has_next = act & next.ok;
 
         // Next-event estimation: the light chosen one lane at a time, the rest eight-wide.
         let nee = act & M8::from_bits(nee_bits);
         if nee.any() {
             let u_sel = u_light[(dims::LIGHT_SELECT % 4) as usize];
+            let u_pos = (u_light[(dims::LIGHT_POS % 4) as usize], u_light[(dims::LIGHT_POS % 4 + 1) as usize]);
+            // An area light's triangle and emission, for the eight-wide sample.
             let (mut lp0, mut le1, mut le2, mut lng) =
                 ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
             let (mut larea, mut lpmf) = ([1f32; LANES], [0f32; LANES]);
             let mut lle = [Vec3::ZERO; LANES];
             let mut two_sided = 0u32;
-            let mut chosen = 0u32;
+            let mut area = 0u32;
+            // Any other light's sample (`LightSet::sample_selected`, one lane at a time): its
+            // direction, radiance, pdf and point; which are delta (punctual) and which at infinity.
+            let (mut owi, mut ole, mut op, mut opdf) =
+                ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [1f32; LANES]);
+            let (mut other, mut delta, mut infinite) = (0u32, 0u32, 0u32);
             // The lanes' light choices together (a light tree's walks interleaved), as
             // `LightSet::sample` makes them: at the vertex, with its shading normal.
             let (mut lane, mut count) = ([0u8; LANES], 0);
@@ -361,34 +429,39 @@ pub fn radiance8(
             }
             let mut selected = [None; LANES];
             scene.lights.select_batch(&qp[..count], &qn[..count], &qu[..count], &mut selected[..count]);
-            for (j, choice) in selected[..count].iter().enumerate() {
+            for (j, &choice) in selected[..count].iter().enumerate() {
                 let k = lane[j] as usize;
-                // Only area lights (`Scene::lanes`: no punctual or environment light).
-                let Some(light) = choice.and_then(|(idx, _)| scene.lights.lights.get(idx)) else { continue };
+                let Some((idx, pmf)) = choice else { continue };
+                let Some(light) = scene.lights.lights.get(idx) else {
+                    let u = crate::math::Vec2::new(u_pos.0[k], u_pos.1[k]);
+                    let (mesh, mats, textures) = (&scene.mesh, &scene.materials, &scene.textures);
+                    if let Some(ls) = scene.lights.sample_selected(mesh, mats, textures, p[k], choice, u) {
+                        other |= 1 << k;
+                        (owi[k], ole[k], op[k], opdf[k]) = (ls.wi, ls.le, ls.p, ls.pdf);
+                        delta |= u32::from(ls.delta) << k;
+                        infinite |= u32::from(ls.dist.is_infinite()) << k;
+                    }
+                    continue;
+                };
                 let Some(m) = scene.materials.get(light.material as usize) else { continue };
-                chosen |= 1 << k;
+                area |= 1 << k;
                 (lp0[k], le1[k], le2[k], lng[k]) = (light.p0, light.e1, light.e2, light.ng);
                 (larea[k], lle[k]) = (
                     light.area,
                     if m.is_emissive() { m.emission(&scene.textures, Default::default()) } else { Vec3::ZERO },
                 );
-                lpmf[k] = choice.map_or(0.0, |c| c.1);
+                lpmf[k] = pmf;
                 if m.double_sided {
                     two_sided |= 1 << k;
                 }
             }
-            let ok = nee & M8::from_bits(chosen);
             // `LightSet::sample_selected`'s area light.
-            let (ux, uy) = (
-                F8::from_array(u_light[(dims::LIGHT_POS % 4) as usize]),
-                F8::from_array(u_light[(dims::LIGHT_POS % 4 + 1) as usize]),
-            );
-            let (b1, b2) = sample_uniform_triangle(ux, uy);
+            let (b1, b2) = sample_uniform_triangle(F8::from_array(u_pos.0), F8::from_array(u_pos.1));
             let lng = V8::from_lanes(&lng);
             let lp = V8::from_lanes(&lp0).add(V8::from_lanes(&le1).scale(b1)).add(V8::from_lanes(&le2).scale(b2));
             let to = lp.sub(pv);
             let dist2 = to.dot(to);
-            let ok = ok & dist2.gt(zero) & dist2.is_finite();
+            let ok = nee & M8::from_bits(area) & dist2.gt(zero) & dist2.is_finite();
             let dist = dist2.sqrt();
             let lwi = to.div(dist);
             let cos_l = lng.dot(lwi.neg());
@@ -399,23 +472,55 @@ pub fn radiance8(
             let lpdf = F8::from_array(lpmf) * dist2 / (cos_l.abs() * F8::from_array(larea));
             let ok = ok & lpdf.gt(zero) & lpdf.is_finite();
             let ln = V8::select(cos_l.gt(zero), lng, lng.neg());
-            // `Path::finish`: the light above the true surface, f from the Lambert BSDF.
+            // The other lights' samples in with the area lights'.
+            let others = other != 0;
+            let (other, delta, infinite) = (M8::from_bits(other), M8::from_bits(delta), M8::from_bits(infinite));
+            let point = delta.and_not(infinite);
+            let (lwi, lle, lpdf, ok) = if others {
+                (
+                    V8::select(other, V8::from_lanes(&owi), lwi),
+                    V8::select(other, V8::from_lanes(&ole), lle),
+                    select(other, F8::from_array(opdf), lpdf),
+                    ok | other,
+                )
+            } else {
+                (lwi, lle, lpdf, ok)
+            };
+            // `Path::finish`: the light above the true surface, f from the BSDF.
             let wil = frame.to_local(lwi);
             let above = wil.z.gt(zero) & lwi.dot(ngv).gt(zero);
             let ok = ok & above & lle.ne_zero();
-            // `Bsdf::eval_pdf`'s Lambert shortcut: wo.z > 0 on every shading lane and wil.z > 0
-            // on every `above` one, so f is base/π and the pdf cos/π there.
-            let (f, f_pdf) = (f_lambert, wil.z.max_finite(zero) * F8::splat(INV_PI));
+            // `Bsdf::eval_pdf`. Its Lambert shortcut: wo.z > 0 on every shading lane and
+            // wil.z > 0 on every `above` one, so f is base/π and the pdf cos/π there.
+            let (f, f_pdf) = match &bsdf {
+                None => (f_lambert, wil.z.max_finite(zero) * F8::splat(INV_PI)),
+                Some(b) => b.eval_pdf(wo, wil),
+            };
             let ok = ok & f.ne_zero();
             if ok.any() {
                 *rays += ok.bits().count_ones() as u64;
+                // The shadow ray: to just off an area light's surface, stopping a relative
+                // SHADOW_EPSILON short; to a point light, stopping 1e-5 short; to infinity along
+                // the sample's direction.
                 let target = offset_ray_origin(lp, ln, scale);
+                let target = if others { V8::select(point, V8::from_lanes(&op), target) } else { target };
                 let sto = target.sub(origin);
                 let sdist = sto.dot(sto).sqrt();
-                let ok = ok & sdist.gt(zero);
                 let sd = sto.div(sdist);
                 let tmax = sdist * F8::splat(1.0 - SHADOW_EPSILON);
                 let w = mis_weight(settings.mis_heuristic, lpdf, f_pdf);
+                let (ok, sd, tmax, w) = if others {
+                    let short = select(point, F8::splat(1.0 - 1e-5), F8::splat(1.0 - SHADOW_EPSILON));
+                    (
+                        ok & (infinite | sdist.gt(zero)),
+                        V8::select(infinite, lwi, sd),
+                        select(infinite, F8::splat(f32::INFINITY), sdist * short),
+                        // Delta lights take no MIS weight.
+                        select(delta, one, w),
+                    )
+                } else {
+                    (ok & sdist.gt(zero), sd, tmax, w)
+                };
                 let unshadowed = beta.mul(f).mul(lle);
                 let sc = wil.z.abs() * w / lpdf;
                 // The shadow rays together where the BVH batches them (`Scene::visibility_batch`).
@@ -443,15 +548,14 @@ pub fn radiance8(
         }
 
         // The step to the next vertex (`Path::finish`).
-        let wi_world = frame.to_world(wi);
+        let wi_world = frame.to_world(next.wi);
         let dn = wi_world.dot(ngv);
         let go = has_next & !dn.le(zero) & !dn.eq(zero);
-        // BsdfSample::weight: f·|cos|/pdf.
-        let weight = f_lambert.scale(wi.z.abs()).div(bsdf_pdf);
-        let nb = beta.mul(weight);
+        let nb = beta.mul(next.weight());
         let go = go & nb.is_finite() & nb.ne_zero();
         beta = V8::select(go, nb, beta);
-        (prev_p, prev_n, prev_pdf) = (p, ns_flipped, bsdf_pdf.to_array());
+        (prev_p, prev_n, prev_pdf) = (p, ns_flipped, next.pdf.to_array());
+        prev_bits = (!next.delta).bits();
         ro = origin.to_lanes();
         rd = wi_world;
         depth += 1;

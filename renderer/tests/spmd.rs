@@ -9,10 +9,14 @@
 #![cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 
 use renderer::accel::BATCH_RAYS_ABOVE;
+use renderer::environment::Environment;
 use renderer::film::Rect;
 use renderer::light::LightSamplerKind;
+use renderer::material::Material;
 use renderer::math::Vec3;
 use renderer::mesh::flags;
+use renderer::microfacet::Ggx;
+use renderer::punctual::{PunctualKind, PunctualLight};
 use renderer::render::render_tile_counted;
 use renderer::scene::Scene;
 use renderer::settings::MisHeuristic;
@@ -65,7 +69,7 @@ fn eight_lanes_render_every_test_scene_they_take_bit_for_bit() {
         }
     }
     taken.dedup();
-    for must in ["cornell", "many_lights", "sphere_light", "sphere_lights"] {
+    for must in ["cornell", "envlit", "many_lights", "sphere_light", "sphere_lights", "veach", "lights.glb"] {
         assert!(taken.iter().any(|t| t.contains(must)), "the kernel no longer takes {must} ({taken:?})");
     }
 }
@@ -73,10 +77,16 @@ fn eight_lanes_render_every_test_scene_they_take_bit_for_bit() {
 /// A box of Lambert walls (albedo `wall`) around a sphere, lit by a two-sided quad and a
 /// one-sided one turned away from the camera's side of the room, `size` across.
 fn room(wall: Vec3, size: f32, light_radiance: f32) -> Scene {
+    room_with(lambert(wall), lambert(Vec3::ONE), size, light_radiance)
+}
+
+/// [`room`] with the floor, ceiling and two walls of `wall` and the smooth-shaded sphere of
+/// `sphere`.
+fn room_with(wall: Material, sphere: Material, size: f32, light_radiance: f32) -> Scene {
     let mut b = SceneBuilder::default();
-    let w = b.material(lambert(wall));
+    let w = b.material(wall);
     let red = b.material(lambert(Vec3::new(0.9, 0.1, 0.1)));
-    let white = b.material(lambert(Vec3::ONE));
+    let white = b.material(sphere);
     let black = b.material(lambert(Vec3::ZERO));
     let e = b.material(emitter(Vec3::splat(light_radiance)));
     let back = b.material(one_sided_emitter(Vec3::new(3.0, 2.0, 1.0)));
@@ -136,6 +146,114 @@ fn eight_lanes_match_the_scalar_path_at_the_extremes() {
     }
 }
 
+/// Metal and plastic, from mirrors (roughness 0, and alpha just under and just over
+/// `Ggx::DELTA_ALPHA`) to roughness 1, black to white, half-metal, KHR_materials_specular 0,
+/// beside Lambert walls so that batches mix the general BSDF and Lambert lanes.
+#[test]
+fn eight_lanes_match_on_metal_and_plastic_at_the_extremes() {
+    let base = RenderSettings { width: 24, height: 18, spp: 11, seed: 9, ..RenderSettings::default() };
+    let threshold = Ggx::DELTA_ALPHA.sqrt();
+    let plastic = |c: Vec3, roughness: f32| Material { metallic: 0.0, ..metal(c, roughness) };
+    let gold = Vec3::new(1.0, 0.78, 0.34);
+    let cases: Vec<(String, Material, Material)> = vec![
+        ("mirror metal walls, rough sphere".into(), metal(gold, 0.0), metal(Vec3::ONE, 0.5)),
+        ("rough metal walls, mirror plastic sphere".into(), metal(gold, 0.3), plastic(Vec3::splat(0.5), 0.0)),
+        ("alpha under the delta threshold".into(), metal(Vec3::ONE, threshold * 0.99), plastic(gold, threshold * 0.99)),
+        ("alpha over the delta threshold".into(), metal(Vec3::ONE, threshold * 1.01), plastic(gold, threshold * 1.01)),
+        ("roughness 1".into(), metal(gold, 1.0), plastic(Vec3::ONE, 1.0)),
+        ("black metal, white plastic".into(), metal(Vec3::ZERO, 0.2), plastic(Vec3::ONE, 0.2)),
+        (
+            "half metal".into(),
+            Material { metallic: 0.5, ..metal(gold, 0.4) },
+            Material { metallic: 0.3, ..metal(gold, 0.05) },
+        ),
+        (
+            "specular 0 metal and plastic".into(),
+            Material { specular: 0.0, ..metal(gold, 0.3) },
+            Material { specular: 0.0, ..plastic(gold, 0.3) },
+        ),
+    ];
+    for (what, wall, sphere) in cases {
+        let mut scene = room_with(wall, sphere, 1.0, 5.0);
+        for (max_depth, rr_depth, mis_heuristic, kind) in [
+            (1, 5, MisHeuristic::Power, LightSamplerKind::Power),
+            (8, 1, MisHeuristic::Power, LightSamplerKind::Tree),
+            (5, 0, MisHeuristic::Balance, LightSamplerKind::Uniform),
+        ] {
+            scene.set_light_sampler(kind);
+            let s = RenderSettings { max_depth, rr_depth, mis_heuristic, light_sampler: kind, ..base.clone() };
+            let what = format!("{what}, {kind:?}, depth {max_depth}, rr {rr_depth}, {mis_heuristic:?}");
+            same_with_lanes_or_not(&mut scene, &s, &what);
+        }
+    }
+}
+
+/// An open scene (a floor, a metal and a Lambert sphere, a small emitter) under each kind of
+/// light the kernel samples besides emissive triangles: environments (uniform, sampled and not;
+/// the sunset map, with and without MIS compensation; a 1e4 uniform sky) and point, spot and
+/// directional lights.
+#[test]
+fn eight_lanes_match_under_environments_and_punctual_lights() {
+    let mut b = SceneBuilder::default();
+    let floor = b.material(lambert(Vec3::splat(0.5)));
+    let steel = b.material(metal(Vec3::new(0.9, 0.8, 0.7), 0.25));
+    let mirror = b.material(Material { metallic: 0.0, ..metal(Vec3::splat(0.2), 0.0) });
+    let white = b.material(lambert(Vec3::ONE));
+    let e = b.material(emitter(Vec3::splat(3.0)));
+    b.quad(Vec3::ZERO, Vec3::X * 4.0, Vec3::NEG_Z * 4.0, floor);
+    b.sphere(Vec3::new(-0.6, 0.5, 0.0), 0.5, 2, false, steel);
+    b.sphere(Vec3::new(0.6, 0.4, 0.2), 0.4, 2, false, white);
+    b.sphere(Vec3::new(0.0, 0.3, 0.8), 0.3, 2, false, mirror);
+    b.quad(Vec3::new(0.0, 2.0, -1.0), Vec3::X * 0.3, Vec3::Z * 0.3, e);
+    // A shade 1e-4 under the point light (below), about 5e-5 of the way from the objects: inside
+    // the point light's shadow-ray stop (1e-5 short), outside an area light's (1e-4 short).
+    b.quad(Vec3::new(1.0, 1.5 - 1e-4, 1.0), Vec3::X * 0.05, Vec3::Z * 0.05, white);
+    b.look_at(Vec3::new(0.0, 1.2, 3.0), Vec3::new(0.0, 0.4, 0.0), 50.0);
+    let mut scene = b.build();
+    let sunset = |mis_compensation| {
+        Environment::load(&root().join("scenes/env/sunset.exr"), 1.0, 30.0, true, mis_compensation)
+            .expect("scenes/env/sunset.exr")
+    };
+    let envs = [
+        ("no environment", None),
+        ("uniform sky, sampled", Some(Environment::uniform(Vec3::new(0.3, 0.4, 0.6), true))),
+        ("uniform sky, not sampled", Some(Environment::uniform(Vec3::new(0.3, 0.4, 0.6), false))),
+        ("1e4 uniform sky", Some(Environment::uniform(Vec3::splat(1e4), true))),
+        ("sunset map", Some(sunset(false))),
+        ("sunset map, MIS compensation", Some(sunset(true))),
+    ];
+    let point = PunctualLight {
+        kind: PunctualKind::Point,
+        intensity: Vec3::splat(5.0),
+        position: Vec3::new(1.0, 1.5, 1.0),
+        direction: Vec3::NEG_Y,
+    };
+    let spot = PunctualLight {
+        kind: PunctualKind::Spot { cos_inner: 0.95, cos_outer: 0.8 },
+        intensity: Vec3::new(20.0, 10.0, 5.0),
+        position: Vec3::new(-1.0, 2.0, 0.5),
+        direction: Vec3::new(0.5, -1.0, -0.25).normalize(),
+    };
+    let sun = PunctualLight {
+        kind: PunctualKind::Directional,
+        intensity: Vec3::splat(1e4),
+        position: Vec3::ZERO,
+        direction: Vec3::new(0.3, -1.0, -0.4).normalize(),
+    };
+    let base = RenderSettings { width: 24, height: 18, spp: 13, seed: 3, ..RenderSettings::default() };
+    for (what, env) in envs {
+        scene.set_environment(env);
+        for (lights, punctual) in [("", vec![]), (", point, spot and sun", vec![point, spot, sun])] {
+            scene.set_punctual(punctual);
+            for (kind, max_depth, rr_depth) in [(LightSamplerKind::Power, 4, 1), (LightSamplerKind::Tree, 8, 0)] {
+                scene.set_light_sampler(kind);
+                let s = RenderSettings { max_depth, rr_depth, light_sampler: kind, ..base.clone() };
+                same_with_lanes_or_not(&mut scene, &s, &format!("{what}{lights}, {kind:?}"));
+            }
+        }
+    }
+}
+
 /// A mesh above `BATCH_RAYS_ABOVE` triangles: the kernel's rays go to the BVH in batches.
 #[test]
 fn eight_lanes_match_where_the_bvh_batches_rays() {
@@ -153,8 +271,8 @@ fn eight_lanes_match_where_the_bvh_batches_rays() {
     same_with_lanes_or_not(&mut scene, &s, "level-7 sphere");
 }
 
-/// What the kernel does not do, it leaves to the scalar path: other materials, other
-/// integrators, the scalar reference.
+/// What the kernel does not do, it leaves to the scalar path: transmission, coats and sheen,
+/// other integrators, the scalar reference.
 #[test]
 fn eight_lanes_take_only_what_they_render() {
     let s = RenderSettings::default();
@@ -165,10 +283,21 @@ fn eight_lanes_take_only_what_they_render() {
     }
     plain.set_scalar_reference(true);
     assert!(plain.lanes(&s).is_none(), "the scalar reference must not run the kernel");
-    let mut b = SceneBuilder::default();
-    let m = b.material(metal(Vec3::ONE, 0.3));
-    let e = b.material(emitter(Vec3::ONE));
-    b.quad(Vec3::ZERO, Vec3::X, Vec3::Y, m);
-    b.quad(Vec3::Z, Vec3::X, Vec3::NEG_Y, e);
-    assert!(b.build().lanes(&s).is_none(), "a metal surface");
+    let glass = Material { transmission: 1.0, metallic: 0.0, ..metal(Vec3::ONE, 0.0) };
+    let coat = Material { clearcoat: 1.0, ..metal(Vec3::ONE, 0.3) };
+    let sheen = Material { sheen_color: Vec3::ONE, ..lambert(Vec3::splat(0.5)) };
+    let cases = [
+        ("a metal surface", metal(Vec3::ONE, 0.3), true),
+        ("glass", glass, false),
+        ("a coat", coat, false),
+        ("sheen", sheen, false),
+    ];
+    for (what, m, taken) in cases {
+        let mut b = SceneBuilder::default();
+        let m = b.material(m);
+        let e = b.material(emitter(Vec3::ONE));
+        b.quad(Vec3::ZERO, Vec3::X, Vec3::Y, m);
+        b.quad(Vec3::Z, Vec3::X, Vec3::NEG_Y, e);
+        assert_eq!(b.build().lanes(&s).is_some(), taken, "{what}");
+    }
 }

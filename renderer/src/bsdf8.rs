@@ -1,0 +1,266 @@
+//! The opaque part of the glTF metallic-roughness BSDF ([`crate::bsdf`]: Lambert diffuse under a
+//! GGX dielectric coat, mixed with a GGX conductor by `metallic`), eight lanes at once, one
+//! material per lane: what [`crate::spmd::radiance8`] shades metal and plastic with.
+//!
+//! Every function is its scalar counterpart's arithmetic in its order (`bsdf.rs`'s
+//! `specular_probability`, `specular_tint`, `diffuse_scale`, `eval_pdf_opaque` and
+//! `sample_opaque`; `microfacet.rs`'s `Ggx`; `math.rs`'s `sin_cos_azimuth` and `reflect`), its
+//! branches worked out on every lane and blended, so each lane's numbers are `Bsdf::eval_pdf`'s
+//! and `Bsdf::sample`'s bit for bit for a material without transmission, coat or sheen
+//! (`renderer/tests/spmd.rs` compares whole images). What the scalar code multiplies by a
+//! transmission of 0 (`1 − 0`) or a glass weight of 0 is left out: x·1 = x exactly.
+
+#![cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+
+use crate::lanes::{select, F8, I8, M8, V8};
+use crate::math::{INV_PI, PI};
+use crate::microfacet::Ggx;
+use std::ops::{Add, Div, Sub};
+
+/// `bsdf::schlick`: F0 + (1 − F0)(1 − c)⁵, the power as (m²·m²)·m.
+#[inline(always)]
+fn schlick(f0: V8, c: F8) -> V8 {
+    let one = F8::splat(1.0);
+    let m = (one - c).clamp(F8::zero(), one);
+    let m2 = m * m;
+    let k = m2 * m2 * m;
+    let ones = V8 { x: one, y: one, z: one };
+    f0.add(ones.sub(f0).scale(k))
+}
+
+/// `math::luminance`.
+#[inline(always)]
+fn luminance(c: V8) -> F8 {
+    F8::splat(0.2126) * c.x + F8::splat(0.7152) * c.y + F8::splat(0.0722) * c.z
+}
+
+/// `math::sin_cos_quarter`, eight lanes.
+#[inline(always)]
+pub(crate) fn sin_cos_quarter(x: F8) -> (F8, F8) {
+    let z = x * x;
+    let c = F8::splat;
+    let s = ((c(-1.951_529_6e-4) * z + c(8.332_161e-3)) * z - c(1.666_665_5e-1)) * z * x + x;
+    let co = ((c(2.443_315_7e-5) * z - c(1.388_731_6e-3)) * z + c(4.166_664_6e-2)) * z * z - c(0.5) * z + c(1.0);
+    (s, co)
+}
+
+/// `math::sin_cos_azimuth`: reduced to the nearest multiple of π/2, then turned by its quadrant.
+#[inline(always)]
+fn sin_cos_azimuth(x: F8) -> (F8, F8) {
+    let k = (x * F8::splat(2.0 / PI)).round();
+    let (s, c) = sin_cos_quarter(x - k * F8::splat(PI / 2.0));
+    // Quadrant 0: (s, c); 1: (c, −s); 2: (−s, −c); 3: (−c, s).
+    let q = k.to_i32_in_range().and(I8::splat(3));
+    let (q1, q2, q3) = (q.eq(I8::splat(1)), q.eq(I8::splat(2)), q.eq(I8::splat(3)));
+    let swap = q1 | q3;
+    let (sin, cos) = (select(swap, c, s), select(swap, s, c));
+    (select(q2 | q3, -sin, sin), select(q1 | q2, -cos, cos))
+}
+
+/// A 3-vector's `normalize_or_zero` (glam: times 1/length where that is finite and positive).
+#[inline(always)]
+fn normalize_or_zero(v: V8) -> V8 {
+    let rcp = F8::splat(1.0) / v.dot(v).sqrt();
+    V8::select(rcp.is_finite() & rcp.gt(F8::zero()), v.scale(rcp), V8::zero())
+}
+
+/// [`Ggx`] with one alpha per lane.
+#[derive(Clone, Copy)]
+struct Ggx8 {
+    alpha: F8,
+}
+
+impl Ggx8 {
+    #[inline(always)]
+    fn is_delta(self) -> M8 {
+        self.alpha.lt(F8::splat(Ggx::DELTA_ALPHA))
+    }
+
+    /// `Ggx::d`.
+    #[inline(always)]
+    fn d(self, h: V8) -> F8 {
+        let cos2 = h.z * h.z;
+        let a2 = self.alpha * self.alpha;
+        let one = F8::splat(1.0);
+        let denom = cos2 * (a2 - one) + one;
+        let d = a2 / (F8::splat(PI) * denom * denom);
+        select(cos2.le(F8::zero()), F8::zero(), d)
+    }
+
+    /// `Ggx::lambda`.
+    #[inline(always)]
+    fn lambda(self, w: V8) -> F8 {
+        let (zero, one) = (F8::zero(), F8::splat(1.0));
+        let cos2 = w.z * w.z;
+        let tan2 = (one - cos2).max(zero) / cos2;
+        let a2tan2 = self.alpha * self.alpha * tan2;
+        let l = a2tan2 / (F8::splat(2.0) * (one + (one + a2tan2).sqrt()));
+        select(cos2.le(zero), F8::splat(f32::INFINITY), l)
+    }
+
+    /// `Ggx::visible_d_given` for a `wo` above the surface, with Λ(wo) known.
+    #[inline(always)]
+    fn visible_d_given(self, lambda_o: F8, wo: V8, h: V8, d: F8) -> F8 {
+        let g1 = F8::splat(1.0) / (F8::splat(1.0) + lambda_o);
+        g1 * wo.dot(h).max(F8::zero()) * d / wo.z
+    }
+
+    /// `Ggx::sample_visible_normal` (Dupuy & Benyoub 2023, spherical caps).
+    #[inline(always)]
+    fn sample_visible_normal(self, wo: V8, ux: F8, uy: F8) -> V8 {
+        let (zero, one) = (F8::zero(), F8::splat(1.0));
+        let a = self.alpha;
+        let v = V8 { x: wo.x * a, y: wo.y * a, z: wo.z };
+        // glam's `normalize`: times 1/length.
+        let wo_std = v.scale(one / v.dot(v).sqrt());
+        let phi = F8::splat(2.0 * PI) * ux;
+        let z = (one - uy) * (one + wo_std.z) - wo_std.z;
+        let sin_theta = (one - z * z).clamp(zero, one).sqrt();
+        let (sin_phi, cos_phi) = sin_cos_azimuth(phi);
+        let c = V8 { x: sin_theta * cos_phi, y: sin_theta * sin_phi, z };
+        let h_std = c.add(wo_std);
+        let h = V8 { x: h_std.x * a, y: h_std.y * a, z: h_std.z.max(zero) };
+        let len = h.dot(h).sqrt();
+        let ok = len.gt(zero) & len.is_finite();
+        V8::select(ok, h.div(len), V8 { x: zero, y: zero, z: one })
+    }
+}
+
+/// A sample of [`OpaqueBsdf8::sample`] on the lanes in `ok`: the direction, f, the pdf (for a
+/// mirror lane, the mirror lobe's probability), and which lanes are mirror (delta) events.
+#[derive(Clone, Copy)]
+pub(crate) struct Sample8 {
+    pub wi: V8,
+    pub f: V8,
+    pub pdf: F8,
+    pub delta: M8,
+    pub ok: M8,
+}
+
+impl Sample8 {
+    /// `BsdfSample::weight`: f·|cos θi|/pdf, or f/pdf for a delta event.
+    #[inline(always)]
+    pub fn weight(&self) -> V8 {
+        let rough = self.f.scale(self.wi.z.abs()).div(self.pdf);
+        if self.delta.any() {
+            V8::select(self.delta, self.f.div(self.pdf), rough)
+        } else {
+            rough
+        }
+    }
+}
+
+/// Eight opaque metallic-roughness BSDFs (`Bsdf` with no transmission, coat or sheen), one per
+/// lane, in the shading frame.
+#[derive(Clone, Copy)]
+pub(crate) struct OpaqueBsdf8 {
+    pub base: V8,
+    pub metallic: F8,
+    /// KHR_materials_specular's weight.
+    pub specular: F8,
+    /// The dielectric F0.
+    pub f0: V8,
+    /// GGX's alpha (roughness²).
+    pub alpha: F8,
+}
+
+impl OpaqueBsdf8 {
+    #[inline(always)]
+    fn ggx(&self) -> Ggx8 {
+        Ggx8 { alpha: self.alpha }
+    }
+
+    /// `Bsdf::specular_probability` (transmission 0: the opaque share is 1 − metallic).
+    #[inline(always)]
+    fn specular_probability(&self, cos_o: F8) -> F8 {
+        let (zero, one) = (F8::zero(), F8::splat(1.0));
+        let fd = schlick(self.f0, cos_o);
+        let fm = schlick(self.base, cos_o);
+        let opaque = one - self.metallic;
+        let spec = self.metallic * luminance(fm) + opaque * self.specular * luminance(fd);
+        let diff = opaque * luminance(self.base) * (one - self.specular * fd.max_element());
+        let (spec, diff) = (spec.max(zero), diff.max(zero));
+        let sum = spec + diff;
+        select(sum.le(zero), zero, spec / sum)
+    }
+
+    /// `Bsdf::specular_tint`: (1 − m)·s·F_d + m·F_m.
+    #[inline(always)]
+    fn specular_tint(&self, c: F8) -> V8 {
+        let dielectric = schlick(self.f0, c).scale((F8::splat(1.0) - self.metallic) * self.specular);
+        dielectric.add(schlick(self.base, c).scale(self.metallic))
+    }
+
+    /// `Bsdf::diffuse_scale` (transmission 0).
+    #[inline(always)]
+    fn diffuse_scale(&self, c: F8) -> F8 {
+        let one = F8::splat(1.0);
+        (one - self.metallic) * (one - self.specular * schlick(self.f0, c).max_element())
+    }
+
+    /// `Bsdf::eval_pdf`: f(wo, wi) and the pdf of [`Self::sample`] giving `wi`, without the
+    /// mirror lobe (`eval_pdf_opaque`, then `eval_pdf_base`'s sums from a glass share of 0).
+    #[inline(always)]
+    pub fn eval_pdf(&self, wo: V8, wi: V8) -> (V8, F8) {
+        let (zero, one, four) = (F8::zero(), F8::splat(1.0), F8::splat(4.0));
+        let ggx = self.ggx();
+        let below = wo.z.le(zero) | wi.z.le(zero);
+        let h = normalize_or_zero(wo.add(wi));
+        let ps = self.specular_probability(wo.z);
+        let pdf_diffuse = (one - ps) * (wi.z.max(zero) * F8::splat(INV_PI));
+        let c = wo.dot(h).abs();
+        let f_diffuse = self.base.scale(self.diffuse_scale(c) * F8::splat(INV_PI));
+        let d = ggx.d(h);
+        let lambda_o = ggx.lambda(wo);
+        let g2 = one / (one + lambda_o + ggx.lambda(wi));
+        let s = d * g2 / (four * wo.z * wi.z);
+        // A Lambert material (no metal, KHR_materials_specular 0) has no specular lobe.
+        let lobe = self.metallic.gt(zero) | self.specular.gt(zero);
+        let rough = !ggx.is_delta();
+        let f = V8::select(lobe & rough, f_diffuse.add(self.specular_tint(c).scale(s)), f_diffuse);
+        let woh = wo.dot(h);
+        let pdf_specular = pdf_diffuse + ps * ggx.visible_d_given(lambda_o, wo, h, d) / (four * woh);
+        let pdf = select(rough & ps.gt(zero) & woh.gt(zero), pdf_specular, pdf_diffuse);
+        // h = 0 (wi = −wo): the diffuse pdf alone; below the surface: nothing.
+        let h_zero = !h.ne_zero();
+        let f = V8::select(h_zero | below, V8::zero(), f);
+        let pdf = select(below, zero, pdf);
+        // `eval_pdf_base`: 0 + f and 0 + 1·pdf (signed zeros become +0).
+        (V8::zero().add(f), zero + pdf)
+    }
+
+    /// `Bsdf::sample` (through `sample_base` with a glass share of 0, then `sample_opaque`) for a
+    /// `wo` above the surface: the lobe by `u_lobe`, the direction by (`ux`, `uy`); a rough
+    /// sample takes f and pdf from [`Self::eval_pdf`] (`finish`).
+    #[inline(always)]
+    pub fn sample(&self, wo: V8, u_lobe: F8, ux: F8, uy: F8, cosine: V8) -> Sample8 {
+        let zero = F8::zero();
+        let ggx = self.ggx();
+        // (u_lobe − 0)/(1 − 0) is u_lobe exactly.
+        let u_lobe = u_lobe.min(F8::splat(1.0 - f32::EPSILON));
+        let ps = self.specular_probability(wo.z);
+        let specular = u_lobe.lt(ps);
+        let mirror = specular & ggx.is_delta();
+        let rough_specular = specular.and_not(mirror);
+        let wi = if rough_specular.any() {
+            let h = ggx.sample_visible_normal(wo, ux, uy);
+            // `math::reflect`: 2(w·h)·h − w.
+            let r = h.scale(F8::splat(2.0) * wo.dot(h)).sub(wo);
+            V8::select(rough_specular, r, cosine)
+        } else {
+            cosine
+        };
+        let ok = wi.z.gt(zero);
+        let (f, pdf) = self.eval_pdf(wo, wi);
+        let ok = ok & pdf.gt(zero) & pdf.is_finite();
+        if !mirror.any() {
+            return Sample8 { wi, f, pdf, delta: mirror, ok };
+        }
+        // The mirror: f is the specular tint at wo, the pdf the lobe's probability (times the
+        // opaque share, 1).
+        let wi = V8::select(mirror, V8 { x: -wo.x, y: -wo.y, z: wo.z }, wi);
+        let f = V8::select(mirror, self.specular_tint(wo.z), f);
+        let pdf = select(mirror, ps, pdf);
+        Sample8 { wi, f, pdf, delta: mirror, ok: ok | mirror }
+    }
+}

@@ -15,7 +15,7 @@
 use crate::lanes::{select, F8, I8, M8, V8};
 use crate::math::{INV_PI, PI};
 use crate::microfacet::Ggx;
-use std::ops::{Add, Div, Sub};
+use std::ops::{Add, Div, Neg, Sub};
 
 /// `bsdf::schlick`: F0 + (1 − F0)(1 − c)⁵, the power as (m²·m²)·m.
 #[inline(always)]
@@ -262,5 +262,135 @@ impl OpaqueBsdf8 {
         let f = V8::select(mirror, self.specular_tint(wo.z), f);
         let pdf = select(mirror, ps, pdf);
         Sample8 { wi, f, pdf, delta: mirror, ok: ok | mirror }
+    }
+}
+
+/// `dielectric::fresnel_dielectric`: unpolarized Fresnel reflectance, `cos_i` on wo's side (a
+/// negative one flips the side and inverts `eta`).
+#[inline(always)]
+fn fresnel_dielectric(cos_i: F8, eta: F8) -> F8 {
+    let (zero, one) = (F8::zero(), F8::splat(1.0));
+    let flip = cos_i.lt(zero);
+    let (cos_i, eta) = (select(flip, -cos_i, cos_i), select(flip, one / eta, eta));
+    let cos_i = cos_i.min(one);
+    let sin2_t = (one - cos_i * cos_i) / (eta * eta);
+    let cos_t = (one - sin2_t).max(zero).sqrt();
+    let r_parl = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    let r_perp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    let r = F8::splat(0.5) * (r_parl * r_parl + r_perp * r_perp);
+    // Total internal reflection.
+    select(sin2_t.ge(one), one, r)
+}
+
+/// `dielectric::refract`: `wi` through the interface with normal `n` and relative index `eta`;
+/// the mask is false on total internal reflection.
+#[inline(always)]
+fn refract(wi: V8, n: V8, eta: F8) -> (V8, M8) {
+    let (zero, one) = (F8::zero(), F8::splat(1.0));
+    let cos_i = n.dot(wi);
+    let sin2_i = (one - cos_i * cos_i).max(zero);
+    let sin2_t = sin2_i / (eta * eta);
+    let cos_t = (one - sin2_t).sqrt();
+    let t = wi.neg().div(eta).add(n.scale(cos_i / eta - cos_t));
+    (t, !sin2_t.ge(one))
+}
+
+/// Eight glass interfaces (`Bsdf` with transmission 1 and no metal, coat or sheen: its glass part
+/// [`crate::dielectric::Dielectric`] alone, at weight 1), one per lane, in the shading frame.
+#[derive(Clone, Copy)]
+pub(crate) struct Glass8 {
+    /// n(far side)/n(wo's side).
+    pub eta: F8,
+    pub alpha: F8,
+    /// The transmitted light's tint (the base colour).
+    pub tint: V8,
+}
+
+impl Glass8 {
+    /// `Dielectric::is_delta`.
+    #[inline(always)]
+    fn is_delta(&self) -> M8 {
+        Ggx8 { alpha: self.alpha }.is_delta() | self.eta.eq(F8::splat(1.0))
+    }
+
+    /// `Dielectric::eval_pdf` (times the glass weight 1).
+    #[inline(always)]
+    pub fn eval_pdf(&self, wo: V8, wi: V8) -> (V8, F8) {
+        let (zero, one, four) = (F8::zero(), F8::splat(1.0), F8::splat(4.0));
+        let ggx = Ggx8 { alpha: self.alpha };
+        // `half_vector`.
+        let reflect = wi.z.gt(zero);
+        let etap = select(reflect, one, self.eta);
+        let wm = wi.scale(etap).add(wo);
+        let len2 = wm.dot(wm);
+        let none = self.is_delta() | wi.z.eq(zero) | wo.z.le(zero) | len2.eq(zero);
+        let wm = wm.scale(one / len2.sqrt());
+        let wm = V8::select(wm.z.lt(zero), wm.neg(), wm);
+        let (wm_i, wm_o) = (wm.dot(wi), wm.dot(wo));
+        let none = none | (wm_i * wi.z).lt(zero) | (wm_o * wo.z).lt(zero);
+        // The pair's terms.
+        let f = fresnel_dielectric(wm_o, self.eta);
+        let d = ggx.d(wm);
+        let lambda_o = ggx.lambda(wo);
+        let g = one / (one + lambda_o + ggx.lambda(wi));
+        let dvis = ggx.visible_d_given(lambda_o, wo, wm, d);
+        // Reflection.
+        let fr = d * g * f / (four * wo.z * wi.z).abs();
+        let pr = dvis / (four * wm_o.abs()) * f;
+        // Transmission.
+        let denom = wm_i + wm_o / etap;
+        let pt = dvis * (wm_i.abs() / (denom * denom)) * (one - f);
+        let denom = denom * denom * wi.z * wo.z;
+        let ft = d * (one - f) * g * (wm_i * wm_o / denom).abs() / (etap * etap);
+        let ft = select(denom.eq(zero), zero, ft);
+        let f_val = V8::select(reflect, V8 { x: fr, y: fr, z: fr }, self.tint.scale(ft));
+        let pdf = select(reflect, pr, pt);
+        (V8::select(none, V8::zero(), f_val), select(none, zero, pdf))
+    }
+
+    /// `Bsdf::sample` through `sample_base` (glass weight 1: `u_lobe` is the glass's own choice
+    /// between reflection and transmission) and `Dielectric::sample_direction`, for a `wo` above
+    /// the surface; a rough direction takes f and pdf from [`Self::eval_pdf`] (`finish`).
+    #[inline(always)]
+    pub fn sample(&self, wo: V8, u_lobe: F8, ux: F8, uy: F8) -> Sample8 {
+        let (zero, one) = (F8::zero(), F8::splat(1.0));
+        let ggx = Ggx8 { alpha: self.alpha };
+        let delta = self.is_delta();
+        let z_axis = V8 { x: zero, y: zero, z: one };
+        let mirror = |w: V8| V8 { x: -w.x, y: -w.y, z: w.z };
+        // Rough: a visible microfacet, then reflection or refraction through it by Fresnel.
+        let rough = !delta;
+        let (wi_rough, ok_rough, f_rough, pdf_rough) = if rough.any() {
+            let wm = ggx.sample_visible_normal(wo, ux, uy);
+            let r = fresnel_dielectric(wo.dot(wm), self.eta);
+            let reflects = u_lobe.lt(r);
+            let reflected = wm.scale(F8::splat(2.0) * wo.dot(wm)).sub(wo);
+            let (refracted, through) = refract(wo, wm, self.eta);
+            let wi = V8::select(reflects, reflected, refracted);
+            let ok = select(reflects, wi.z, -wi.z).gt(zero) & (reflects | through);
+            let (f, pdf) = self.eval_pdf(wo, wi);
+            (wi, ok & pdf.gt(zero) & pdf.is_finite(), f, pdf)
+        } else {
+            (z_axis, M8::from_bits(0), V8::zero(), zero)
+        };
+        if !delta.any() {
+            return Sample8 { wi: wi_rough, f: f_rough, pdf: pdf_rough, delta, ok: ok_rough };
+        }
+        // Smooth: the mirror with probability R, else the refracted direction.
+        let r = fresnel_dielectric(wo.z, self.eta);
+        let reflects = u_lobe.lt(r);
+        let (refracted, through) = refract(wo, z_axis, self.eta);
+        let t = one - r;
+        let wi = V8::select(reflects, mirror(wo), refracted);
+        let f = V8::select(reflects, V8 { x: r, y: r, z: r }, self.tint.scale(t / (self.eta * self.eta)));
+        let pdf = select(reflects, r, t);
+        let ok_delta = reflects | through;
+        Sample8 {
+            wi: V8::select(delta, wi, wi_rough),
+            f: V8::select(delta, f, f_rough),
+            pdf: select(delta, pdf, pdf_rough),
+            delta,
+            ok: M8::select(delta, ok_delta, ok_rough),
+        }
     }
 }

@@ -182,6 +182,16 @@ impl M8 {
     pub fn any(self) -> bool {
         self.bits() != 0
     }
+    /// Lane by lane, `a` where `m` is set, else `b`.
+    #[inline(always)]
+    pub fn select(m: M8, a: M8, b: M8) -> M8 {
+        M8(unsafe { _mm256_blendv_ps(b.0, a.0, m.0) })
+    }
+    /// `self != o`, lane by lane (exclusive or).
+    #[inline(always)]
+    pub fn xor(self, o: M8) -> M8 {
+        M8(unsafe { _mm256_xor_ps(self.0, o.0) })
+    }
     #[inline(always)]
     pub fn and_not(self, o: M8) -> M8 {
         M8(unsafe { _mm256_andnot_ps(o.0, self.0) })

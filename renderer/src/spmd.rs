@@ -17,7 +17,7 @@
 
 use crate::bsdf::Bsdf;
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-use crate::bsdf8::{sin_cos_quarter, OpaqueBsdf8, Sample8};
+use crate::bsdf8::{sin_cos_quarter, Glass8, OpaqueBsdf8, Sample8};
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use crate::lanes::{select, F8, I8, M8, V8};
 use crate::material::Material;
@@ -37,10 +37,11 @@ use std::ops::{Add, Div, Mul, Neg, Sub};
 /// The paths [`radiance8`] runs side by side: one AVX register's f32 lanes.
 pub const LANES: usize = 8;
 
-/// What the kernel reads of a material: its opaque metallic-roughness parameters (`Bsdf` without
-/// transmission, coat or sheen), whether it is plain Lambert (`Bsdf::is_lambert`: the shading
-/// takes a shortcut when every lane's is), and whether next-event estimation samples a light at a
-/// vertex of it (not on a black or mirror one: `Bsdf::is_delta_only`).
+/// What the kernel reads of a material: its metallic-roughness parameters (`Bsdf` without coat or
+/// sheen, and either opaque or all glass), whether it is plain Lambert (`Bsdf::is_lambert`: the
+/// shading takes a shortcut when every lane's is) or glass, and whether next-event estimation
+/// samples a light at a vertex of it (not on a black, mirror or smooth-glass one:
+/// `Bsdf::is_delta_only`).
 #[derive(Clone, Copy, Debug)]
 #[cfg_attr(not(all(target_arch = "x86_64", target_feature = "avx2")), allow(dead_code))]
 pub struct LaneMaterial {
@@ -49,7 +50,10 @@ pub struct LaneMaterial {
     specular: f32,
     f0: Vec3,
     alpha: f32,
+    /// Glass's relative index of refraction (entering through the front face).
+    eta: f32,
     lambert: bool,
+    glass: bool,
     nee: bool,
 }
 
@@ -60,14 +64,17 @@ impl LaneMaterial {
         specular: 0.0,
         f0: Vec3::ZERO,
         alpha: 1.0,
+        eta: 1.0,
         lambert: true,
+        glass: false,
         nee: false,
     };
 
     /// The table for a scene (`uniform_bsdfs`: `Material::uniform_bsdf` of each material), or
     /// None when some triangle needs what the kernel does not do: instances, vertex colours or
-    /// tangents, a material that is textured, unlit, normal-mapped, transmissive, coated or
-    /// sheened. Materials no triangle uses do not count (the loader's default one among them).
+    /// tangents, a material that is textured, unlit, normal-mapped, coated or sheened, partly
+    /// transmissive (transmission between 0 and 1, or metal over glass) or an absorbing volume.
+    /// Materials no triangle uses do not count (the loader's default one among them).
     pub fn table(mesh: &Mesh, materials: &[Material], uniform_bsdfs: &[Option<Bsdf>]) -> Option<Vec<LaneMaterial>> {
         if !mesh.instances.is_empty() {
             return None;
@@ -86,8 +93,11 @@ impl LaneMaterial {
                 continue;
             }
             let b = (*uniform_bsdfs.get(i)?)?;
-            let opaque = b.transmission == 0.0 && b.coat.is_none() && b.sheen.is_none();
-            if m.unlit || !opaque || m.normal_texture.is_some() || m.emissive_texture.is_some() {
+            let layered = b.coat.is_some() || b.sheen.is_some();
+            // All glass: `Bsdf`'s glass weight (1 − metallic)·transmission is exactly 1.
+            let glass = b.transmission == 1.0 && b.metallic == 0.0 && m.absorption == Vec3::ZERO;
+            let opaque = b.transmission == 0.0;
+            if m.unlit || layered || !(opaque || glass) || m.normal_texture.is_some() || m.emissive_texture.is_some() {
                 return None;
             }
             table.push(LaneMaterial {
@@ -96,7 +106,9 @@ impl LaneMaterial {
                 specular: b.specular,
                 f0: b.f0_dielectric,
                 alpha: b.ggx.alpha,
+                eta: b.eta,
                 lambert: b.is_lambert(),
+                glass,
                 nee: !b.is_delta_only(),
             });
         }
@@ -242,6 +254,8 @@ pub fn radiance8(
     // The lanes whose last bounce left a previous vertex for MIS: not the camera ray's, not a
     // mirror's (`Path::prev`).
     let mut prev_bits = 0u32;
+    // `Path::eta_scale`: η² of the transmissions so far.
+    let mut eta_scale = one;
     let mut ro = [o; LANES];
     let n = d.len().min(samplers.len()).min(out.len()).min(LANES);
     let mut rd = [Vec3::ZERO; LANES];
@@ -261,8 +275,8 @@ pub fn radiance8(
         let mut albedo = [Vec3::ZERO; LANES];
         let mut mat_id = [0usize; LANES];
         let mut nee_bits = 0u32;
-        // The shading lanes whose material is not plain Lambert.
-        let mut general = 0u32;
+        // The shading lanes whose material is opaque but not plain Lambert, and those of glass.
+        let (mut general, mut glass_bits) = (0u32, 0u32);
         let mut emit = [Vec3::ZERO; LANES];
         let mut emit_w = [1f32; LANES];
         let mut shading = 0u32;
@@ -332,7 +346,9 @@ pub fn radiance8(
             if m.nee {
                 nee_bits |= 1 << k;
             }
-            if !m.lambert {
+            if m.glass {
+                glass_bits |= 1 << k;
+            } else if !m.lambert {
                 general |= 1 << k;
             }
         }
@@ -349,8 +365,9 @@ pub fn radiance8(
         let act = M8::from_bits(shading);
         let wo_world = rd.neg();
         let (pv, mut ngv, mut nsv) = (V8::from_lanes(&p), V8::from_lanes(&ng), V8::from_lanes(&ns));
-        let flip = ngv.dot(wo_world).lt(zero);
-        ngv = V8::select(flip, ngv.neg(), ngv);
+        // Seen from the back face: also where glass's relative index inverts.
+        let back_face = ngv.dot(wo_world).lt(zero);
+        ngv = V8::select(back_face, ngv.neg(), ngv);
         let flip = nsv.dot(ngv).lt(zero);
         nsv = V8::select(flip, nsv.neg(), nsv);
         let ns_flipped = nsv.to_lanes();
@@ -367,6 +384,12 @@ pub fn radiance8(
         let act = act.and_not(wo.z.le(zero));
         let plane_error = F8::from_array(plane_error);
         let origin = offset_ray_origin(pv.add(ngv.scale(plane_error)), ngv, scale);
+        // Glass: the other side's origin (`Scene::spawn_origin` with −ng), for transmission.
+        let glass = M8::from_bits(glass_bits);
+        let origin_below = (glass_bits != 0).then(|| {
+            let down = ngv.neg();
+            offset_ray_origin(pv.add(down.scale(plane_error)), down, scale)
+        });
         let albedo = V8::from_lanes(&albedo);
         let f_lambert = V8::zero().add(albedo.scale(F8::splat(INV_PI)));
         // Where some lane is not plain Lambert, every lane takes the general opaque BSDF (whose
@@ -398,6 +421,25 @@ pub fn radiance8(
             Some(b) => {
                 let u_lobe = F8::from_array(u_bsdf[(dims::BSDF_LOBE % 4) as usize]);
                 b.sample(wo, u_lobe, u_dir.0, u_dir.1, cosine)
+            }
+        };
+        let glass8 = (glass_bits != 0).then(|| {
+            let m = mat_id.map(|i| materials[i]);
+            let eta = F8::from_array(m.map(|m| m.eta));
+            Glass8 { eta: select(back_face, one / eta, eta), alpha: F8::from_array(m.map(|m| m.alpha)), tint: albedo }
+        });
+        let next = match &glass8 {
+            None => next,
+            Some(g) => {
+                let u_lobe = F8::from_array(u_bsdf[(dims::BSDF_LOBE % 4) as usize]);
+                let s = g.sample(wo, u_lobe, u_dir.0, u_dir.1);
+                Sample8 {
+                    wi: V8::select(glass, s.wi, next.wi),
+                    f: V8::select(glass, s.f, next.f),
+                    pdf: select(glass, s.pdf, next.pdf),
+                    delta: M8::select(glass, s.delta, next.delta),
+                    ok: M8::select(glass, s.ok, next.ok),
+                }
             }
         };
         let has_next = act & next.ok;
@@ -486,15 +528,24 @@ pub fn radiance8(
             } else {
                 (lwi, lle, lpdf, ok)
             };
-            // `Path::finish`: the light above the true surface, f from the BSDF.
+            // `Path::finish`: the light above the true surface (reflection) or, through glass,
+            // below it; f from the BSDF.
             let wil = frame.to_local(lwi);
             let above = wil.z.gt(zero) & lwi.dot(ngv).gt(zero);
-            let ok = ok & above & lle.ne_zero();
+            let below = glass & wil.z.lt(zero) & lwi.dot(ngv).lt(zero);
+            let ok = ok & (above | below) & lle.ne_zero();
             // `Bsdf::eval_pdf`. Its Lambert shortcut: wo.z > 0 on every shading lane and
             // wil.z > 0 on every `above` one, so f is base/π and the pdf cos/π there.
             let (f, f_pdf) = match &bsdf {
                 None => (f_lambert, wil.z.max_finite(zero) * F8::splat(INV_PI)),
                 Some(b) => b.eval_pdf(wo, wil),
+            };
+            let (f, f_pdf) = match &glass8 {
+                None => (f, f_pdf),
+                Some(g) => {
+                    let (gf, gp) = g.eval_pdf(wo, wil);
+                    (V8::select(glass, gf, f), select(glass, gp, f_pdf))
+                }
             };
             let ok = ok & f.ne_zero();
             if ok.any() {
@@ -502,6 +553,10 @@ pub fn radiance8(
                 // The shadow ray: to just off an area light's surface, stopping a relative
                 // SHADOW_EPSILON short; to a point light, stopping 1e-5 short; to infinity along
                 // the sample's direction.
+                let origin = match origin_below {
+                    Some(o) => V8::select(below, o, origin),
+                    None => origin,
+                };
                 let target = offset_ray_origin(lp, ln, scale);
                 let target = if others { V8::select(point, V8::from_lanes(&op), target) } else { target };
                 let sto = target.sub(origin);
@@ -550,19 +605,28 @@ pub fn radiance8(
         // The step to the next vertex (`Path::finish`).
         let wi_world = frame.to_world(next.wi);
         let dn = wi_world.dot(ngv);
-        let go = has_next & !dn.le(zero) & !dn.eq(zero);
+        // A shading normal can send a direction to the wrong side of the true surface.
+        let transmitted = next.wi.z.lt(zero);
+        let go = has_next.and_not(dn.le(zero).xor(transmitted) | dn.eq(zero));
         let nb = beta.mul(next.weight());
         let go = go & nb.is_finite() & nb.ne_zero();
         beta = V8::select(go, nb, beta);
+        let through = go & transmitted;
+        if let (true, Some(g)) = (through.any(), &glass8) {
+            eta_scale = select(through, eta_scale * (g.eta * g.eta), eta_scale);
+        }
         (prev_p, prev_n, prev_pdf) = (p, ns_flipped, next.pdf.to_array());
         prev_bits = (!next.delta).bits();
-        ro = origin.to_lanes();
+        ro = match origin_below {
+            Some(o) => V8::select(transmitted, o, origin).to_lanes(),
+            None => origin.to_lanes(),
+        };
         rd = wi_world;
         depth += 1;
         let mut go = go;
         if depth >= settings.rr_depth {
-            // β's largest channel times η² of the transmissions so far, 1 without glass (x·1 = x).
-            let m = beta.max_element();
+            // β's largest channel times η² of the transmissions so far.
+            let m = beta.max_element() * eta_scale;
             let low = m.lt(one);
             let q = (one - m).max_finite(zero);
             let u_rr = F8::from_array(u_bsdf[(dims::RUSSIAN_ROULETTE % 4) as usize]);

@@ -69,7 +69,7 @@ fn eight_lanes_render_every_test_scene_they_take_bit_for_bit() {
         }
     }
     taken.dedup();
-    for must in ["cornell", "envlit", "many_lights", "sphere_light", "sphere_lights", "veach", "lights.glb"] {
+    for must in ["cornell", "envlit", "glass", "many_lights", "sphere_light", "sphere_lights", "veach", "lights.glb"] {
         assert!(taken.iter().any(|t| t.contains(must)), "the kernel no longer takes {must} ({taken:?})");
     }
 }
@@ -254,6 +254,40 @@ fn eight_lanes_match_under_environments_and_punctual_lights() {
     }
 }
 
+/// Glass: smooth and rough (alpha just under and over `Ggx::DELTA_ALPHA`, roughness 0.3 and 1),
+/// ior 1 (no interface: a delta), 1.0001, 1.5 and 3 (total internal reflection inside the
+/// sphere), tinted, as a smooth-shaded closed sphere in a room of Lambert or metal walls.
+#[test]
+fn eight_lanes_match_through_glass_at_the_extremes() {
+    let base = RenderSettings { width: 24, height: 18, spp: 11, seed: 13, ..RenderSettings::default() };
+    let threshold = Ggx::DELTA_ALPHA.sqrt();
+    let glass = |ior: f32, roughness: f32, tint: Vec3| Material {
+        transmission: 1.0,
+        metallic: 0.0,
+        ior,
+        ..metal(tint, roughness)
+    };
+    let grey = lambert(Vec3::splat(0.6));
+    let cases = [
+        ("smooth glass", grey.clone(), glass(1.5, 0.0, Vec3::ONE)),
+        ("rough glass 0.3 in a metal room", metal(Vec3::splat(0.9), 0.2), glass(1.5, 0.3, Vec3::ONE)),
+        ("glass roughness 1", grey.clone(), glass(1.5, 1.0, Vec3::new(0.9, 0.6, 0.3))),
+        ("glass alpha under the delta threshold", grey.clone(), glass(1.5, threshold * 0.99, Vec3::ONE)),
+        ("glass alpha over the delta threshold", grey.clone(), glass(1.5, threshold * 1.01, Vec3::ONE)),
+        ("ior 1", grey.clone(), glass(1.0, 0.3, Vec3::ONE)),
+        ("ior 1.0001", grey.clone(), glass(1.0001, 0.2, Vec3::ONE)),
+        ("ior 3, tinted", grey.clone(), glass(3.0, 0.1, Vec3::new(0.2, 0.9, 0.5))),
+    ];
+    for (what, wall, sphere) in cases {
+        let mut scene = room_with(wall, sphere, 1.0, 5.0);
+        for (max_depth, rr_depth, kind) in [(3, 5, LightSamplerKind::Power), (12, 1, LightSamplerKind::Tree)] {
+            scene.set_light_sampler(kind);
+            let s = RenderSettings { max_depth, rr_depth, light_sampler: kind, ..base.clone() };
+            same_with_lanes_or_not(&mut scene, &s, &format!("{what}, {kind:?}, depth {max_depth}, rr {rr_depth}"));
+        }
+    }
+}
+
 /// A mesh above `BATCH_RAYS_ABOVE` triangles: the kernel's rays go to the BVH in batches.
 #[test]
 fn eight_lanes_match_where_the_bvh_batches_rays() {
@@ -271,8 +305,8 @@ fn eight_lanes_match_where_the_bvh_batches_rays() {
     same_with_lanes_or_not(&mut scene, &s, "level-7 sphere");
 }
 
-/// What the kernel does not do, it leaves to the scalar path: transmission, coats and sheen,
-/// other integrators, the scalar reference.
+/// What the kernel does not do, it leaves to the scalar path: partial transmission, absorbing
+/// volumes, coats and sheen, other integrators, the scalar reference.
 #[test]
 fn eight_lanes_take_only_what_they_render() {
     let s = RenderSettings::default();
@@ -284,11 +318,17 @@ fn eight_lanes_take_only_what_they_render() {
     plain.set_scalar_reference(true);
     assert!(plain.lanes(&s).is_none(), "the scalar reference must not run the kernel");
     let glass = Material { transmission: 1.0, metallic: 0.0, ..metal(Vec3::ONE, 0.0) };
+    let half_glass = Material { transmission: 0.5, ..glass.clone() };
+    let metal_over_glass = Material { metallic: 0.5, ..glass.clone() };
+    let absorbing = Material { absorption: Vec3::splat(0.5), ..glass.clone() };
     let coat = Material { clearcoat: 1.0, ..metal(Vec3::ONE, 0.3) };
     let sheen = Material { sheen_color: Vec3::ONE, ..lambert(Vec3::splat(0.5)) };
     let cases = [
         ("a metal surface", metal(Vec3::ONE, 0.3), true),
-        ("glass", glass, false),
+        ("glass", glass, true),
+        ("half glass", half_glass, false),
+        ("metal over glass", metal_over_glass, false),
+        ("absorbing glass", absorbing, false),
         ("a coat", coat, false),
         ("sheen", sheen, false),
     ];

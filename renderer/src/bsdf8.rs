@@ -59,7 +59,7 @@ fn sin_cos_azimuth(x: F8) -> (F8, F8) {
 
 /// A 3-vector's `normalize_or_zero` (glam: times 1/length where that is finite and positive).
 #[inline(always)]
-fn normalize_or_zero(v: V8) -> V8 {
+pub(crate) fn normalize_or_zero(v: V8) -> V8 {
     let rcp = F8::splat(1.0) / v.dot(v).sqrt();
     V8::select(rcp.is_finite() & rcp.gt(F8::zero()), v.scale(rcp), V8::zero())
 }

@@ -283,6 +283,11 @@ impl V8 {
     pub fn dot(self, o: V8) -> F8 {
         self.x * o.x + self.y * o.y + self.z * o.z
     }
+    /// glam's `cross`: (y·z' − y'·z, z·x' − z'·x, x·y' − x'·y).
+    #[inline(always)]
+    pub fn cross(self, o: V8) -> V8 {
+        V8 { x: self.y * o.z - o.y * self.z, y: self.z * o.x - o.z * self.x, z: self.x * o.y - o.x * self.y }
+    }
     #[inline(always)]
     pub fn scale(self, s: F8) -> V8 {
         V8 { x: self.x * s, y: self.y * s, z: self.z * s }

@@ -17,13 +17,15 @@
 
 use crate::bsdf::Bsdf;
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-use crate::bsdf8::{sin_cos_quarter, Glass8, OpaqueBsdf8, Sample8};
+use crate::bsdf8::{normalize_or_zero, sin_cos_quarter, Glass8, OpaqueBsdf8, Sample8};
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use crate::lanes::{select, F8, I8, M8, V8};
 use crate::material::Material;
 use crate::math::Vec3;
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use crate::math::{INV_PI, PI, SHADOW_EPSILON};
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+use crate::mesh::PLANE_ERROR_ULPS;
 use crate::mesh::{flags, Mesh};
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use crate::sampler::{dims, PixelSample};
@@ -162,6 +164,44 @@ fn sample_uniform_triangle(ux: F8, uy: F8) -> (F8, F8) {
     (b1, b2)
 }
 
+/// `Mesh::surface_point`'s position, normals and plane error, eight lanes.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[derive(Clone, Copy)]
+struct SurfacePoint8 {
+    p: V8,
+    ng: V8,
+    ns: V8,
+    plane_error: F8,
+}
+
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+impl SurfacePoint8 {
+    /// The point at barycentrics (`b1`, `b2`) of triangles `v`, with vertex normals `n` on the
+    /// lanes in `smooth`.
+    #[inline(always)]
+    fn new(v: [V8; 3], n: Option<[V8; 3]>, smooth: M8, b1: F8, b2: F8) -> SurfacePoint8 {
+        let (zero, one) = (F8::zero(), F8::splat(1.0));
+        let z_axis = V8 { x: zero, y: zero, z: one };
+        let b0 = one - b1 - b2;
+        let (e1, e2) = (v[1].sub(v[0]), v[2].sub(v[0]));
+        // From the vertices, relative to the first: on the triangle's plane to about an ulp.
+        let p = v[0].add(e1.scale(b1)).add(e2.scale(b2));
+        let ng = normalize_or_zero(e1.cross(e2));
+        let ng = V8::select(ng.ne_zero(), ng, z_axis);
+        let ns = match n {
+            Some(n) => {
+                let s = normalize_or_zero(n[0].scale(b0).add(n[1].scale(b1)).add(n[2].scale(b2)));
+                V8::select(smooth & s.ne_zero() & s.is_finite(), s, ng)
+            }
+            None => ng,
+        };
+        // `mesh::plane_error`.
+        let extent = V8 { x: e1.x.abs() + e2.x.abs(), y: e1.y.abs() + e2.y.abs(), z: e1.z.abs() + e2.z.abs() };
+        let plane_error = F8::splat(PLANE_ERROR_ULPS * (f32::EPSILON / 2.0)) * extent.max_element();
+        SurfacePoint8 { p, ng, ns, plane_error }
+    }
+}
+
 /// `math::Frame`, eight lanes.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[derive(Clone, Copy)]
@@ -270,8 +310,6 @@ pub fn radiance8(
         let dirs = rd.to_lanes();
         let mut u_bsdf = [[0f32; LANES]; 4];
         let mut u_light = [[0f32; LANES]; 4];
-        let (mut p, mut ng, mut ns) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
-        let mut plane_error = [0f32; LANES];
         let mut albedo = [Vec3::ZERO; LANES];
         let mut mat_id = [0usize; LANES];
         let mut nee_bits = 0u32;
@@ -303,6 +341,11 @@ pub fn radiance8(
         }
         let mut hits = [None; LANES];
         scene.intersect_surface_batch(&qo[..count], &qd[..count], &[0; LANES][..count], &mut hits[..count]);
+        // The hit triangles' vertices, gathered lane by lane; the surface points eight-wide.
+        let (mut v0, mut v1, mut v2) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
+        let (mut n0, mut n1, mut n2) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
+        let (mut hb1, mut hb2, mut tri) = ([0f32; LANES], [0f32; LANES], [0u32; LANES]);
+        let (mut hit_bits, mut smooth) = (0u32, 0u32);
         for (j, hit) in hits[..count].iter().enumerate() {
             let k = lane[j] as usize;
             // A lane that finds nothing, or stops here, is not shading: it is not alive next round.
@@ -323,15 +366,35 @@ pub fn radiance8(
             if depth == 0 {
                 draw(k);
             }
-            let sp = scene.mesh.surface_point(hit.triangle, hit.b1, hit.b2);
-            let material_id = scene.mesh.triangles[hit.triangle as usize].material as usize;
+            hit_bits |= 1 << k;
+            let mesh = &scene.mesh;
+            let t = &mesh.triangles[hit.triangle as usize];
+            let [i0, i1, i2] = [t.v[0] as usize, t.v[1] as usize, t.v[2] as usize];
+            (v0[k], v1[k], v2[k]) = (mesh.positions[i0], mesh.positions[i1], mesh.positions[i2]);
+            if t.flags & flags::NORMALS != 0 {
+                smooth |= 1 << k;
+                (n0[k], n1[k], n2[k]) = (mesh.normals[i0], mesh.normals[i1], mesh.normals[i2]);
+            }
+            (hb1[k], hb2[k], tri[k]) = (hit.b1, hit.b2, hit.triangle);
+        }
+        let sp = SurfacePoint8::new(
+            [v0, v1, v2].map(|v| V8::from_lanes(&v)),
+            (smooth != 0).then(|| [n0, n1, n2].map(|n| V8::from_lanes(&n))),
+            M8::from_bits(smooth),
+            F8::from_array(hb1),
+            F8::from_array(hb2),
+        );
+        let (sp_p, sp_ng) = (sp.p.to_lanes(), sp.ng.to_lanes());
+        for k in lanes_of(hit_bits) {
+            let material_id = scene.mesh.triangles[tri[k] as usize].material as usize;
             let material = &scene.materials[material_id];
             if material.is_emissive() {
-                let le = crate::light::emitted(material, &scene.textures, sp.ng, sp.uv, -dirs[k]);
+                // No emissive texture (`LaneMaterial::table`): no texture coordinates needed.
+                let le = crate::light::emitted(material, &scene.textures, sp_ng[k], Default::default(), -dirs[k]);
                 if le != Vec3::ZERO {
                     emit[k] = le;
                     if prev_bits & (1 << k) != 0 {
-                        let light_pdf = scene.lights.pdf(hit.triangle, prev_p[k], Some(prev_n[k]), sp.p, sp.ng);
+                        let light_pdf = scene.lights.pdf(tri[k], prev_p[k], Some(prev_n[k]), sp_p[k], sp_ng[k]);
                         emit_w[k] = crate::integrator::mis_weight(settings.mis_heuristic, prev_pdf[k], light_pdf);
                     }
                 }
@@ -340,7 +403,6 @@ pub fn radiance8(
                 continue;
             }
             shading |= 1 << k;
-            (p[k], ng[k], ns[k], plane_error[k]) = (sp.p, sp.ng, sp.ns, sp.plane_error);
             let m = materials[material_id];
             (albedo[k], mat_id[k]) = (m.base, material_id);
             if m.nee {
@@ -352,6 +414,7 @@ pub fn radiance8(
                 general |= 1 << k;
             }
         }
+        let p = sp_p;
         // Emission found: l += β·Le·w on the lanes that met some (w = 1 after the camera ray).
         let emit_v = V8::from_lanes(&emit);
         let w = F8::from_array(emit_w);
@@ -364,7 +427,7 @@ pub fn radiance8(
         // Eight lanes: the frame, the BSDF's sample, the light's point, MIS, the next ray.
         let act = M8::from_bits(shading);
         let wo_world = rd.neg();
-        let (pv, mut ngv, mut nsv) = (V8::from_lanes(&p), V8::from_lanes(&ng), V8::from_lanes(&ns));
+        let (pv, mut ngv, mut nsv) = (sp.p, sp.ng, sp.ns);
         // Seen from the back face: also where glass's relative index inverts.
         let back_face = ngv.dot(wo_world).lt(zero);
         ngv = V8::select(back_face, ngv.neg(), ngv);
@@ -382,7 +445,7 @@ pub fn radiance8(
             (frame_s, wo_s)
         };
         let act = act.and_not(wo.z.le(zero));
-        let plane_error = F8::from_array(plane_error);
+        let plane_error = sp.plane_error;
         let origin = offset_ray_origin(pv.add(ngv.scale(plane_error)), ngv, scale);
         // Glass: the other side's origin (`Scene::spawn_origin` with −ng), for transmission.
         let glass = M8::from_bits(glass_bits);

@@ -36,12 +36,29 @@ fn luminance(c: V8) -> F8 {
 
 /// `math::sin_cos_quarter`, eight lanes.
 #[inline(always)]
-pub(crate) fn sin_cos_quarter(x: F8) -> (F8, F8) {
+fn sin_cos_quarter(x: F8) -> (F8, F8) {
     let z = x * x;
     let c = F8::splat;
     let s = ((c(-1.951_529_6e-4) * z + c(8.332_161e-3)) * z - c(1.666_665_5e-1)) * z * x + x;
     let co = ((c(2.443_315_7e-5) * z - c(1.388_731_6e-3)) * z + c(4.166_664_6e-2)) * z * z - c(0.5) * z + c(1.0);
     (s, co)
+}
+
+/// `math::sample_cosine_hemisphere`, eight lanes (both wedges worked out, one kept).
+#[inline(always)]
+pub(crate) fn sample_cosine_hemisphere(ux: F8, uy: F8) -> V8 {
+    let (two, one, zero) = (F8::splat(2.0), F8::splat(1.0), F8::zero());
+    let (ox, oy) = (two * ux - one, two * uy - one);
+    let centre = ox.eq(zero) & oy.eq(zero);
+    let wide = ox.abs().gt(oy.abs());
+    let q = F8::splat(PI / 4.0);
+    let arg = select(wide, q * (oy / ox), q * (ox / oy));
+    let (s, c) = sin_cos_quarter(arg);
+    let dx = select(wide, ox * c, oy * s);
+    let dy = select(wide, ox * s, oy * c);
+    let (dx, dy) = (select(centre, zero, dx), select(centre, zero, dy));
+    let z = (one - dx * dx - dy * dy).max_finite(zero).sqrt();
+    V8 { x: dx, y: dy, z }
 }
 
 /// `math::sin_cos_azimuth`: reduced to the nearest multiple of π/2, then turned by its quadrant.
@@ -138,6 +155,17 @@ pub(crate) struct Sample8 {
 }
 
 impl Sample8 {
+    /// Lane by lane, `a` where `m` is set, else `b`.
+    #[inline(always)]
+    pub fn select(m: M8, a: Sample8, b: Sample8) -> Sample8 {
+        Sample8 {
+            wi: V8::select(m, a.wi, b.wi),
+            f: V8::select(m, a.f, b.f),
+            pdf: select(m, a.pdf, b.pdf),
+            delta: M8::select(m, a.delta, b.delta),
+            ok: M8::select(m, a.ok, b.ok),
+        }
+    }
     /// `BsdfSample::weight`: f·|cos θi|/pdf, or f/pdf for a delta event.
     #[inline(always)]
     pub fn weight(&self) -> V8 {

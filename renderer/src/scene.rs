@@ -164,8 +164,9 @@ impl Scene {
     }
 
     /// The eight-lane kernel's material table when it renders this scene with `settings`
-    /// ([`crate::spmd::radiance8`]): every surface an untextured, opaque metallic-roughness
-    /// material (Lambert, plastic or metal), with the MIS integrator and some light to sample.
+    /// ([`crate::spmd::radiance8`]): every surface an untextured metallic-roughness material,
+    /// opaque or all glass ([`crate::spmd::LaneMaterial::table`]), no alpha blending or masking,
+    /// the MIS integrator and some light to sample.
     pub fn lanes(&self, settings: &crate::RenderSettings) -> Option<&[crate::spmd::LaneMaterial]> {
         let usable = cfg!(all(target_arch = "x86_64", target_feature = "avx2"))
             && self.lanes
@@ -516,11 +517,6 @@ impl Scene {
     /// The scale [`Self::offset_ray_origin`] offsets by ([`crate::math::offset_scale`]).
     pub fn offset_scale(&self) -> f32 {
         self.offset_scale
-    }
-
-    /// Material `material`'s BSDF where no texture or vertex colour varies it, if so.
-    pub fn uniform_bsdf(&self, material: u32) -> Option<Bsdf> {
-        self.uniform_bsdfs.get(material as usize).copied().flatten()
     }
 
     /// The camera to render through: the file's camera `index`, or a framing default when the file

@@ -1,7 +1,7 @@
 //! Eight paths in lock step, their shading done on eight-lane registers ([`crate::lanes`]): the
-//! SPMD kernel of issue 15, for the scenes whose every surface is an untextured, opaque
-//! metallic-roughness material (Lambert, plastic, metal: [`crate::bsdf8`]), lit by emissive
-//! triangles, an environment or punctual lights (the Cornell box's, Veach's and envlit's kind).
+//! SPMD kernel of issue 15, for the scenes whose every surface is an untextured metallic-roughness
+//! material, opaque (Lambert, plastic, metal) or all glass ([`crate::bsdf8`]), lit by emissive
+//! triangles, an environment or punctual lights (every scene of the benchmark suite).
 //!
 //! Each lane runs exactly [`crate::integrator::radiance`]'s arithmetic for its path, in its
 //! order, so a lane's radiance is bit-equal to the scalar path's (`renderer/tests/spmd.rs`
@@ -17,13 +17,13 @@
 
 use crate::bsdf::Bsdf;
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-use crate::bsdf8::{normalize_or_zero, sin_cos_quarter, Glass8, OpaqueBsdf8, Sample8};
+use crate::bsdf8::{normalize_or_zero, sample_cosine_hemisphere, Glass8, OpaqueBsdf8, Sample8};
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use crate::lanes::{select, F8, I8, M8, V8};
 use crate::material::Material;
 use crate::math::Vec3;
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-use crate::math::{INV_PI, PI, SHADOW_EPSILON};
+use crate::math::{INV_PI, SHADOW_EPSILON};
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use crate::mesh::PLANE_ERROR_ULPS;
 use crate::mesh::{flags, Mesh};
@@ -129,24 +129,6 @@ fn lanes_of(mut bits: u32) -> impl Iterator<Item = usize> {
             k
         })
     })
-}
-
-/// `math::sample_cosine_hemisphere`, eight lanes (both wedges worked out, one kept).
-#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-#[inline(always)]
-fn sample_cosine_hemisphere(ux: F8, uy: F8) -> V8 {
-    let (two, one, zero) = (F8::splat(2.0), F8::splat(1.0), F8::zero());
-    let (ox, oy) = (two * ux - one, two * uy - one);
-    let centre = ox.eq(zero) & oy.eq(zero);
-    let wide = ox.abs().gt(oy.abs());
-    let q = F8::splat(PI / 4.0);
-    let arg = select(wide, q * (oy / ox), q * (ox / oy));
-    let (s, c) = sin_cos_quarter(arg);
-    let dx = select(wide, ox * c, oy * s);
-    let dy = select(wide, ox * s, oy * c);
-    let (dx, dy) = (select(centre, zero, dx), select(centre, zero, dy));
-    let z = (one - dx * dx - dy * dy).max_finite(zero).sqrt();
-    V8 { x: dx, y: dy, z }
 }
 
 /// `math::sample_uniform_triangle`'s b1 and b2, eight lanes.
@@ -455,17 +437,16 @@ pub fn radiance8(
         });
         let albedo = V8::from_lanes(&albedo);
         let f_lambert = V8::zero().add(albedo.scale(F8::splat(INV_PI)));
+        // The lanes' materials, where some lane needs more than its albedo.
+        let m = (general | glass_bits != 0).then(|| mat_id.map(|i| materials[i]));
         // Where some lane is not plain Lambert, every lane takes the general opaque BSDF (whose
         // numbers are the Lambert shortcut's on a Lambert lane: `bsdf.rs`'s test).
-        let bsdf = (general != 0).then(|| {
-            let m = mat_id.map(|i| materials[i]);
-            OpaqueBsdf8 {
-                base: albedo,
-                metallic: F8::from_array(m.map(|m| m.metallic)),
-                specular: F8::from_array(m.map(|m| m.specular)),
-                f0: V8::from_lanes(&m.map(|m| m.f0)),
-                alpha: F8::from_array(m.map(|m| m.alpha)),
-            }
+        let bsdf = m.filter(|_| general != 0).map(|m| OpaqueBsdf8 {
+            base: albedo,
+            metallic: F8::from_array(m.map(|m| m.metallic)),
+            specular: F8::from_array(m.map(|m| m.specular)),
+            f0: V8::from_lanes(&m.map(|m| m.f0)),
+            alpha: F8::from_array(m.map(|m| m.alpha)),
         });
 
         // BSDF sample, drawn before NEE as the scalar path does.
@@ -473,6 +454,7 @@ pub fn radiance8(
             F8::from_array(u_bsdf[(dims::BSDF_DIR % 4) as usize]),
             F8::from_array(u_bsdf[(dims::BSDF_DIR % 4 + 1) as usize]),
         );
+        let u_lobe = F8::from_array(u_bsdf[(dims::BSDF_LOBE % 4) as usize]);
         let cosine = sample_cosine_hemisphere(u_dir.0, u_dir.1);
         let next = match &bsdf {
             // Lambert: the cosine hemisphere.
@@ -481,29 +463,15 @@ pub fn radiance8(
                 let ok = cosine.z.gt(zero) & pdf.gt(zero) & pdf.is_finite();
                 Sample8 { wi: cosine, f: f_lambert, pdf, delta: M8::from_bits(0), ok }
             }
-            Some(b) => {
-                let u_lobe = F8::from_array(u_bsdf[(dims::BSDF_LOBE % 4) as usize]);
-                b.sample(wo, u_lobe, u_dir.0, u_dir.1, cosine)
-            }
+            Some(b) => b.sample(wo, u_lobe, u_dir.0, u_dir.1, cosine),
         };
-        let glass8 = (glass_bits != 0).then(|| {
-            let m = mat_id.map(|i| materials[i]);
+        let glass8 = m.filter(|_| glass_bits != 0).map(|m| {
             let eta = F8::from_array(m.map(|m| m.eta));
             Glass8 { eta: select(back_face, one / eta, eta), alpha: F8::from_array(m.map(|m| m.alpha)), tint: albedo }
         });
         let next = match &glass8 {
             None => next,
-            Some(g) => {
-                let u_lobe = F8::from_array(u_bsdf[(dims::BSDF_LOBE % 4) as usize]);
-                let s = g.sample(wo, u_lobe, u_dir.0, u_dir.1);
-                Sample8 {
-                    wi: V8::select(glass, s.wi, next.wi),
-                    f: V8::select(glass, s.f, next.f),
-                    pdf: select(glass, s.pdf, next.pdf),
-                    delta: M8::select(glass, s.delta, next.delta),
-                    ok: M8::select(glass, s.ok, next.ok),
-                }
-            }
+            Some(g) => Sample8::select(glass, g.sample(wo, u_lobe, u_dir.0, u_dir.1), next),
         };
         let has_next = act & next.ok;
 
@@ -560,23 +528,31 @@ pub fn radiance8(
                     two_sided |= 1 << k;
                 }
             }
-            // `LightSet::sample_selected`'s area light.
-            let (b1, b2) = sample_uniform_triangle(F8::from_array(u_pos.0), F8::from_array(u_pos.1));
-            let lng = V8::from_lanes(&lng);
-            let lp = V8::from_lanes(&lp0).add(V8::from_lanes(&le1).scale(b1)).add(V8::from_lanes(&le2).scale(b2));
-            let to = lp.sub(pv);
-            let dist2 = to.dot(to);
-            let ok = nee & M8::from_bits(area) & dist2.gt(zero) & dist2.is_finite();
-            let dist = dist2.sqrt();
-            let lwi = to.div(dist);
-            let cos_l = lng.dot(lwi.neg());
-            let ok = ok & !cos_l.eq(zero);
-            // `light::emitted`: one-sided emitters are dark from behind.
-            let lit = M8::from_bits(two_sided) | cos_l.gt(zero);
-            let lle = V8::select(lit, V8::from_lanes(&lle), V8::zero());
-            let lpdf = F8::from_array(lpmf) * dist2 / (cos_l.abs() * F8::from_array(larea));
-            let ok = ok & lpdf.gt(zero) & lpdf.is_finite();
-            let ln = V8::select(cos_l.gt(zero), lng, lng.neg());
+            // `LightSet::sample_selected`'s area light: the point, the direction to it, its
+            // radiance and pdf, and the side it faces (None when no lane chose an area light).
+            let areas = (area != 0).then(|| {
+                let (b1, b2) = sample_uniform_triangle(F8::from_array(u_pos.0), F8::from_array(u_pos.1));
+                let lng = V8::from_lanes(&lng);
+                let lp = V8::from_lanes(&lp0).add(V8::from_lanes(&le1).scale(b1)).add(V8::from_lanes(&le2).scale(b2));
+                let to = lp.sub(pv);
+                let dist2 = to.dot(to);
+                let ok = nee & M8::from_bits(area) & dist2.gt(zero) & dist2.is_finite();
+                let dist = dist2.sqrt();
+                let lwi = to.div(dist);
+                let cos_l = lng.dot(lwi.neg());
+                let ok = ok & !cos_l.eq(zero);
+                // `light::emitted`: one-sided emitters are dark from behind.
+                let lit = M8::from_bits(two_sided) | cos_l.gt(zero);
+                let lle = V8::select(lit, V8::from_lanes(&lle), V8::zero());
+                let lpdf = F8::from_array(lpmf) * dist2 / (cos_l.abs() * F8::from_array(larea));
+                let ok = ok & lpdf.gt(zero) & lpdf.is_finite();
+                let ln = V8::select(cos_l.gt(zero), lng, lng.neg());
+                (lp, ln, lwi, lle, lpdf, ok)
+            });
+            let (lwi, lle, lpdf, ok) = match areas {
+                Some((_, _, lwi, lle, lpdf, ok)) => (lwi, lle, lpdf, ok),
+                None => (V8::zero(), V8::zero(), one, M8::from_bits(0)),
+            };
             // The other lights' samples in with the area lights'.
             let others = other != 0;
             let (other, delta, infinite) = (M8::from_bits(other), M8::from_bits(delta), M8::from_bits(infinite));
@@ -620,7 +596,10 @@ pub fn radiance8(
                     Some(o) => V8::select(below, o, origin),
                     None => origin,
                 };
-                let target = offset_ray_origin(lp, ln, scale);
+                let target = match areas {
+                    Some((lp, ln, ..)) => offset_ray_origin(lp, ln, scale),
+                    None => V8::zero(),
+                };
                 let target = if others { V8::select(point, V8::from_lanes(&op), target) } else { target };
                 let sto = target.sub(origin);
                 let sdist = sto.dot(sto).sqrt();

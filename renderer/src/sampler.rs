@@ -156,6 +156,134 @@ pub fn sobol_4d_pair(index: u32, seed_a: u32, seed_b: u32) -> ([f32; 4], [f32; 4
     }
 }
 
+/// The sets `set_a` and `set_b` of up to eight samples of one pixel at once, dimension-major:
+/// `a[i][k]` and `b[i][k]` are dimension i of sample `samplers[k]`'s sets, the numbers
+/// [`PixelSample::get_4d_pair`] gives bit for bit (lanes past `samplers.len()` repeat sample 0).
+/// False, with nothing written, unless every sampler is Sobol with the same pixel and the same
+/// 2^16 block, so the eight share their seeds: the SPMD kernel's lanes are one pixel's samples
+/// (`spmd::radiance8`), where this does once what eight `get_4d_pair` calls did eight times (the
+/// two set seeds, the index scramble's hash and the dimensions' scramble hashes), runs the index
+/// scramble and the dimensions' scrambles across the lanes, and leaves each dimension in the
+/// lane order the kernel's registers want.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[inline(always)]
+pub(crate) fn get_4d_pair_lanes(
+    samplers: &[PixelSample],
+    set_a: u32,
+    set_b: u32,
+    a: &mut [[f32; 8]; 4],
+    b: &mut [[f32; 8]; 4],
+) -> bool {
+    let Some(first) = samplers.first() else { return false };
+    let same = |s: &PixelSample| {
+        s.kind == SamplerKind::Sobol && s.pixel_seed == first.pixel_seed && s.index >> 16 == first.index >> 16
+    };
+    if samplers.len() > 8 || !samplers.iter().all(same) {
+        return false;
+    }
+    let mut index = [first.index & 0xffff; 8];
+    for (i, s) in index.iter_mut().zip(samplers) {
+        *i = s.index & 0xffff;
+    }
+    let (seed_a, seed_b) = (first.sobol_seed(set_a), first.sobol_seed(set_b));
+    // SAFETY: AVX2 is enabled at compile time; loads and stores are unaligned.
+    unsafe { sobol_pair_lanes_avx2(index, [seed_a, seed_b], [a, b]) };
+    true
+}
+
+/// [`get_4d_pair_lanes`]' arithmetic: `sobol_4d(index[k], seeds[s])` for the eight lanes k into
+/// `out[s]`, dimension-major.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[inline(always)]
+unsafe fn sobol_pair_lanes_avx2(index: [u32; 8], seeds: [u32; 2], out: [&mut [[f32; 8]; 4]; 2]) {
+    use sobol_burley::parts::hash;
+    use std::arch::x86_64::*;
+    let index_rev = reverse_bits_avx2(_mm256_loadu_si256(index.as_ptr() as *const __m256i));
+    for (seed, out) in seeds.into_iter().zip(out) {
+        // `sobol_int4_rev`: the index scramble (one hash for the eight lanes), then the table rows.
+        let rev = owen_scramble_rev_avx2(index_rev, _mm256_set1_epi32(hash(seed ^ 0x79c6_8e4a) as i32));
+        let mut rev_lanes = [0u32; 8];
+        _mm256_storeu_si256(rev_lanes.as_mut_ptr() as *mut __m256i, rev);
+        let tables = &SOBOL_BYTE_TABLES;
+        let row = |k: usize| {
+            let r = rev_lanes[k];
+            let (hi, lo) = (&tables[1][(r >> 24) as usize], &tables[0][((r >> 16) & 0xff) as usize]);
+            _mm_xor_si128(
+                _mm_loadu_si128(hi.as_ptr() as *const __m128i),
+                _mm_loadu_si128(lo.as_ptr() as *const __m128i),
+            )
+        };
+        // Lane k's four dimensions in row k; rows k and k + 4 share a register, then a 4×4
+        // transpose in each half leaves dimension j of lanes 0–7 in `dim[j]`.
+        let r = |k: usize| _mm256_set_m128i(row(k + 4), row(k));
+        let (r0, r1, r2, r3) = (r(0), r(1), r(2), r(3));
+        let (t0, t1) = (_mm256_unpacklo_epi32(r0, r1), _mm256_unpackhi_epi32(r0, r1));
+        let (t2, t3) = (_mm256_unpacklo_epi32(r2, r3), _mm256_unpackhi_epi32(r2, r3));
+        let dim = [
+            _mm256_unpacklo_epi64(t0, t2),
+            _mm256_unpackhi_epi64(t0, t2),
+            _mm256_unpacklo_epi64(t1, t3),
+            _mm256_unpackhi_epi64(t1, t3),
+        ];
+        // Each dimension's scramble (`hash_int4(dimension_scrambles(seed))`), one for the lanes.
+        let scrambles = dimension_scrambles(seed);
+        for (j, x) in dim.into_iter().enumerate() {
+            let h = _mm256_set1_epi32(hash(scrambles[j]) as i32);
+            let f = to_f32_norm_avx2(reverse_bits_avx2(owen_scramble_rev_avx2(x, h)));
+            _mm256_storeu_ps(out[j].as_mut_ptr(), f);
+        }
+    }
+}
+
+/// `sobol_burley::parts::owen_scramble_rev` on eight lanes, lane i scrambled by `h`'s lane i.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[inline(always)]
+unsafe fn owen_scramble_rev_avx2(
+    x: std::arch::x86_64::__m256i,
+    h: std::arch::x86_64::__m256i,
+) -> std::arch::x86_64::__m256i {
+    use std::arch::x86_64::*;
+    let splat = |x: u32| _mm256_set1_epi32(x as i32);
+    let mul = |a: __m256i, k: __m256i| _mm256_mullo_epi32(a, k);
+    let xor = |a: __m256i, b: __m256i| _mm256_xor_si256(a, b);
+    let mut x = xor(x, mul(x, splat(0x3d20_adea)));
+    x = _mm256_add_epi32(x, h);
+    x = mul(x, _mm256_or_si256(_mm256_srli_epi32::<16>(h), splat(1)));
+    x = xor(x, mul(x, splat(0x0552_6c56)));
+    xor(x, mul(x, splat(0x53a2_2864)))
+}
+
+/// `u32::reverse_bits` on eight lanes (`Int4::reverse_bits`: swap halves, bytes, nibbles, pairs,
+/// bits).
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[inline(always)]
+unsafe fn reverse_bits_avx2(x: std::arch::x86_64::__m256i) -> std::arch::x86_64::__m256i {
+    use std::arch::x86_64::*;
+    let swap = |x: __m256i, mask: u32, shift: __m128i| {
+        let m = _mm256_set1_epi32(mask as i32);
+        _mm256_or_si256(
+            _mm256_and_si256(_mm256_srl_epi32(x, shift), m),
+            _mm256_sll_epi32(_mm256_and_si256(x, m), shift),
+        )
+    };
+    let x = swap(x, 0x5555_5555, _mm_cvtsi32_si128(1));
+    let x = swap(x, 0x3333_3333, _mm_cvtsi32_si128(2));
+    let x = swap(x, 0x0f0f_0f0f, _mm_cvtsi32_si128(4));
+    let x = swap(x, 0x00ff_00ff, _mm_cvtsi32_si128(8));
+    _mm256_or_si256(_mm256_srli_epi32::<16>(x), _mm256_slli_epi32::<16>(x))
+}
+
+/// `Int4::to_f32_norm` on eight lanes: the top 23 bits as a float in [0, 1).
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[inline(always)]
+unsafe fn to_f32_norm_avx2(x: std::arch::x86_64::__m256i) -> std::arch::x86_64::__m256 {
+    use std::arch::x86_64::*;
+    _mm256_sub_ps(
+        _mm256_castsi256_ps(_mm256_or_si256(_mm256_srli_epi32::<9>(x), _mm256_set1_epi32(0x3f80_0000))),
+        _mm256_set1_ps(1.0),
+    )
+}
+
 /// `owen_scramble_int4_rev(n, hash_int4(scramble)).reverse_bits().to_f32_norm()` of
 /// `sobol_burley::parts` on eight lanes (wrapping multiplies, logical shifts, as `Int4`'s).
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
@@ -172,31 +300,9 @@ unsafe fn owen_reverse_to_f32_avx2(n: [u32; 8], scramble: [u32; 8]) -> [f32; 8] 
     h = xor(h, _mm256_srli_epi32::<15>(h));
     h = mul(h, splat(0x846c_a68b));
     h = xor(h, _mm256_srli_epi32::<16>(h));
-    // owen_scramble_int4_rev(n, h)
-    let mut x = _mm256_loadu_si256(n.as_ptr() as *const __m256i);
-    x = xor(x, mul(x, splat(0x3d20_adea)));
-    x = _mm256_add_epi32(x, h);
-    x = mul(x, _mm256_or_si256(_mm256_srli_epi32::<16>(h), splat(1)));
-    x = xor(x, mul(x, splat(0x0552_6c56)));
-    x = xor(x, mul(x, splat(0x53a2_2864)));
-    // Int4::reverse_bits (swap halves, bytes, nibbles, pairs, bits)
-    let swap = |x: __m256i, mask: u32, shift: __m128i| {
-        let m = splat(mask);
-        _mm256_or_si256(
-            _mm256_and_si256(_mm256_srl_epi32(x, shift), m),
-            _mm256_sll_epi32(_mm256_and_si256(x, m), shift),
-        )
-    };
-    x = swap(x, 0x5555_5555, _mm_cvtsi32_si128(1));
-    x = swap(x, 0x3333_3333, _mm_cvtsi32_si128(2));
-    x = swap(x, 0x0f0f_0f0f, _mm_cvtsi32_si128(4));
-    x = swap(x, 0x00ff_00ff, _mm_cvtsi32_si128(8));
-    x = _mm256_or_si256(_mm256_srli_epi32::<16>(x), _mm256_slli_epi32::<16>(x));
-    // Int4::to_f32_norm
-    let f = _mm256_sub_ps(
-        _mm256_castsi256_ps(_mm256_or_si256(_mm256_srli_epi32::<9>(x), splat(0x3f80_0000))),
-        _mm256_set1_ps(1.0),
-    );
+    // owen_scramble_int4_rev(n, h), Int4::reverse_bits, Int4::to_f32_norm
+    let x = owen_scramble_rev_avx2(_mm256_loadu_si256(n.as_ptr() as *const __m256i), h);
+    let f = to_f32_norm_avx2(reverse_bits_avx2(x));
     let mut out = [0f32; 8];
     _mm256_storeu_ps(out.as_mut_ptr(), f);
     out
@@ -330,6 +436,55 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A pixel's samples drawn eight lanes at once are each sample's own pair of sets, bit for
+    /// bit: runs of one to eight consecutive and scattered indices, in block 0 and past it, sets
+    /// inside and past the hash table; and the lanes refuse samplers that do not share their seeds.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[test]
+    fn lanes_equal_each_sample_alone() {
+        let mut checked = 0;
+        for (seed, pixel) in [(0u64, (0u32, 0u32)), (3, (5, 9)), (u64::MAX, (4095, 17))] {
+            for start in [0u32, 1, 8, 61, 65_530, 65_536, 131_071, 200_001] {
+                for n in 1..=8u32 {
+                    for stride in [1u32, 3, 977] {
+                        let samplers: Vec<PixelSample> = (0..n)
+                            .map(|k| PixelSample::new(SamplerKind::Sobol, seed, pixel, start + k * stride))
+                            .filter(|s| s.index >> 16 == start >> 16)
+                            .collect();
+                        for set in [0u32, 1, 2, 9, 254, 255, 256, 300] {
+                            let (mut la, mut lb) = ([[0f32; 8]; 4], [[0f32; 8]; 4]);
+                            assert!(
+                                get_4d_pair_lanes(&samplers, set, set + 2, &mut la, &mut lb),
+                                "one pixel, one block"
+                            );
+                            for (k, s) in samplers.iter().enumerate() {
+                                let (a, b) = s.get_4d_pair(set, set + 2);
+                                for i in 0..4 {
+                                    assert_eq!(la[i][k].to_bits(), a[i].to_bits(), "set {set} lane {k} dim {i}");
+                                    assert_eq!(lb[i][k].to_bits(), b[i].to_bits(), "set {set} lane {k} dim {i}");
+                                }
+                                checked += 1;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        assert!(checked > 10_000, "{checked}");
+        let s = |kind, pixel, index| PixelSample::new(kind, 3, pixel, index);
+        let sobol = SamplerKind::Sobol;
+        let refused = |samplers: &[PixelSample]| {
+            let (mut a, mut b) = ([[7f32; 8]; 4], [[7f32; 8]; 4]);
+            !get_4d_pair_lanes(samplers, 0, 1, &mut a, &mut b) && a == [[7f32; 8]; 4] && b == a
+        };
+        assert!(refused(&[]));
+        assert!(refused(&[s(sobol, (1, 1), 0), s(sobol, (1, 2), 1)]));
+        assert!(refused(&[s(sobol, (1, 1), 65_535), s(sobol, (1, 1), 65_536)]));
+        assert!(refused(&[s(SamplerKind::Independent, (1, 1), 0)]));
+        assert!(refused(&[s(sobol, (1, 1), 0); 9]));
+        assert!(!refused(&[s(sobol, (1, 1), 0); 8]));
     }
 
     /// The tabulated set hashes are the formula's, inside the table and past it, in block 0

@@ -302,21 +302,29 @@ pub fn radiance8(
         let mut shading = 0u32;
         let base = dims::BOUNCE_BASE + dims::BOUNCE_STRIDE * depth;
         let sets = ((base + dims::BSDF_DIR) / 4, (base + dims::LIGHT_POS) / 4);
-        let mut draw = |k: usize| {
+        // The two sets: all eight lanes' at once where four or more want them and they share
+        // their seeds (one pixel's samples in one 2^16 block: `sampler::get_4d_pair_lanes`),
+        // else lane by lane (`draw`; fewer lanes cost less alone). A value is a function of its
+        // sample and dimension alone, so drawing a lane that will not read it changes nothing.
+        let draw_all = |wanted: usize, u_bsdf: &mut [[f32; LANES]; 4], u_light: &mut [[f32; LANES]; 4]| {
+            wanted >= 4 && crate::sampler::get_4d_pair_lanes(&samplers[..n], sets.0, sets.1, u_bsdf, u_light)
+        };
+        let draw = |k: usize, u_bsdf: &mut [[f32; LANES]; 4], u_light: &mut [[f32; LANES]; 4]| {
             let (a, b) = samplers[k].get_4d_pair(sets.0, sets.1);
             for i in 0..4 {
                 u_bsdf[i][k] = a[i];
                 u_light[i][k] = b[i];
             }
         };
+        // As `Path::begin_bounce`: drawn before the trace, but for the camera ray's.
+        let drawn = depth > 0 && draw_all(alive.count_ones() as usize, &mut u_bsdf, &mut u_light);
         // The live lanes, in lane order, and their rays.
         let (mut lane, mut count) = ([0u8; LANES], 0);
         let (mut qo, mut qd) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
         for k in lanes_of(alive) {
             *rays += 1;
-            // As `Path::begin_bounce`: drawn before the trace, but for the camera ray's.
-            if depth > 0 {
-                draw(k);
+            if depth > 0 && !drawn {
+                draw(k, &mut u_bsdf, &mut u_light);
             }
             (lane[count], qo[count], qd[count]) = (k as u8, ro[k], dirs[k]);
             count += 1;
@@ -328,6 +336,8 @@ pub fn radiance8(
         let (mut n0, mut n1, mut n2) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
         let (mut hb1, mut hb2, mut tri) = ([0f32; LANES], [0f32; LANES], [0u32; LANES]);
         let (mut hit_bits, mut smooth) = (0u32, 0u32);
+        let drawn =
+            depth > 0 || draw_all(hits[..count].iter().filter(|h| h.is_some()).count(), &mut u_bsdf, &mut u_light);
         for (j, hit) in hits[..count].iter().enumerate() {
             let k = lane[j] as usize;
             // A lane that finds nothing, or stops here, is not shading: it is not alive next round.
@@ -345,8 +355,8 @@ pub fn radiance8(
                 }
                 continue;
             };
-            if depth == 0 {
-                draw(k);
+            if !drawn {
+                draw(k, &mut u_bsdf, &mut u_light);
             }
             hit_bits |= 1 << k;
             let mesh = &scene.mesh;

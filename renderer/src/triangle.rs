@@ -29,20 +29,22 @@ pub struct WatertightRay {
 }
 
 impl WatertightRay {
+    /// The ray from `o` along `d`, prepared.
+    ///
+    /// Without branches: the axis follows the direction, which in a path tracer is random, so
+    /// branches on it were mispredicted about every other ray (cachegrind's branch simulation of a
+    /// Cornell render put 15 % of all mispredictions here).
+    #[inline(always)]
     pub fn new(o: Vec3A, d: Vec3A) -> Self {
         let a = d.abs();
-        let kz = if a.x > a.y {
-            if a.x > a.z {
-                0
-            } else {
-                2
-            }
-        } else if a.y > a.z {
-            1
-        } else {
-            2
-        };
-        let (kx, ky) = ((kz + 1) % 3, (kz + 2) % 3);
+        // kz: x where |x| beats |y| and |z|, else y where it beats |z|, else z (ties go to the
+        // later axis), as the comparisons `a.x > a.y`, `a.x > a.z`, `a.y > a.z` decide.
+        let x_gt_y = a.x > a.y;
+        let x_wins = x_gt_y & (a.x > a.z);
+        let y_wins = !x_gt_y & (a.y > a.z);
+        const AXES: [[usize; 3]; 4] = [[0, 1, 2], [2, 0, 1], [1, 2, 0], [1, 2, 0]];
+        let [kx, ky, kz] = AXES[2 * x_wins as usize + y_wins as usize];
+        let (o, d) = (o.to_array(), d.to_array());
         let dz = d[kz];
         WatertightRay { o: [o[kx], o[ky], o[kz]], k: [kx, ky, kz], s: [-d[kx] / dz, -d[ky] / dz, 1.0 / dz] }
     }
@@ -67,6 +69,8 @@ impl RtTriangle {
         let [kx, ky, kz] = r.k;
         // The vertices relative to the origin, permuted and sheared: the ray is now the +z axis.
         let rel = |p: Vec3A| {
+            // An array, not `Vec3A`'s index (a match on the axis).
+            let p = p.to_array();
             let (x, y, z) = (p[kx] - r.o[0], p[ky] - r.o[1], p[kz] - r.o[2]);
             (x + r.s[0] * z, y + r.s[1] * z, z)
         };
@@ -342,6 +346,38 @@ struct Lanes8 {
 mod tests {
     use super::*;
     use crate::sampler::hash_unit as u;
+
+    /// The branch-free axis choice is pbrt-v4's `MaxComponentIndex(Abs(d))` (ties to the later
+    /// axis), with kx and ky following cyclically, on directions with every sign, zeros and ties.
+    #[test]
+    fn ray_axes_follow_the_largest_component() {
+        let values = [0.0f32, -0.0, 0.5, -0.5, 1.0, -1.0, 2.0, -3.0, 1e-30];
+        for &x in &values {
+            for &y in &values {
+                for &z in &values {
+                    let a = Vec3A::new(x, y, z).abs();
+                    let kz = if a.x > a.y {
+                        if a.x > a.z {
+                            0
+                        } else {
+                            2
+                        }
+                    } else if a.y > a.z {
+                        1
+                    } else {
+                        2
+                    };
+                    let r = WatertightRay::new(Vec3A::new(7.0, 8.0, 9.0), Vec3A::new(x, y, z));
+                    assert_eq!(r.k, [(kz + 1) % 3, (kz + 2) % 3, kz], "direction ({x}, {y}, {z})");
+                    let (o, d) = ([7.0f32, 8.0, 9.0], [x, y, z]);
+                    let [kx, ky] = [(kz + 1) % 3, (kz + 2) % 3];
+                    assert_eq!(r.o, [o[kx], o[ky], o[kz]]);
+                    let s = [-d[kx] / d[kz], -d[ky] / d[kz], 1.0 / d[kz]];
+                    assert_eq!(r.s.map(f32::to_bits), s.map(f32::to_bits), "direction ({x}, {y}, {z})");
+                }
+            }
+        }
+    }
 
     fn v3(i: u64) -> Vec3 {
         Vec3::new(u(i), u(i + 1), u(i + 2)) * 2.0 - 1.0

@@ -17,7 +17,7 @@ use obvhs::cwbvh::node::CwBvhNode;
 use obvhs::cwbvh::CwBvh;
 use obvhs::ray::Ray as BvhRay;
 
-use crate::triangle::{RtTriangle, TriangleBlocks, WatertightRay, LANES};
+use crate::triangle::{RtTriangle, TriangleBlocks, WatertightRay, LANES, NO_HIT8};
 use std::mem::MaybeUninit;
 
 #[derive(Clone, Copy, Debug)]
@@ -50,6 +50,9 @@ enum TopPrim {
 
 /// A leaf triangle's hit as the eight-wide test reports it: (t, slot in `Accel::tris`, b1, b2).
 type LeafHit = (f32, usize, f32, f32);
+
+/// A [`LeafHit`]'s slot before anything is hit.
+const NO_LEAF: usize = usize::MAX;
 
 /// A child the traversal has yet to visit: its node and, for closest hits, the distance at which
 /// the ray enters its box.
@@ -848,41 +851,40 @@ impl Accel {
         }
         let ray = BvhRay::new(oa, da, 0.0, tmax);
         let wray = WatertightRay::new(oa, da);
-        let mut best = None;
+        let mut best = (tmax, NO_LEAF, 0.0, 0.0);
         self.closest(ray, |r, base, mask| self.closest_in_group(&wray, &mut best, r.tmax, base, mask));
-        best.map(|leaf| self.leaf_hit(leaf))
+        self.leaf_hit(best)
     }
 
     /// The closest of a group's leaf triangles (as in [`traverse_closest`]) on the ray before
-    /// `bound`, into `best`; returns the new bound (`bound` when none is closer).
+    /// `bound`, into `best` (its slot [`NO_LEAF`] until something is hit); returns the new bound
+    /// (`bound` when none is closer).
     #[inline(always)]
-    fn closest_in_group(
-        &self,
-        wray: &WatertightRay,
-        best: &mut Option<LeafHit>,
-        bound: f32,
-        base: usize,
-        mask: u32,
-    ) -> f32 {
+    fn closest_in_group(&self, wray: &WatertightRay, best: &mut LeafHit, bound: f32, base: usize, mask: u32) -> f32 {
         let (mut bound, mut mask) = (bound, mask);
         while mask != 0 {
             let (start, lanes) = next_window(base, &mut mask);
             let hit = if self.scalar_reference {
-                self.tris.intersect8_scalar(wray, start, lanes, bound)
+                self.tris.intersect8_scalar(wray, start, lanes, bound).unwrap_or(NO_HIT8)
             } else {
-                self.tris.intersect8(wray, start, lanes, bound)
+                self.tris.closest8(wray, start, lanes, bound)
             };
-            if let Some(h) = hit {
-                bound = h.0;
-                *best = Some(h);
-            }
+            // A hit lies before the bound; "none" is t = ∞. Masks, not a branch: whether a block
+            // is hit is data the predictor cannot learn (and LLVM turns a plain `if` select in a
+            // loop back into a branch).
+            let keep = ((hit.0 < bound) as usize).wrapping_neg();
+            let pick =
+                |new: f32, old: f32| f32::from_bits((new.to_bits() & keep as u32) | (old.to_bits() & !keep as u32));
+            bound = pick(hit.0, bound);
+            *best = (bound, (hit.1 & keep) | (best.1 & !keep), pick(hit.2, best.2), pick(hit.3, best.3));
         }
         bound
     }
 
+    /// The hit `best` holds, None while its slot is [`NO_LEAF`].
     #[inline(always)]
-    fn leaf_hit(&self, (t, slot, b1, b2): LeafHit) -> Hit {
-        Hit { t, triangle: self.tris.ids[slot], b1, b2, instance: NO_INSTANCE }
+    fn leaf_hit(&self, (t, slot, b1, b2): LeafHit) -> Option<Hit> {
+        Some(Hit { t, triangle: *self.tris.ids.get(slot)?, b1, b2, instance: NO_INSTANCE })
     }
 
     /// Whether renders should trace a batch of paths' rays together ([`BATCH_RAYS_ABOVE`]; only a
@@ -925,7 +927,7 @@ impl Accel {
             return;
         }
         let (rays, wrays) = batch_rays(&o[..n], &d[..n], |_| tmax);
-        let mut best = [None; MAX_BATCH];
+        let mut best = [(tmax, NO_LEAF, 0.0, 0.0); MAX_BATCH];
         let len = self.stack_len;
         with_batch_stack(len * n, |stack| {
             let group =
@@ -938,7 +940,7 @@ impl Accel {
             }
         });
         for k in 0..n {
-            out[k] = best[k].map(|leaf| self.leaf_hit(leaf));
+            out[k] = self.leaf_hit(best[k]);
         }
     }
 

@@ -137,6 +137,9 @@ struct Block {
 /// Lanes of [`TriangleBlocks::intersect8`].
 pub const LANES: usize = 8;
 
+/// [`TriangleBlocks::closest8`]'s "no hit".
+pub const NO_HIT8: (f32, usize, f32, f32) = (f32::INFINITY, 0, 0.0, 0.0);
+
 impl TriangleBlocks {
     pub fn new(tris: impl ExactSizeIterator<Item = RtTriangle>) -> Self {
         let n = tris.len();
@@ -239,6 +242,21 @@ impl TriangleBlocks {
         }
     }
 
+    /// [`Self::intersect8`] with "no hit" as t = ∞ (slot and barycentrics then meaningless):
+    /// the form a traversal can take without a branch on whether the block was hit.
+    #[inline(always)]
+    pub fn closest8(&self, r: &WatertightRay, start: usize, lanes: u32, tmax: f32) -> (f32, usize, f32, f32) {
+        #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+        // SAFETY: as in `intersect8`.
+        unsafe {
+            self.closest8_avx2(r, start, lanes, tmax)
+        }
+        #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
+        {
+            self.intersect8_scalar(r, start, lanes, tmax).unwrap_or(NO_HIT8)
+        }
+    }
+
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[inline(always)]
     unsafe fn intersect8_avx2(
@@ -248,36 +266,34 @@ impl TriangleBlocks {
         lanes: u32,
         tmax: f32,
     ) -> Option<(f32, usize, f32, f32)> {
+        let hit = self.closest8_avx2(r, start, lanes, tmax);
+        (hit.0 != f32::INFINITY).then_some(hit)
+    }
+
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[inline(always)]
+    unsafe fn closest8_avx2(&self, r: &WatertightRay, start: usize, lanes: u32, tmax: f32) -> (f32, usize, f32, f32) {
         use std::arch::x86_64::*;
         let l = self.lanes_avx2(r, start, lanes, tmax);
         if l.on_edge != 0 {
             // Rare (a ray within rounding of an edge): the reference answer for the whole group.
-            return self.intersect8_scalar(r, start, lanes, tmax);
+            return self.intersect8_scalar(r, start, lanes, tmax).unwrap_or(NO_HIT8);
         }
-        if l.hits == 0 {
-            return None;
-        }
-        let mut ts = [0f32; LANES];
-        _mm256_storeu_ps(ts.as_mut_ptr(), l.t);
-        // Highest lane first with a strict comparison: the scalar order. (A hit's t is below
-        // tmax, so finite, and the first hit always replaces the infinite start.)
-        let mut hits = l.hits;
-        let mut best = (f32::INFINITY, 0);
-        while hits != 0 {
-            let k = 31 - hits.leading_zeros() as usize;
-            hits &= !(1 << k);
-            if ts[k] < best.0 {
-                best = (ts[k], k);
-            }
-        }
-        let (t, k) = best;
-        let mut e1 = [0f32; LANES];
-        let mut e2 = [0f32; LANES];
-        let mut inv = [0f32; LANES];
-        _mm256_storeu_ps(e1.as_mut_ptr(), l.e1);
-        _mm256_storeu_ps(e2.as_mut_ptr(), l.e2);
-        _mm256_storeu_ps(inv.as_mut_ptr(), l.inv);
-        Some((t, start + k, e1[k] * inv[k], e2[k] * inv[k]))
+        // Without branches on the hits (the data decide them, so they were mispredicted often):
+        // the smallest t of the hit lanes (∞ for none), the highest hit lane holding it (the
+        // scalar order, highest lane first with a strict comparison, keeps that one), then its
+        // barycentrics. A hit's t is below tmax, so finite: ∞ means no hit.
+        let inf = _mm256_set1_ps(f32::INFINITY);
+        let t = _mm256_blendv_ps(inf, l.t, l.ok);
+        let m = _mm256_min_ps(t, _mm256_permute2f128_ps::<1>(t, t));
+        let m = _mm256_min_ps(m, _mm256_permute_ps::<0b01_00_11_10>(m));
+        let m = _mm256_min_ps(m, _mm256_permute_ps::<0b10_11_00_01>(m));
+        let at_min = _mm256_movemask_ps(_mm256_and_ps(_mm256_cmp_ps::<_CMP_EQ_OQ>(t, m), l.ok)) as u32;
+        // The highest lane at the minimum; lane 0 (ignored) when nothing is hit.
+        let k = 31 - (at_min | 1).leading_zeros();
+        let pick = |v: __m256| _mm256_cvtss_f32(_mm256_permutevar8x32_ps(v, _mm256_set1_epi32(k as i32)));
+        let inv = pick(l.inv);
+        (_mm256_cvtss_f32(m), start + k as usize, pick(l.e1) * inv, pick(l.e2) * inv)
     }
 
     /// The watertight test on eight slots at once, lane by lane as `RtTriangle::intersect`.
@@ -285,9 +301,14 @@ impl TriangleBlocks {
     #[inline(always)]
     unsafe fn lanes_avx2(&self, r: &WatertightRay, start: usize, lanes: u32, tmax: f32) -> Lanes8 {
         use std::arch::x86_64::*;
-        let [kx, ky, kz] = r.k;
-        let rows = &self.blocks[start / LANES].rows;
-        let load = |j: usize, k: usize| _mm256_load_ps(rows[3 * j + k].as_ptr());
+        // The axes as offsets into the block's rows, without bounds checks: indexed loads on a
+        // ray's axes were compiled into branches on them, which the ray's random direction
+        // mispredicts. Each axis is at most 2 (`min` keeps it so whatever `r.k` holds).
+        let [kx, ky, kz] = r.k.map(|k| k.min(2));
+        let rows = self.blocks[start / LANES].rows.as_ptr() as *const f32;
+        // SAFETY: j ≤ 2 and k ≤ 2, so row 3j + k is one of the block's nine rows of LANES floats,
+        // 32-byte aligned (`Block`'s repr).
+        let load = |j: usize, k: usize| _mm256_load_ps(rows.add((3 * j + k) * LANES));
         let (ox, oy, oz) = (_mm256_set1_ps(r.o[0]), _mm256_set1_ps(r.o[1]), _mm256_set1_ps(r.o[2]));
         let (sx, sy) = (_mm256_set1_ps(r.s[0]), _mm256_set1_ps(r.s[1]));
         // As `RtTriangle::intersect`'s `rel`, operation for operation.
@@ -326,7 +347,7 @@ impl TriangleBlocks {
         let ok = _mm256_andnot_ps(eq0(det), ok);
         let ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GT_OQ>(t, zero));
         let ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(t, _mm256_set1_ps(tmax)));
-        Lanes8 { hits: _mm256_movemask_ps(ok) as u32, on_edge, t, e1, e2, inv }
+        Lanes8 { hits: _mm256_movemask_ps(ok) as u32, ok, on_edge, t, e1, e2, inv }
     }
 }
 
@@ -335,6 +356,8 @@ impl TriangleBlocks {
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 struct Lanes8 {
     hits: u32,
+    /// `hits` as a lane mask.
+    ok: std::arch::x86_64::__m256,
     on_edge: u32,
     t: std::arch::x86_64::__m256,
     e1: std::arch::x86_64::__m256,

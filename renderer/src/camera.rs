@@ -91,6 +91,21 @@ impl Raster {
         let y = (1.0 - 2.0 * film.y / self.height) * self.tan_half;
         (c.forward + c.right * x + c.up * y).normalize()
     }
+
+    /// [`Self::direction`] for eight film positions, each lane in its operations and order
+    /// (glam's `normalize`: times 1/√(x² + y² + z²)), so the same bits.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[inline(always)]
+    pub(crate) fn directions8(&self, fx: crate::lanes::F8, fy: crate::lanes::F8) -> crate::lanes::V8 {
+        use crate::lanes::{F8, V8};
+        use std::ops::Add;
+        let c = &self.camera;
+        let (one, two) = (F8::splat(1.0), F8::splat(2.0));
+        let x = (two * fx / F8::splat(self.width) - one) * F8::splat(self.tan_half) * F8::splat(self.aspect);
+        let y = (one - two * fy / F8::splat(self.height)) * F8::splat(self.tan_half);
+        let d = V8::splat(c.forward).add(V8::splat(c.right).scale(x)).add(V8::splat(c.up).scale(y));
+        d.scale(one / d.dot(d).sqrt())
+    }
 }
 
 #[cfg(test)]

@@ -536,7 +536,8 @@ impl LightTree {
     }
 
     /// Up to [`MAX_WALKS`] walks (`p.len()`, all slices that long), a level each in turn:
-    /// `walk`'s steps for each, interleaved.
+    /// `walk`'s steps for each, interleaved. (Only the AVX2 build walks in batches.)
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[inline(always)]
     fn walks(
         &self,

@@ -113,6 +113,49 @@ fn camera_ray(
     (sampler, raster.direction(film))
 }
 
+/// [`camera_ray`] for samples `first .. first + n` (n ≤ 8) of a pixel (`pixel_sampler`: its
+/// sampler of any index) at once, for the SPMD kernel: the film dimensions of the eight samples
+/// drawn together (`sampler::get_4d_lanes`), the filter offsets and directions eight-wide, each
+/// lane in `camera_ray`'s operations (same bits; `spmd.rs`' tests compare whole images).
+/// Samples that do not share their Sobol seeds (a 2^16 block boundary, the independent sampler)
+/// take `camera_ray` one at a time.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[inline(always)]
+fn camera_rays8(
+    settings: &RenderSettings,
+    raster: &crate::camera::Raster,
+    (x, y): (u32, u32),
+    pixel_sampler: &PixelSample,
+    first: u32,
+    samplers: &mut [PixelSample],
+    dirs: &mut [Vec3],
+) {
+    use crate::lanes::{select, F8};
+    let n = samplers.len().min(dirs.len()).min(crate::spmd::LANES);
+    for (k, s) in samplers[..n].iter_mut().enumerate() {
+        *s = pixel_sampler.at(first + k as u32);
+    }
+    let mut u = [[0f32; 8]; 4];
+    if !crate::sampler::get_4d_lanes(&samplers[..n], dims::FILM / 4, &mut u) {
+        for k in 0..n {
+            (samplers[k], dirs[k]) = camera_ray(settings, raster, (x, y), first + k as u32);
+        }
+        return;
+    }
+    let d = (dims::FILM % 4) as usize;
+    let (ux, uy) = (F8::from_array(u[d]), F8::from_array(u[(d + 1) % 4]));
+    let (half, one, two) = (F8::splat(0.5), F8::splat(1.0), F8::splat(2.0));
+    // `filter_offset`, eight-wide.
+    let offset = |u: F8| match settings.filter {
+        PixelFilter::Box => u - half,
+        PixelFilter::Tent => select(u.lt(half), (two * u).sqrt() - one, one - (two - two * u).sqrt()),
+    };
+    let fx = F8::splat(x as f32 + 0.5) + offset(ux);
+    let fy = F8::splat(y as f32 + 0.5) + offset(uy);
+    let lanes = raster.directions8(fx, fy).to_lanes();
+    dirs[..n].copy_from_slice(&lanes[..n]);
+}
+
 /// Samples a filter offset from the pixel centre, in pixels (filter importance sampling).
 #[inline]
 fn filter_offset(filter: PixelFilter, u: Vec2) -> Vec2 {
@@ -173,11 +216,16 @@ pub fn render_tile_counted(
                 // `width` samples' paths at a time, added in sample order: the same sums as one
                 // at a time. A batch leaves a pixel's last sample to the single path (a batch of
                 // one is that path with bookkeeping); the kernel takes it in a lane.
-                let mut samplers = [PixelSample::new(settings.sampler, settings.seed, (x, y), 0); MAX_BATCH];
+                let pixel_sampler = PixelSample::new(settings.sampler, settings.seed, (x, y), 0);
+                let mut samplers = [pixel_sampler; MAX_BATCH];
                 let (mut dirs, mut l) = ([Vec3::ZERO; MAX_BATCH], [Vec3::ZERO; MAX_BATCH]);
                 while s + 1 < samples.end || (lanes.is_some() && s < samples.end) {
                     let n = ((samples.end - s) as usize).min(width);
-                    for k in 0..n {
+                    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+                    if lanes.is_some() {
+                        camera_rays8(settings, &raster, (x, y), &pixel_sampler, s, &mut samplers[..n], &mut dirs[..n]);
+                    }
+                    for k in (0..n).filter(|_| lanes.is_none()) {
                         (samplers[k], dirs[k]) = camera_ray(settings, &raster, (x, y), s + k as u32);
                     }
                     let (dirs, samplers, l) = (&dirs[..n], &samplers[..n], &mut l[..n]);

@@ -48,6 +48,13 @@ impl PixelSample {
         PixelSample { kind, pixel_seed, index }
     }
 
+    /// The sampler of sample `index` of the same pixel: `new` with that index, without hashing
+    /// the pixel again (its seed does not depend on the index).
+    #[inline(always)]
+    pub fn at(&self, index: u32) -> Self {
+        PixelSample { index, ..*self }
+    }
+
     /// The Sobol seed of 4D set `set` for this pixel and sample. sobol_burley supports 2^16
     /// samples per seed: higher blocks of samples get a fresh seed.
     #[inline]
@@ -175,27 +182,47 @@ pub(crate) fn get_4d_pair_lanes(
     b: &mut [[f32; 8]; 4],
 ) -> bool {
     let Some(first) = samplers.first() else { return false };
+    let Some(index) = lane_indices(samplers) else { return false };
+    let (seed_a, seed_b) = (first.sobol_seed(set_a), first.sobol_seed(set_b));
+    // SAFETY: AVX2 is enabled at compile time; loads and stores are unaligned.
+    unsafe { sobol_lanes_avx2(index, [seed_a, seed_b], [a, b]) };
+    true
+}
+
+/// [`get_4d_pair_lanes`] for one set: `out[i][k]` is dimension i of `samplers[k].get_4d(set)`.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[inline(always)]
+pub(crate) fn get_4d_lanes(samplers: &[PixelSample], set: u32, out: &mut [[f32; 8]; 4]) -> bool {
+    let (Some(first), Some(index)) = (samplers.first(), lane_indices(samplers)) else { return false };
+    // SAFETY: AVX2 is enabled at compile time; loads and stores are unaligned.
+    unsafe { sobol_lanes_avx2(index, [first.sobol_seed(set)], [out]) };
+    true
+}
+
+/// The Sobol indices of up to eight samplers that share their seeds (all Sobol, one pixel, one
+/// 2^16 block; lanes past the samplers repeat the first), or None.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[inline(always)]
+fn lane_indices(samplers: &[PixelSample]) -> Option<[u32; 8]> {
+    let first = samplers.first()?;
     let same = |s: &PixelSample| {
         s.kind == SamplerKind::Sobol && s.pixel_seed == first.pixel_seed && s.index >> 16 == first.index >> 16
     };
     if samplers.len() > 8 || !samplers.iter().all(same) {
-        return false;
+        return None;
     }
     let mut index = [first.index & 0xffff; 8];
     for (i, s) in index.iter_mut().zip(samplers) {
         *i = s.index & 0xffff;
     }
-    let (seed_a, seed_b) = (first.sobol_seed(set_a), first.sobol_seed(set_b));
-    // SAFETY: AVX2 is enabled at compile time; loads and stores are unaligned.
-    unsafe { sobol_pair_lanes_avx2(index, [seed_a, seed_b], [a, b]) };
-    true
+    Some(index)
 }
 
 /// [`get_4d_pair_lanes`]' arithmetic: `sobol_4d(index[k], seeds[s])` for the eight lanes k into
 /// `out[s]`, dimension-major.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[inline(always)]
-unsafe fn sobol_pair_lanes_avx2(index: [u32; 8], seeds: [u32; 2], out: [&mut [[f32; 8]; 4]; 2]) {
+unsafe fn sobol_lanes_avx2<const N: usize>(index: [u32; 8], seeds: [u32; N], out: [&mut [[f32; 8]; 4]; N]) {
     use sobol_burley::parts::hash;
     use std::arch::x86_64::*;
     let index_rev = reverse_bits_avx2(_mm256_loadu_si256(index.as_ptr() as *const __m256i));
@@ -449,8 +476,9 @@ mod tests {
             for start in [0u32, 1, 8, 61, 65_530, 65_536, 131_071, 200_001] {
                 for n in 1..=8u32 {
                     for stride in [1u32, 3, 977] {
+                        let pixel_sampler = PixelSample::new(SamplerKind::Sobol, seed, pixel, 0);
                         let samplers: Vec<PixelSample> = (0..n)
-                            .map(|k| PixelSample::new(SamplerKind::Sobol, seed, pixel, start + k * stride))
+                            .map(|k| pixel_sampler.at(start + k * stride))
                             .filter(|s| s.index >> 16 == start >> 16)
                             .collect();
                         for set in [0u32, 1, 2, 9, 254, 255, 256, 300] {
@@ -460,8 +488,13 @@ mod tests {
                                 "one pixel, one block"
                             );
                             for (k, s) in samplers.iter().enumerate() {
-                                let (a, b) = s.get_4d_pair(set, set + 2);
+                                // `at` is `new` with that index.
+                                let alone = PixelSample::new(SamplerKind::Sobol, seed, pixel, s.index);
+                                let (a, b) = alone.get_4d_pair(set, set + 2);
+                                let mut one = [[0f32; 8]; 4];
+                                assert!(get_4d_lanes(&samplers, set + 2, &mut one));
                                 for i in 0..4 {
+                                    assert_eq!(one[i][k].to_bits(), b[i].to_bits(), "set {set} lane {k} dim {i}");
                                     assert_eq!(la[i][k].to_bits(), a[i].to_bits(), "set {set} lane {k} dim {i}");
                                     assert_eq!(lb[i][k].to_bits(), b[i].to_bits(), "set {set} lane {k} dim {i}");
                                 }
@@ -476,8 +509,12 @@ mod tests {
         let s = |kind, pixel, index| PixelSample::new(kind, 3, pixel, index);
         let sobol = SamplerKind::Sobol;
         let refused = |samplers: &[PixelSample]| {
-            let (mut a, mut b) = ([[7f32; 8]; 4], [[7f32; 8]; 4]);
-            !get_4d_pair_lanes(samplers, 0, 1, &mut a, &mut b) && a == [[7f32; 8]; 4] && b == a
+            let (mut a, mut b, mut c) = ([[7f32; 8]; 4], [[7f32; 8]; 4], [[7f32; 8]; 4]);
+            let untouched = a == [[7f32; 8]; 4];
+            let pair = get_4d_pair_lanes(samplers, 0, 1, &mut a, &mut b);
+            let one = get_4d_lanes(samplers, 0, &mut c);
+            assert_eq!(pair, one);
+            !pair && untouched && a == [[7f32; 8]; 4] && b == a && c == a
         };
         assert!(refused(&[]));
         assert!(refused(&[s(sobol, (1, 1), 0), s(sobol, (1, 2), 1)]));

@@ -221,12 +221,15 @@ pub fn render_tile_counted(
                 let (mut dirs, mut l) = ([Vec3::ZERO; MAX_BATCH], [Vec3::ZERO; MAX_BATCH]);
                 while s + 1 < samples.end || (lanes.is_some() && s < samples.end) {
                     let n = ((samples.end - s) as usize).min(width);
+                    // The kernel's camera rays eight at a time (it exists on AVX2 builds only).
                     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
                     if lanes.is_some() {
                         camera_rays8(settings, &raster, (x, y), &pixel_sampler, s, &mut samplers[..n], &mut dirs[..n]);
                     }
-                    for k in (0..n).filter(|_| lanes.is_none()) {
-                        (samplers[k], dirs[k]) = camera_ray(settings, &raster, (x, y), s + k as u32);
+                    if lanes.is_none() {
+                        for k in 0..n {
+                            (samplers[k], dirs[k]) = camera_ray(settings, &raster, (x, y), s + k as u32);
+                        }
                     }
                     let (dirs, samplers, l) = (&dirs[..n], &samplers[..n], &mut l[..n]);
                     match lanes {

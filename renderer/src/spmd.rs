@@ -336,6 +336,8 @@ pub fn radiance8(
         let (mut n0, mut n1, mut n2) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
         let (mut hb1, mut hb2, mut tri) = ([0f32; LANES], [0f32; LANES], [0u32; LANES]);
         let (mut hit_bits, mut smooth) = (0u32, 0u32);
+        // The camera ray's lanes draw once they hit (an escaping one needs nothing); later
+        // bounces drew before the trace.
         let drawn =
             depth > 0 || draw_all(hits[..count].iter().filter(|h| h.is_some()).count(), &mut u_bsdf, &mut u_light);
         for (j, hit) in hits[..count].iter().enumerate() {

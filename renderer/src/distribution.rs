@@ -67,21 +67,40 @@ impl Table<'_> {
     /// The number of CDF entries ≤ u (a search of the whole CDF), through the guide table.
     #[inline]
     fn entries_at_most(&self, u: f32) -> usize {
+        let (lo, hi) = self.search_range(u);
+        self.entries_at_most_in(u, lo, hi)
+    }
+
+    /// Where [`Self::entries_at_most`] searches: the guide's two entries around u (the whole CDF
+    /// for a u outside [0, 1)). The first of a sample's dependent loads (`sample_batch`).
+    #[inline(always)]
+    fn search_range(&self, u: f32) -> (usize, usize) {
         if !(0.0..1.0).contains(&u) {
-            return self.entries.partition_point(|e| e[0] <= u);
+            return (0, self.entries.len());
         }
         let g = self.guide.len() - 1;
         let k = ((u * g as f32) as usize).min(g - 1);
-        let (lo, hi) = (self.guide[k] as usize, self.guide[k + 1] as usize);
+        (self.guide[k] as usize, self.guide[k + 1] as usize)
+    }
+
+    /// [`Self::entries_at_most`] given its [`Self::search_range`].
+    #[inline(always)]
+    fn entries_at_most_in(&self, u: f32, lo: usize, hi: usize) -> usize {
         lo + self.entries[lo..hi].partition_point(|e| e[0] <= u)
     }
 
     /// Returns (x in [0,1), pdf(x), bin).
     #[inline]
     fn sample(&self, u: f32) -> (f32, f32, usize) {
+        self.sample_at(u, self.entries_at_most(u))
+    }
+
+    /// [`Self::sample`] given [`Self::entries_at_most`]`(u)`.
+    #[inline(always)]
+    fn sample_at(&self, u: f32, at_most: usize) -> (f32, f32, usize) {
         let n = self.bins();
         // Largest i with cdf[i] <= u.
-        let i = match self.entries_at_most(u) {
+        let i = match at_most {
             0 => 0,
             k => (k - 1).min(n - 1),
         };
@@ -136,6 +155,9 @@ impl Distribution1D {
     }
 }
 
+/// The most samples [`Distribution2D::sample_batch`] takes at once.
+pub const BATCH: usize = 8;
+
 /// f(u, v) tabulated on `nu × nv` cells (rows are v), sampled as marginal in v then conditional in u.
 /// The rows' tables sit back to back in two flat arrays (row r's at r·(nu+1) and r·(G+1)), so
 /// reaching a row is arithmetic, not another pointer to follow.
@@ -173,6 +195,27 @@ impl Distribution2D {
         Table {
             entries: &self.row_entries[r * (self.nu + 1)..(r + 1) * (self.nu + 1)],
             guide: &self.row_guides[r * self.guide_len..(r + 1) * self.guide_len],
+        }
+    }
+
+    /// [`Self::sample`] of each of `us` (at most [`BATCH`]) into `out`, the same numbers, its
+    /// dependent loads taken a step at a time across the samples (the marginal and the row's
+    /// guide entries for all, then each row's search): an environment map's rows are megabytes,
+    /// so each step is a cache miss, and one sample's misses follow one another while different
+    /// samples' can overlap, but only when their loads are issued close together rather than a
+    /// whole sample apart.
+    pub fn sample_batch(&self, us: &[[f32; 2]], out: &mut [([f32; 2], f32)]) {
+        let n = us.len().min(out.len()).min(BATCH);
+        let mut rows = [(0f32, 0f32, 0usize, 0usize, 0usize); BATCH];
+        for (u, r) in us[..n].iter().zip(&mut rows) {
+            let (v, pdf_v, row) = self.marginal.sample(u[1]);
+            let (lo, hi) = self.row(row).search_range(u[0]);
+            *r = (v, pdf_v, row, lo, hi);
+        }
+        for ((u, &(v, pdf_v, row, lo, hi)), o) in us[..n].iter().zip(&rows).zip(&mut out[..n]) {
+            let t = self.row(row);
+            let (x, pdf_u, _) = t.sample_at(u[0], t.entries_at_most_in(u[0], lo, hi));
+            *o = ([x, v], pdf_u * pdf_v);
         }
     }
 

@@ -362,6 +362,41 @@ impl Environment {
         }
         let dist = self.distribution.as_ref()?;
         let (uv, map_pdf) = dist.sample([u.x, u.y]);
+        self.sampled(uv, map_pdf)
+    }
+
+    /// [`Self::sample`] of each of `us` into `out`, the same answers: the distribution's searches
+    /// a step at a time across the samples (`Distribution2D::sample_batch`), then each sample's
+    /// texels, so the cache misses of different samples overlap.
+    pub fn sample_batch(&self, us: &[Vec2], out: &mut [Option<(Vec3, Vec3, f32)>]) {
+        let n = us.len().min(out.len());
+        let dist = match &self.distribution {
+            Some(d) if !self.uniform => d,
+            _ => {
+                for (u, o) in us[..n].iter().zip(&mut out[..n]) {
+                    *o = self.sample(*u);
+                }
+                return;
+            }
+        };
+        for s in (0..n).step_by(crate::distribution::BATCH) {
+            let e = (s + crate::distribution::BATCH).min(n);
+            let mut q = [[0f32; 2]; crate::distribution::BATCH];
+            for (q, u) in q.iter_mut().zip(&us[s..e]) {
+                *q = [u.x, u.y];
+            }
+            let mut found = [([0f32; 2], 0f32); crate::distribution::BATCH];
+            dist.sample_batch(&q[..e - s], &mut found[..e - s]);
+            for (o, &(uv, map_pdf)) in out[s..e].iter_mut().zip(&found) {
+                *o = self.sampled(uv, map_pdf);
+            }
+        }
+    }
+
+    /// The end of [`Self::sample`] once the distribution has given the map point `uv` and its
+    /// density over the unit square.
+    #[inline(always)]
+    fn sampled(&self, uv: [f32; 2], map_pdf: f32) -> Option<(Vec3, Vec3, f32)> {
         let d_map = uv_to_dir(Vec2::new(uv[0], uv[1]));
         let cos_lat = (1.0 - d_map.y * d_map.y).max(0.0).sqrt();
         if map_pdf <= 0.0 || cos_lat <= 0.0 {
@@ -505,6 +540,49 @@ mod tests {
                 let uv = Vec2::new(u, v);
                 assert_eq!(env.eval_uv(uv), modulo(uv), "u {u}, v {v}");
             }
+        }
+    }
+
+    /// Sampling a batch gives each sample's own answer, bit for bit: a map with dark rows and
+    /// bright texels, sampled (with and without MIS compensation, rotated) at random and at the
+    /// edges of the unit square (0, just under 1, and 1 itself, which takes the whole-table
+    /// search), in batches of 1 to 19 (past `distribution::BATCH`).
+    #[test]
+    fn batched_samples_are_each_samples_own() {
+        let (w, h) = (64usize, 32usize);
+        let texels: Vec<Vec3> = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                let bright = if (x * 7 + y * 3) % 29 == 0 { 500.0 } else { 0.3 };
+                Vec3::new(bright * (1.0 + (x % 5) as f32), bright, if y < 4 { 0.0 } else { 1.0 })
+            })
+            .collect();
+        let mut us: Vec<Vec2> = (0..300u64)
+            .map(|i| Vec2::new(crate::sampler::hash_unit(2 * i), crate::sampler::hash_unit(2 * i + 1)))
+            .collect();
+        for a in [0.0, 1.0 - f32::EPSILON / 2.0, 1.0] {
+            for b in [0.0, 0.5, 1.0 - f32::EPSILON / 2.0, 1.0] {
+                us.push(Vec2::new(a, b));
+            }
+        }
+        let bits = |o: Option<(Vec3, Vec3, f32)>| {
+            o.map(|(d, l, p)| (d.to_array().map(f32::to_bits), l.to_array().map(f32::to_bits), p.to_bits()))
+        };
+        for (compensate, rotation) in [(false, 0.0), (true, 0.0), (true, 75.0)] {
+            let env = Environment::from_texels(w, h, texels.clone(), false, rotation, true, compensate);
+            assert!(env.is_sampled());
+            let mut sampled = 0;
+            for batch in 1..20usize {
+                for chunk in us.chunks(batch) {
+                    let mut out = vec![Some((Vec3::NAN, Vec3::NAN, f32::NAN)); chunk.len()];
+                    env.sample_batch(chunk, &mut out);
+                    for (u, o) in chunk.iter().zip(&out) {
+                        assert_eq!(bits(*o), bits(env.sample(*u)), "u {u:?}, batch {batch}");
+                        sampled += usize::from(o.is_some());
+                    }
+                }
+            }
+            assert!(sampled > 19 * 250, "{sampled}");
         }
     }
 

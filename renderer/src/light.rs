@@ -380,6 +380,64 @@ impl LightSet {
         }
     }
 
+    /// [`Self::sample_selected`] for several points at once (`reference[k]`, `selected[k]`,
+    /// `u[k]` into `out[k]`), the same samples: the ones of the environment go through
+    /// `Environment::sample_batch`, whose cache misses overlap; the others one at a time.
+    #[allow(clippy::too_many_arguments)]
+    pub fn sample_selected_batch(
+        &self,
+        mesh: &Mesh,
+        materials: &[Material],
+        textures: &[Texture],
+        reference: &[Vec3],
+        selected: &[Option<(usize, f32)>],
+        u: &[Vec2],
+        out: &mut [Option<LightSample>],
+    ) {
+        let n = reference.len().min(selected.len()).min(u.len()).min(out.len());
+        let env_index = self.environment_index();
+        let is_env = |s: &Option<(usize, f32)>| matches!(s, Some((i, _)) if *i == env_index);
+        for k in 0..n {
+            if !is_env(&selected[k]) || self.environment.is_none() {
+                out[k] = self.sample_selected(mesh, materials, textures, reference[k], selected[k], u[k]);
+            }
+        }
+        let Some(env) = &self.environment else { return };
+        // The environment's samples, a batch at a time on the stack.
+        const B: usize = crate::distribution::BATCH;
+        let (mut lanes, mut us, mut count) = ([0usize; B], [Vec2::ZERO; B], 0);
+        let mut k = 0;
+        while k < n || count > 0 {
+            if k < n && count < B {
+                if is_env(&selected[k]) {
+                    (lanes[count], us[count]) = (k, u[k]);
+                    count += 1;
+                }
+                k += 1;
+                continue;
+            }
+            let mut found = [None; B];
+            env.sample_batch(&us[..count], &mut found[..count]);
+            for (&k, &f) in lanes[..count].iter().zip(&found) {
+                let Some((_, pmf)) = selected[k] else { continue };
+                // `sample_selected`'s environment arm.
+                out[k] = f.and_then(|(wi, le, pdf)| {
+                    let pdf = pmf * pdf;
+                    (pdf > 0.0 && pdf.is_finite()).then_some(LightSample {
+                        p: reference[k] + wi,
+                        n: -wi,
+                        wi,
+                        dist: f32::INFINITY,
+                        le,
+                        pdf,
+                        delta: false,
+                    })
+                });
+            }
+            count = 0;
+        }
+    }
+
     fn environment_index(&self) -> usize {
         self.lights.len() + self.punctual.len()
     }

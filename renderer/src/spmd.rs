@@ -336,6 +336,7 @@ pub fn radiance8(
         let (mut n0, mut n1, mut n2) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
         let (mut hb1, mut hb2, mut tri) = ([0f32; LANES], [0f32; LANES], [0u32; LANES]);
         let (mut hit_bits, mut smooth) = (0u32, 0u32);
+        let mut escaped = 0u32;
         // The camera ray's lanes draw once they hit (an escaping one needs nothing); later
         // bounces drew before the trace.
         let drawn =
@@ -344,17 +345,7 @@ pub fn radiance8(
             let k = lane[j] as usize;
             // A lane that finds nothing, or stops here, is not shading: it is not alive next round.
             let Some(hit) = hit else {
-                // The environment, seen by BSDF sampling (`Path::shade`'s escape).
-                if let Some(env) = &scene.lights.environment {
-                    if prev_bits & (1 << k) == 0 {
-                        emit[k] = env.eval(dirs[k]);
-                    } else if let Some((le, light_pdf)) =
-                        scene.lights.environment_eval_pdf(dirs[k], prev_p[k], Some(prev_n[k]))
-                    {
-                        emit[k] = le;
-                        emit_w[k] = crate::integrator::mis_weight(settings.mis_heuristic, prev_pdf[k], light_pdf);
-                    }
-                }
+                escaped |= 1 << k;
                 continue;
             };
             if !drawn {
@@ -370,6 +361,21 @@ pub fn radiance8(
                 (n0[k], n1[k], n2[k]) = (mesh.normals[i0], mesh.normals[i1], mesh.normals[i2]);
             }
             (hb1[k], hb2[k], tri[k]) = (hit.b1, hit.b2, hit.triangle);
+        }
+        // The environment, seen by BSDF sampling (`Path::shade`'s escape): the escaped lanes'
+        // lookups in a loop of their own, so their cache misses (the map and its rows are
+        // megabytes) overlap rather than wait a whole lane's shading apart.
+        if let (true, Some(env)) = (escaped != 0, &scene.lights.environment) {
+            for k in lanes_of(escaped) {
+                if prev_bits & (1 << k) == 0 {
+                    emit[k] = env.eval(dirs[k]);
+                } else if let Some((le, light_pdf)) =
+                    scene.lights.environment_eval_pdf(dirs[k], prev_p[k], Some(prev_n[k]))
+                {
+                    emit[k] = le;
+                    emit_w[k] = crate::integrator::mis_weight(settings.mis_heuristic, prev_pdf[k], light_pdf);
+                }
+            }
         }
         let sp = SurfacePoint8::new(
             [v0, v1, v2].map(|v| V8::from_lanes(&v)),
@@ -514,18 +520,18 @@ pub fn radiance8(
             }
             let mut selected = [None; LANES];
             scene.lights.select_batch(&qp[..count], &qn[..count], &qu[..count], &mut selected[..count]);
+            // The lanes that chose another kind of light, sampled together after the loop
+            // (`LightSet::sample_selected_batch`: an environment's samples overlap their misses).
+            let (mut olane, mut ocount) = ([0u8; LANES], 0);
+            let (mut oref, mut ochoice, mut ou) =
+                ([Vec3::ZERO; LANES], [None; LANES], [crate::math::Vec2::ZERO; LANES]);
             for (j, &choice) in selected[..count].iter().enumerate() {
                 let k = lane[j] as usize;
                 let Some((idx, pmf)) = choice else { continue };
                 let Some(light) = scene.lights.lights.get(idx) else {
                     let u = crate::math::Vec2::new(u_pos.0[k], u_pos.1[k]);
-                    let (mesh, mats, textures) = (&scene.mesh, &scene.materials, &scene.textures);
-                    if let Some(ls) = scene.lights.sample_selected(mesh, mats, textures, p[k], choice, u) {
-                        other |= 1 << k;
-                        (owi[k], ole[k], op[k], opdf[k]) = (ls.wi, ls.le, ls.p, ls.pdf);
-                        delta |= u32::from(ls.delta) << k;
-                        infinite |= u32::from(ls.dist.is_infinite()) << k;
-                    }
+                    (olane[ocount], oref[ocount], ochoice[ocount], ou[ocount]) = (k as u8, p[k], choice, u);
+                    ocount += 1;
                     continue;
                 };
                 let Some(m) = scene.materials.get(light.material as usize) else { continue };
@@ -538,6 +544,26 @@ pub fn radiance8(
                 lpmf[k] = pmf;
                 if m.double_sided {
                     two_sided |= 1 << k;
+                }
+            }
+            if ocount > 0 {
+                let mut samples = [None; LANES];
+                let (mesh, mats, textures) = (&scene.mesh, &scene.materials, &scene.textures);
+                scene.lights.sample_selected_batch(
+                    mesh,
+                    mats,
+                    textures,
+                    &oref[..ocount],
+                    &ochoice[..ocount],
+                    &ou[..ocount],
+                    &mut samples[..ocount],
+                );
+                for (j, ls) in samples[..ocount].iter().enumerate() {
+                    let (Some(ls), k) = (ls, olane[j] as usize) else { continue };
+                    other |= 1 << k;
+                    (owi[k], ole[k], op[k], opdf[k]) = (ls.wi, ls.le, ls.p, ls.pdf);
+                    delta |= u32::from(ls.delta) << k;
+                    infinite |= u32::from(ls.dist.is_infinite()) << k;
                 }
             }
             // `LightSet::sample_selected`'s area light: the point, the direction to it, its

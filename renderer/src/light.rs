@@ -114,6 +114,22 @@ fn mean_emission(mesh: &Mesh, m: &Material, textures: &[Texture], tri: u32) -> V
     sum / B.len() as f32
 }
 
+/// The light sample an environment's sample `(wi, le, pdf)` gives at `reference` when the
+/// environment was chosen with probability `pmf`; None when the joint pdf is not positive and finite.
+#[inline]
+fn environment_sample(reference: Vec3, pmf: f32, (wi, le, pdf): (Vec3, Vec3, f32)) -> Option<LightSample> {
+    let pdf = pmf * pdf;
+    (pdf > 0.0 && pdf.is_finite()).then_some(LightSample {
+        p: reference + wi,
+        n: -wi,
+        wi,
+        dist: f32::INFINITY,
+        le,
+        pdf,
+        delta: false,
+    })
+}
+
 impl LightSet {
     /// `scene_radius` sizes the environment's power for light selection: pbrt-v4's
     /// `ImageInfiniteLight::Phi` = 4π² r² × mean radiance.
@@ -419,20 +435,9 @@ impl LightSet {
             let mut found = [None; B];
             env.sample_batch(&us[..count], &mut found[..count]);
             for (&k, &f) in lanes[..count].iter().zip(&found) {
-                let Some((_, pmf)) = selected[k] else { continue };
-                // `sample_selected`'s environment arm.
-                out[k] = f.and_then(|(wi, le, pdf)| {
-                    let pdf = pmf * pdf;
-                    (pdf > 0.0 && pdf.is_finite()).then_some(LightSample {
-                        p: reference[k] + wi,
-                        n: -wi,
-                        wi,
-                        dist: f32::INFINITY,
-                        le,
-                        pdf,
-                        delta: false,
-                    })
-                });
+                if let Some((_, pmf)) = selected[k] {
+                    out[k] = f.and_then(|sample| environment_sample(reference[k], pmf, sample));
+                }
             }
             count = 0;
         }
@@ -503,13 +508,7 @@ impl LightSet {
             });
         }
         if idx == self.environment_index() {
-            let env = self.environment.as_ref()?;
-            let (wi, le, pdf) = env.sample(u)?;
-            let pdf = pmf * pdf;
-            if !(pdf > 0.0) || !pdf.is_finite() {
-                return None;
-            }
-            return Some(LightSample { p: reference + wi, n: -wi, wi, dist: f32::INFINITY, le, pdf, delta: false });
+            return environment_sample(reference, pmf, self.environment.as_ref()?.sample(u)?);
         }
         let light = &self.lights[idx];
         let b = sample_uniform_triangle(u);

@@ -155,7 +155,7 @@ impl Distribution1D {
     }
 }
 
-/// The most samples [`Distribution2D::sample_batch`] takes at once.
+/// How many samples [`Distribution2D::sample_batch`] takes a step at a time.
 pub const BATCH: usize = 8;
 
 /// f(u, v) tabulated on `nu × nv` cells (rows are v), sampled as marginal in v then conditional in u.
@@ -198,24 +198,25 @@ impl Distribution2D {
         }
     }
 
-    /// [`Self::sample`] of each of `us` (at most [`BATCH`]) into `out`, the same numbers, its
-    /// dependent loads taken a step at a time across the samples (the marginal and the row's
-    /// guide entries for all, then each row's search): an environment map's rows are megabytes,
-    /// so each step is a cache miss, and one sample's misses follow one another while different
-    /// samples' can overlap, but only when their loads are issued close together rather than a
-    /// whole sample apart.
+    /// [`Self::sample`] of each of `us` into `out`, the same numbers, its dependent loads taken a
+    /// step at a time across [`BATCH`] samples (the marginal and the row's guide entries for all,
+    /// then each row's search): an environment map's rows are megabytes, so each step is a cache
+    /// miss, and one sample's misses follow one another while different samples' can overlap,
+    /// but only when their loads are issued close together rather than a whole sample apart.
     pub fn sample_batch(&self, us: &[[f32; 2]], out: &mut [([f32; 2], f32)]) {
-        let n = us.len().min(out.len()).min(BATCH);
-        let mut rows = [(0f32, 0f32, 0usize, 0usize, 0usize); BATCH];
-        for (u, r) in us[..n].iter().zip(&mut rows) {
-            let (v, pdf_v, row) = self.marginal.sample(u[1]);
-            let (lo, hi) = self.row(row).search_range(u[0]);
-            *r = (v, pdf_v, row, lo, hi);
-        }
-        for ((u, &(v, pdf_v, row, lo, hi)), o) in us[..n].iter().zip(&rows).zip(&mut out[..n]) {
-            let t = self.row(row);
-            let (x, pdf_u, _) = t.sample_at(u[0], t.entries_at_most_in(u[0], lo, hi));
-            *o = ([x, v], pdf_u * pdf_v);
+        let n = us.len().min(out.len());
+        for (us, out) in us[..n].chunks(BATCH).zip(out[..n].chunks_mut(BATCH)) {
+            let mut rows = [(0f32, 0f32, 0usize, 0usize, 0usize); BATCH];
+            for (u, r) in us.iter().zip(&mut rows) {
+                let (v, pdf_v, row) = self.marginal.sample(u[1]);
+                let (lo, hi) = self.row(row).search_range(u[0]);
+                *r = (v, pdf_v, row, lo, hi);
+            }
+            for ((u, &(v, pdf_v, row, lo, hi)), o) in us.iter().zip(&rows).zip(out) {
+                let t = self.row(row);
+                let (x, pdf_u, _) = t.sample_at(u[0], t.entries_at_most_in(u[0], lo, hi));
+                *o = ([x, v], pdf_u * pdf_v);
+            }
         }
     }
 
@@ -235,6 +236,25 @@ impl Distribution2D {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A 2D batch of any length is each sample's own `sample`, bit for bit: more samples than
+    /// one step's [`BATCH`], random and at the square's edges (1 itself takes the whole-table
+    /// search).
+    #[test]
+    fn batch_of_any_length_equals_single_samples() {
+        let (nu, nv) = (40usize, 9usize);
+        let func: Vec<f32> = (0..nu * nv).map(|i| if i % 7 == 0 { 0.0 } else { (i % 13) as f32 }).collect();
+        let d = Distribution2D::new(&func, nu, nv);
+        let mut us: Vec<[f32; 2]> =
+            (0..100u64).map(|i| [crate::sampler::hash_unit(2 * i), crate::sampler::hash_unit(2 * i + 1)]).collect();
+        us.extend([[0.0, 0.0], [1.0, 0.5], [0.5, 1.0], [1.0 - f32::EPSILON / 2.0, 1.0]]);
+        let mut out = vec![([f32::NAN; 2], f32::NAN); us.len()];
+        d.sample_batch(&us, &mut out);
+        for (u, o) in us.iter().zip(&out) {
+            let (uv, pdf) = d.sample(*u);
+            assert_eq!((o.0.map(f32::to_bits), o.1.to_bits()), (uv.map(f32::to_bits), pdf.to_bits()), "u {u:?}");
+        }
+    }
 
     #[test]
     fn sample_and_pdf_agree_and_integrate_to_one() {

@@ -412,26 +412,20 @@ impl LightSet {
     ) {
         let n = reference.len().min(selected.len()).min(u.len()).min(out.len());
         let env_index = self.environment_index();
-        let is_env = |s: &Option<(usize, f32)>| matches!(s, Some((i, _)) if *i == env_index);
-        for k in 0..n {
-            if !is_env(&selected[k]) || self.environment.is_none() {
-                out[k] = self.sample_selected(mesh, materials, textures, reference[k], selected[k], u[k]);
-            }
-        }
-        let Some(env) = &self.environment else { return };
-        // The environment's samples, a batch at a time on the stack.
         const B: usize = crate::distribution::BATCH;
-        let (mut lanes, mut us, mut count) = ([0usize; B], [Vec2::ZERO; B], 0);
-        let mut k = 0;
-        while k < n || count > 0 {
-            if k < n && count < B {
-                if is_env(&selected[k]) {
-                    (lanes[count], us[count]) = (k, u[k]);
-                    count += 1;
+        for s in (0..n).step_by(B) {
+            // This stretch's environment samples, gathered on the stack; the rest one at a time.
+            let (mut lanes, mut us, mut count) = ([0usize; B], [Vec2::ZERO; B], 0);
+            for k in s..(s + B).min(n) {
+                match (selected[k], &self.environment) {
+                    (Some((i, _)), Some(_)) if i == env_index => {
+                        (lanes[count], us[count]) = (k, u[k]);
+                        count += 1;
+                    }
+                    _ => out[k] = self.sample_selected(mesh, materials, textures, reference[k], selected[k], u[k]),
                 }
-                k += 1;
-                continue;
             }
+            let (Some(env), true) = (&self.environment, count > 0) else { continue };
             let mut found = [None; B];
             env.sample_batch(&us[..count], &mut found[..count]);
             for (&k, &f) in lanes[..count].iter().zip(&found) {
@@ -439,7 +433,6 @@ impl LightSet {
                     out[k] = f.and_then(|sample| environment_sample(reference[k], pmf, sample));
                 }
             }
-            count = 0;
         }
     }
 

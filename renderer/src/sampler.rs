@@ -487,12 +487,12 @@ mod tests {
                                 get_4d_pair_lanes(&samplers, set, set + 2, &mut la, &mut lb),
                                 "one pixel, one block"
                             );
+                            let mut one = [[0f32; 8]; 4];
+                            assert!(get_4d_lanes(&samplers, set + 2, &mut one));
                             for (k, s) in samplers.iter().enumerate() {
                                 // `at` is `new` with that index.
                                 let alone = PixelSample::new(SamplerKind::Sobol, seed, pixel, s.index);
                                 let (a, b) = alone.get_4d_pair(set, set + 2);
-                                let mut one = [[0f32; 8]; 4];
-                                assert!(get_4d_lanes(&samplers, set + 2, &mut one));
                                 for i in 0..4 {
                                     assert_eq!(one[i][k].to_bits(), b[i].to_bits(), "set {set} lane {k} dim {i}");
                                     assert_eq!(la[i][k].to_bits(), a[i].to_bits(), "set {set} lane {k} dim {i}");

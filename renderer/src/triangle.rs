@@ -23,9 +23,11 @@ use crate::math::{Vec3, Vec3A};
 #[derive(Clone, Copy, Debug)]
 pub struct WatertightRay {
     /// The origin's components in the permuted order (x ← kx, y ← ky, z ← kz).
-    pub o: [f32; 3],
-    pub k: [usize; 3],
-    pub s: [f32; 3],
+    o: [f32; 3],
+    /// The axes: a permutation of 0, 1, 2 (only [`Self::new`] makes one, so the eight-wide test
+    /// can load rows by them unchecked).
+    k: [usize; 3],
+    s: [f32; 3],
 }
 
 impl WatertightRay {
@@ -42,6 +44,7 @@ impl WatertightRay {
         let x_gt_y = a.x > a.y;
         let x_wins = x_gt_y & (a.x > a.z);
         let y_wins = !x_gt_y & (a.y > a.z);
+        // Index 2·x_wins + y_wins; both cannot win, so the last row is never read.
         const AXES: [[usize; 3]; 4] = [[0, 1, 2], [2, 0, 1], [1, 2, 0], [1, 2, 0]];
         let [kx, ky, kz] = AXES[2 * x_wins as usize + y_wins as usize];
         let (o, d) = (o.to_array(), d.to_array());
@@ -234,7 +237,7 @@ impl TriangleBlocks {
             if l.on_edge != 0 {
                 return self.intersect8_scalar(r, start, lanes, tmax).is_some();
             }
-            l.hits != 0
+            std::arch::x86_64::_mm256_movemask_ps(l.hit) != 0
         }
         #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
         {
@@ -284,11 +287,11 @@ impl TriangleBlocks {
         // scalar order, highest lane first with a strict comparison, keeps that one), then its
         // barycentrics. A hit's t is below tmax, so finite: ∞ means no hit.
         let inf = _mm256_set1_ps(f32::INFINITY);
-        let t = _mm256_blendv_ps(inf, l.t, l.ok);
+        let t = _mm256_blendv_ps(inf, l.t, l.hit);
         let m = _mm256_min_ps(t, _mm256_permute2f128_ps::<1>(t, t));
         let m = _mm256_min_ps(m, _mm256_permute_ps::<0b01_00_11_10>(m));
         let m = _mm256_min_ps(m, _mm256_permute_ps::<0b10_11_00_01>(m));
-        let at_min = _mm256_movemask_ps(_mm256_and_ps(_mm256_cmp_ps::<_CMP_EQ_OQ>(t, m), l.ok)) as u32;
+        let at_min = _mm256_movemask_ps(_mm256_and_ps(_mm256_cmp_ps::<_CMP_EQ_OQ>(t, m), l.hit)) as u32;
         // The highest lane at the minimum; lane 0 (ignored) when nothing is hit.
         let k = 31 - (at_min | 1).leading_zeros();
         let pick = |v: __m256| _mm256_cvtss_f32(_mm256_permutevar8x32_ps(v, _mm256_set1_epi32(k as i32)));
@@ -303,11 +306,12 @@ impl TriangleBlocks {
         use std::arch::x86_64::*;
         // The axes as offsets into the block's rows, without bounds checks: indexed loads on a
         // ray's axes were compiled into branches on them, which the ray's random direction
-        // mispredicts. Each axis is at most 2 (`min` keeps it so whatever `r.k` holds).
-        let [kx, ky, kz] = r.k.map(|k| k.min(2));
+        // mispredicts.
+        let [kx, ky, kz] = r.k;
         let rows = self.blocks[start / LANES].rows.as_ptr() as *const f32;
-        // SAFETY: j ≤ 2 and k ≤ 2, so row 3j + k is one of the block's nine rows of LANES floats,
-        // 32-byte aligned (`Block`'s repr).
+        // SAFETY: j ≤ 2 and every axis is 0, 1 or 2 (`WatertightRay::new` is the only maker of
+        // one), so row 3j + k is one of the block's nine rows of LANES floats, 32-byte aligned
+        // (`Block`'s repr).
         let load = |j: usize, k: usize| _mm256_load_ps(rows.add((3 * j + k) * LANES));
         let (ox, oy, oz) = (_mm256_set1_ps(r.o[0]), _mm256_set1_ps(r.o[1]), _mm256_set1_ps(r.o[2]));
         let (sx, sy) = (_mm256_set1_ps(r.s[0]), _mm256_set1_ps(r.s[1]));
@@ -347,7 +351,7 @@ impl TriangleBlocks {
         let ok = _mm256_andnot_ps(eq0(det), ok);
         let ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GT_OQ>(t, zero));
         let ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(t, _mm256_set1_ps(tmax)));
-        Lanes8 { hits: _mm256_movemask_ps(ok) as u32, ok, on_edge, t, e1, e2, inv }
+        Lanes8 { hit: ok, on_edge, t, e1, e2, inv }
     }
 }
 
@@ -355,9 +359,8 @@ impl TriangleBlocks {
 /// those lanes need the scalar test's f64 recomputation), and per lane t, e1, e2 and 1/det.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 struct Lanes8 {
-    hits: u32,
-    /// `hits` as a lane mask.
-    ok: std::arch::x86_64::__m256,
+    /// All ones in the lanes hit.
+    hit: std::arch::x86_64::__m256,
     on_edge: u32,
     t: std::arch::x86_64::__m256,
     e1: std::arch::x86_64::__m256,

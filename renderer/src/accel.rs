@@ -761,7 +761,8 @@ impl Accel {
         Accel { stack_len, bvh, wide, kind, top: Some(Box::new(TopLevel { prims, blas })), ..Accel::default() }
     }
 
-    /// [`traverse_closest`] over this BVH's nodes, wide or compressed.
+    /// [`traverse_closest`] over this BVH's nodes, wide or compressed, for the top level of a
+    /// two-level BVH (one-level BVHs, the hot path, go through [`Self::intersect_nodes`]).
     #[inline(always)]
     fn closest(&self, ray: BvhRay, group: impl FnMut(&BvhRay, usize, u32) -> f32) {
         with_stack(self.stack_len, |stack| {
@@ -773,7 +774,8 @@ impl Accel {
         })
     }
 
-    /// [`traverse_any`] over this BVH's nodes, wide or compressed.
+    /// [`traverse_any`] over this BVH's nodes, wide or compressed, for the top level of a
+    /// two-level BVH (one-level BVHs go through [`Self::occluded_nodes`]).
     #[inline(always)]
     fn any(&self, ray: BvhRay, group: impl FnMut(usize, u32) -> bool) -> bool {
         with_stack(self.stack_len, |stack| {
@@ -849,10 +851,27 @@ impl Accel {
         if self.tris.is_empty() || !da.is_finite() || !oa.is_finite() {
             return None;
         }
+        if self.wide.is_empty() {
+            self.intersect_nodes(&self.bvh.nodes, oa, da, tmax)
+        } else {
+            self.intersect_nodes(&self.wide, oa, da, tmax)
+        }
+    }
+
+    /// [`Self::intersect_object`] over `nodes` (this BVH's, wide or compressed). Generic so that
+    /// each node type's traversal has a leaf test of its own, called from one place: LLVM then
+    /// inlines it into the traversal loop (called from two, the test stayed a call, and the
+    /// ray's registers were saved and reloaded around it at every node with leaves).
+    #[inline(always)]
+    fn intersect_nodes<N: TraversalNode>(&self, nodes: &[N], oa: Vec3A, da: Vec3A, tmax: f32) -> Option<Hit> {
         let ray = BvhRay::new(oa, da, 0.0, tmax);
         let wray = WatertightRay::new(oa, da);
         let mut best = (tmax, NO_LEAF, 0.0, 0.0);
-        self.closest(ray, |r, base, mask| self.closest_in_group(&wray, &mut best, r.tmax, base, mask));
+        with_stack(self.stack_len, |stack| {
+            traverse_closest(nodes, stack, ray, |r, base, mask| {
+                self.closest_in_group(&wray, &mut best, r.tmax, base, mask)
+            })
+        });
         self.leaf_hit(best)
     }
 
@@ -928,20 +947,33 @@ impl Accel {
         }
         let (rays, wrays) = batch_rays(&o[..n], &d[..n], |_| tmax);
         let mut best = [(tmax, NO_LEAF, 0.0, 0.0); MAX_BATCH];
-        let len = self.stack_len;
-        with_batch_stack(len * n, |stack| {
-            let group =
-                |k: usize, r: &BvhRay, base, mask| self.closest_in_group(&wrays[k], &mut best[k], r.tmax, base, mask);
-            let touch = |base, mask| self.tris.prefetch(base, mask);
-            if self.wide.is_empty() {
-                traverse_closest_batch(&self.bvh.nodes, stack, len, &rays[..n], group, touch)
-            } else {
-                traverse_closest_batch(&self.wide, stack, len, &rays[..n], group, touch)
-            }
-        });
+        if self.wide.is_empty() {
+            self.intersect_batch_nodes(&self.bvh.nodes, &rays[..n], &wrays[..n], &mut best[..n]);
+        } else {
+            self.intersect_batch_nodes(&self.wide, &rays[..n], &wrays[..n], &mut best[..n]);
+        }
         for k in 0..n {
             out[k] = self.leaf_hit(best[k]);
         }
+    }
+
+    /// [`Self::intersect_batch`]'s walks over `nodes`, generic for the reason
+    /// [`Self::intersect_nodes`] is.
+    #[inline(always)]
+    fn intersect_batch_nodes<N: TraversalNode>(
+        &self,
+        nodes: &[N],
+        rays: &[BvhRay],
+        wrays: &[WatertightRay],
+        best: &mut [LeafHit],
+    ) {
+        let len = self.stack_len;
+        with_batch_stack(len * rays.len(), |stack| {
+            let group =
+                |k: usize, r: &BvhRay, base, mask| self.closest_in_group(&wrays[k], &mut best[k], r.tmax, base, mask);
+            let touch = |base, mask| self.tris.prefetch(base, mask);
+            traverse_closest_batch(nodes, stack, len, rays, group, touch)
+        });
     }
 
     /// Whether any leaf triangle of the group (`traverse_any`) lies on the ray before `tmax`.
@@ -981,16 +1013,30 @@ impl Accel {
             return;
         }
         let (rays, wrays) = batch_rays(&o[..n], &d[..n], |k| tmax[k]);
-        let len = self.stack_len;
         out[..n].fill(false);
-        with_batch_stack(len * n, |stack| {
+        if self.wide.is_empty() {
+            self.occluded_batch_nodes(&self.bvh.nodes, &rays[..n], &wrays[..n], &tmax[..n], &mut out[..n]);
+        } else {
+            self.occluded_batch_nodes(&self.wide, &rays[..n], &wrays[..n], &tmax[..n], &mut out[..n]);
+        }
+    }
+
+    /// [`Self::occluded_batch`]'s walks over `nodes`, generic for the reason
+    /// [`Self::intersect_nodes`] is.
+    #[inline(always)]
+    fn occluded_batch_nodes<N: TraversalNode>(
+        &self,
+        nodes: &[N],
+        rays: &[BvhRay],
+        wrays: &[WatertightRay],
+        tmax: &[f32],
+        out: &mut [bool],
+    ) {
+        let len = self.stack_len;
+        with_batch_stack(len * rays.len(), |stack| {
             let group = |k: usize, base, mask| self.any_in_group(&wrays[k], base, mask, tmax[k]);
             let touch = |base, mask| self.tris.prefetch(base, mask);
-            if self.wide.is_empty() {
-                traverse_any_batch(&self.bvh.nodes, stack, len, &rays[..n], group, touch, &mut out[..n])
-            } else {
-                traverse_any_batch(&self.wide, stack, len, &rays[..n], group, touch, &mut out[..n])
-            }
+            traverse_any_batch(nodes, stack, len, rays, group, touch, out)
         });
     }
 
@@ -1026,8 +1072,21 @@ impl Accel {
         if self.tris.is_empty() || !oa.is_finite() || !da.is_finite() {
             return false;
         }
+        if self.wide.is_empty() {
+            self.occluded_nodes(&self.bvh.nodes, oa, da, tmax)
+        } else {
+            self.occluded_nodes(&self.wide, oa, da, tmax)
+        }
+    }
+
+    /// [`Self::occluded_object`] over `nodes`, generic for the reason [`Self::intersect_nodes`] is.
+    #[inline(always)]
+    fn occluded_nodes<N: TraversalNode>(&self, nodes: &[N], oa: Vec3A, da: Vec3A, tmax: f32) -> bool {
         let wray = WatertightRay::new(oa, da);
-        self.any(BvhRay::new(oa, da, 0.0, tmax), |base, mask| self.any_in_group(&wray, base, mask, tmax))
+        let ray = BvhRay::new(oa, da, 0.0, tmax);
+        with_stack(self.stack_len, |stack| {
+            traverse_any(nodes, stack, ray, |base, mask| self.any_in_group(&wray, base, mask, tmax))
+        })
     }
 }
 

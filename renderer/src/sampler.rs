@@ -510,11 +510,10 @@ mod tests {
         let sobol = SamplerKind::Sobol;
         let refused = |samplers: &[PixelSample]| {
             let (mut a, mut b, mut c) = ([[7f32; 8]; 4], [[7f32; 8]; 4], [[7f32; 8]; 4]);
-            let untouched = a == [[7f32; 8]; 4];
             let pair = get_4d_pair_lanes(samplers, 0, 1, &mut a, &mut b);
             let one = get_4d_lanes(samplers, 0, &mut c);
             assert_eq!(pair, one);
-            !pair && untouched && a == [[7f32; 8]; 4] && b == a && c == a
+            !pair && a == [[7f32; 8]; 4] && b == a && c == a
         };
         assert!(refused(&[]));
         assert!(refused(&[s(sobol, (1, 1), 0), s(sobol, (1, 2), 1)]));

@@ -13,6 +13,9 @@ triangle and barycentrics, what Tessera's closest-hit query returns) and `Scene.
 a warm-up (the LLVM backend compiles its kernels on the first call), median of --runs. Mitsuba hands
 such wavefronts to Embree in packets; bench_embree.py's embreex loop is Embree one ray at a time.
 
+`--vector-width N` (4, 8 or 16) sets Dr.Jit's LLVM vector width, and with it the packet width Mitsuba hands
+Embree (`rtcIntersect4/8/16`); by default Dr.Jit takes the host's widest (16 with AVX-512).
+
 Why: issue 15 compares whole renders with Mitsuba's llvm_ad_rgb; this splits off the ray engine. It
 prints both engines' Mrays/s, the ratio, and checks that they found the same hits (ray_agreement.py).
 """
@@ -36,17 +39,35 @@ if os.path.exists(LLVM):
     os.environ.setdefault("DRJIT_LIBLLVM_PATH", LLVM)
 
 
+def set_vector_width(dr, width):
+    """Sets Dr.Jit's LLVM vector width (None: leave it), keeping the host's CPU and features, through
+    drjit-core's C entry points (Python exposes no setter); returns the width in force."""
+    import ctypes
+    lib = ctypes.CDLL(os.path.join(os.path.dirname(dr.__file__), "libdrjit-core.so"))
+    lib._Z19jit_llvm_target_cpuv.restype = ctypes.c_char_p
+    lib._Z24jit_llvm_target_featuresv.restype = ctypes.c_char_p
+    lib._Z21jit_llvm_vector_widthv.restype = ctypes.c_uint32
+    if width is not None:
+        lib._Z19jit_llvm_set_targetPKcS0_j(lib._Z19jit_llvm_target_cpuv(), lib._Z24jit_llvm_target_featuresv(),
+                                           ctypes.c_uint32(width))
+    return lib._Z21jit_llvm_vector_widthv()
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--scene", default=os.path.join(HERE, "..", "glass", "glass.gltf"))
     ap.add_argument("--rays", type=int, default=1_000_000)
     ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--vector-width", type=int, choices=[4, 8, 16],
+                    help="Dr.Jit's LLVM vector width = Embree's packet width (default: the host's widest)")
     a = ap.parse_args()
 
     import drjit as dr
     import mitsuba as mi
     mi.set_variant("llvm_ad_rgb")
     dr.set_thread_count(1)
+    width = set_vector_width(dr, a.vector_width)
+    print(f"Dr.Jit LLVM vector width {width} (Embree packets of {width})")
 
     with tempfile.TemporaryDirectory() as tmp:
         out = subprocess.run([TESSERA, "bench", "rays", "--scene", a.scene, "--rays", str(a.rays),

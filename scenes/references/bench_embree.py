@@ -22,6 +22,8 @@ plane_error`: 1 019 rays off its large tilted plate hit that plate again at t �
 behind the origin in exact arithmetic; now all 10⁶ agree; see ARCHITECTURE.md, Correctness).
 (With Möller-Trumbore, at level 8, 7 of 10⁶ rays slipped between two triangles that Embree
 reports as hit; the watertight test agrees on all.)
+The Embree figures include embreex's per-ray cost in its Cython loop; bench_embree_packets.py times
+Embree from C++ (one ray at a time and in packets) on `--scene` workloads.
 Embree's build time is scene and mesh creation plus a first one-ray query (embreex commits, i.e.
 builds, the scene lazily there), with Embree's default build quality and its own threads.
 """

@@ -1,0 +1,186 @@
+// Embree 3 (the libembree3 Mitsuba 3 ships, the one its llvm_ad_rgb wavefronts run on) on the rays
+// `tessera bench rays --dump DIR` wrote: one ray at a time (rtcIntersect1 / rtcOccluded1) and in
+// packets of 8 and 16 consecutive rays (rtcIntersect8/16, rtcOccluded8/16), one thread, from C++ so
+// no wrapper's per-ray cost is counted. Built and run by bench_embree_packets.py, which explains why.
+//
+//   embree_packets DIR RUNS   ->  one line per query kind: "name Mrays/s hits" (the median of RUNS)
+#include <embree3/rtcore.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <functional>
+#include <string>
+#include <vector>
+
+#ifdef RTC_NAMESPACE
+using namespace RTC_NAMESPACE;
+#endif
+
+static std::vector<float> load(const std::string &dir, const char *name) {
+    std::string path = dir + "/" + name;
+    FILE *f = std::fopen(path.c_str(), "rb");
+    if (!f) {
+        std::fprintf(stderr, "cannot open %s\n", path.c_str());
+        std::exit(1);
+    }
+    std::fseek(f, 0, SEEK_END);
+    long bytes = std::ftell(f);
+    std::fseek(f, 0, SEEK_SET);
+    std::vector<float> v(bytes / 4);
+    if (std::fread(v.data(), 4, v.size(), f) != v.size()) {
+        std::fprintf(stderr, "short read of %s\n", path.c_str());
+        std::exit(1);
+    }
+    std::fclose(f);
+    return v;
+}
+
+struct Rays {
+    std::vector<float> o, d, sd, st;
+    size_t n() const { return o.size() / 3; }
+};
+
+// One timed pass of `query` (which returns how many rays it found a hit for); Mrays/s and hits.
+template <typename F> static std::pair<double, size_t> timed(size_t n, F query) {
+    auto t0 = std::chrono::steady_clock::now();
+    size_t hits = query();
+    double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return {n / s / 1e6, hits};
+}
+
+template <int W, typename RayHitW, typename Fn>
+static size_t closest_packets(RTCScene scene, const Rays &r, Fn intersect) {
+    RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    size_t hits = 0, n = r.n();
+    for (size_t i = 0; i < n; i += W) {
+        alignas(64) RayHitW rh;
+        alignas(64) int valid[W];
+        std::memset(&rh, 0, sizeof rh);
+        for (int k = 0; k < W; k++) {
+            size_t j = i + k < n ? i + k : i;
+            valid[k] = i + k < n ? -1 : 0;
+            rh.ray.org_x[k] = r.o[3 * j], rh.ray.org_y[k] = r.o[3 * j + 1], rh.ray.org_z[k] = r.o[3 * j + 2];
+            rh.ray.dir_x[k] = r.d[3 * j], rh.ray.dir_y[k] = r.d[3 * j + 1], rh.ray.dir_z[k] = r.d[3 * j + 2];
+            rh.ray.tfar[k] = INFINITY;
+            rh.ray.mask[k] = ~0u;
+            rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
+        }
+        intersect(valid, scene, &ctx, &rh);
+        for (int k = 0; k < W; k++) hits += valid[k] && rh.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID;
+    }
+    return hits;
+}
+
+template <int W, typename RayW, typename Fn>
+static size_t occluded_packets(RTCScene scene, const Rays &r, Fn occluded) {
+    RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    size_t blocked = 0, n = r.n();
+    for (size_t i = 0; i < n; i += W) {
+        alignas(64) RayW ray;
+        alignas(64) int valid[W];
+        std::memset(&ray, 0, sizeof ray);
+        for (int k = 0; k < W; k++) {
+            size_t j = i + k < n ? i + k : i;
+            valid[k] = i + k < n ? -1 : 0;
+            ray.org_x[k] = r.o[3 * j], ray.org_y[k] = r.o[3 * j + 1], ray.org_z[k] = r.o[3 * j + 2];
+            ray.dir_x[k] = r.sd[3 * j], ray.dir_y[k] = r.sd[3 * j + 1], ray.dir_z[k] = r.sd[3 * j + 2];
+            ray.tfar[k] = r.st[j];
+            ray.mask[k] = ~0u;
+        }
+        occluded(valid, scene, &ctx, &ray);
+        for (int k = 0; k < W; k++) blocked += valid[k] && ray.tfar[k] < 0.0f;
+    }
+    return blocked;
+}
+
+int main(int argc, char **argv) {
+    if (argc < 3) {
+        std::fprintf(stderr, "usage: embree_packets DIR RUNS\n");
+        return 2;
+    }
+    std::string dir = argv[1];
+    int runs = std::max(1, std::atoi(argv[2]));
+    std::vector<float> v = load(dir, "vertices.f32");
+    Rays r{load(dir, "origins.f32"), load(dir, "directions.f32"), load(dir, "shadow_directions.f32"),
+           load(dir, "shadow_tmax.f32")};
+    size_t tris = v.size() / 9, n = r.n();
+
+    RTCDevice device = rtcNewDevice("threads=1");
+    RTCScene scene = rtcNewScene(device);
+    RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
+    auto *vb = (float *)rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 12, tris * 3);
+    std::memcpy(vb, v.data(), tris * 9 * sizeof(float));
+    auto *ib = (unsigned *)rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 12, tris);
+    for (size_t i = 0; i < tris * 3; i++) ib[i] = (unsigned)i;
+    rtcCommitGeometry(geom);
+    rtcAttachGeometry(scene, geom);
+    rtcReleaseGeometry(geom);
+    rtcCommitScene(scene);
+
+    auto closest1 = [&] {
+        RTCIntersectContext ctx;
+        rtcInitIntersectContext(&ctx);
+        size_t hits = 0;
+        for (size_t i = 0; i < n; i++) {
+            RTCRayHit rh;
+            std::memset(&rh, 0, sizeof rh);
+            rh.ray.org_x = r.o[3 * i], rh.ray.org_y = r.o[3 * i + 1], rh.ray.org_z = r.o[3 * i + 2];
+            rh.ray.dir_x = r.d[3 * i], rh.ray.dir_y = r.d[3 * i + 1], rh.ray.dir_z = r.d[3 * i + 2];
+            rh.ray.tfar = INFINITY;
+            rh.ray.mask = ~0u;
+            rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+            rtcIntersect1(scene, &ctx, &rh);
+            hits += rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+        }
+        return hits;
+    };
+    auto occluded1 = [&] {
+        RTCIntersectContext ctx;
+        rtcInitIntersectContext(&ctx);
+        size_t blocked = 0;
+        for (size_t i = 0; i < n; i++) {
+            RTCRay ray;
+            std::memset(&ray, 0, sizeof ray);
+            ray.org_x = r.o[3 * i], ray.org_y = r.o[3 * i + 1], ray.org_z = r.o[3 * i + 2];
+            ray.dir_x = r.sd[3 * i], ray.dir_y = r.sd[3 * i + 1], ray.dir_z = r.sd[3 * i + 2];
+            ray.tfar = r.st[i];
+            ray.mask = ~0u;
+            rtcOccluded1(scene, &ctx, &ray);
+            blocked += ray.tfar < 0.0f;
+        }
+        return blocked;
+    };
+    struct Query {
+        const char *name;
+        std::function<size_t()> run;
+    };
+    std::vector<Query> queries = {
+        {"closest1", closest1},
+        {"closest8", [&] { return closest_packets<8, RTCRayHit8>(scene, r, rtcIntersect8); }},
+        {"closest16", [&] { return closest_packets<16, RTCRayHit16>(scene, r, rtcIntersect16); }},
+        {"occluded1", occluded1},
+        {"occluded8", [&] { return occluded_packets<8, RTCRay8>(scene, r, rtcOccluded8); }},
+        {"occluded16", [&] { return occluded_packets<16, RTCRay16>(scene, r, rtcOccluded16); }},
+    };
+    for (auto &q : queries) {
+        q.run();  // warm-up
+        std::vector<double> rates;
+        size_t hits = 0;
+        for (int k = 0; k < runs; k++) {
+            auto [rate, h] = timed(n, q.run);
+            rates.push_back(rate);
+            hits = h;
+        }
+        std::sort(rates.begin(), rates.end());
+        std::printf("%s %.3f %zu\n", q.name, rates[rates.size() / 2], hits);
+    }
+    rtcReleaseScene(scene);
+    rtcReleaseDevice(device);
+    return 0;
+}

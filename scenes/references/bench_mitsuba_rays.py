@@ -41,16 +41,23 @@ if os.path.exists(LLVM):
 
 def set_vector_width(dr, width):
     """Sets Dr.Jit's LLVM vector width (None: leave it), keeping the host's CPU and features, through
-    drjit-core's C entry points (Python exposes no setter); returns the width in force."""
+    drjit-core's C entry points (Python exposes no setter; the names are its C++ symbols, so another
+    Dr.Jit may lack them); returns the width in force, or None where it cannot be read and none was
+    asked for."""
     import ctypes
-    lib = ctypes.CDLL(os.path.join(os.path.dirname(dr.__file__), "libdrjit-core.so"))
-    lib._Z19jit_llvm_target_cpuv.restype = ctypes.c_char_p
-    lib._Z24jit_llvm_target_featuresv.restype = ctypes.c_char_p
-    lib._Z21jit_llvm_vector_widthv.restype = ctypes.c_uint32
-    if width is not None:
-        lib._Z19jit_llvm_set_targetPKcS0_j(lib._Z19jit_llvm_target_cpuv(), lib._Z24jit_llvm_target_featuresv(),
-                                           ctypes.c_uint32(width))
-    return lib._Z21jit_llvm_vector_widthv()
+    try:
+        lib = ctypes.CDLL(os.path.join(os.path.dirname(dr.__file__), "libdrjit-core.so"))
+        lib._Z19jit_llvm_target_cpuv.restype = ctypes.c_char_p
+        lib._Z24jit_llvm_target_featuresv.restype = ctypes.c_char_p
+        lib._Z21jit_llvm_vector_widthv.restype = ctypes.c_uint32
+        if width is not None:
+            lib._Z19jit_llvm_set_targetPKcS0_j(lib._Z19jit_llvm_target_cpuv(), lib._Z24jit_llvm_target_featuresv(),
+                                               ctypes.c_uint32(width))
+        return lib._Z21jit_llvm_vector_widthv()
+    except (OSError, AttributeError) as e:
+        if width is not None:
+            raise RuntimeError(f"cannot set Dr.Jit's vector width with this drjit ({e})") from e
+        return None
 
 
 def main():

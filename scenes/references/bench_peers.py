@@ -14,8 +14,12 @@ Tessera and each peer, so a noisy machine's slow spells fall on all of them. Med
 with different seeds. relMSE against the reference: mean over pixels and channels of (x − ref)² / (ref² +
 0.01). The reference is itself a noisy estimate, and its own error adds to every renderer's measured
 relMSE alike (E[(x − ref)²] = Var x + Var ref), pulling every efficiency ratio towards 1; its expected
-share, from its `variance` channel in the same metric (as `tessera bench convergence` does), is
-subtracted, and the "raw" columns keep the measured figure. Efficiency = 1 / (relMSE · seconds): equal
+share is subtracted, as `tessera bench convergence` does, and the "raw" columns keep the measured figure.
+The share is estimated from the reference's `variance` channel, the variance of its mean luminance, over
+(luminance² + 0.01): the metric's per-channel terms, taken as equal to the luminance's (exact for grey
+noise, close for the suite's white lights). A relMSE not at least 1.25 times that share is marked
+"(unresolved)": the reference cannot tell it apart from its own noise, and its net figure is floored at
+a tenth of the measured one. Efficiency = 1 / (relMSE · seconds): equal
 efficiency means equal error in equal time; the ratio column is each renderer's efficiency over
 Tessera's (above 1: better than Tessera).
 """
@@ -124,8 +128,9 @@ def main():
         for label, t, e in rows:
             eff = 1.0 / (t * net(e))
             raw = 1.0 / (t * e) / base_raw
+            flag = "" if e - own >= 0.25 * own else "  (unresolved)"
             print(f"{label:<22} {t:>8.3f} {w * h * a.spp / t / 1e6:>9.3f} {e:>10.3e} {net(e):>10.3e} {eff:>11.1f} "
-                  f"{eff / base:>10.2f} {raw:>7.2f}")
+                  f"{eff / base:>10.2f} {raw:>7.2f}{flag}")
             summary.append((name, label, t, w * h * a.spp / t / 1e6, e, eff / base, raw))
     print("\nsummary: Tessera's paths/s over each peer's, and each peer's efficiency over Tessera's "
           "(the reference's own noise subtracted; raw: as measured)")

@@ -15,8 +15,10 @@ the two programs; medians. Closest-hit counts are checked equal.
 
 Why: `bench_embree.py` times Embree through embreex's Cython loop, whose per-ray cost is part of its
 figure, and `bench_mitsuba_rays.py` times Mitsuba's wavefront, which adds Dr.Jit's kernels. This is
-Embree alone, so it splits issue 15's ray-engine gap into what Embree's one-ray walk does better and
-what its packets add on rays as incoherent as a path tracer's (ARCHITECTURE.md, ninth round).
+Embree alone. On rays this incoherent, Embree's packets of 8 run its hybrid kernel's one-ray walk
+(`perf` shows `BVHNIntersectorKHybrid::intersect1`), so the packet-of-8 column is Embree's one-ray
+walk without `rtcIntersect1`'s per-call cost: the figure for Tessera's own one-ray walk to meet
+(ARCHITECTURE.md, ninth round).
 """
 import argparse
 import os

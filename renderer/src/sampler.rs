@@ -181,8 +181,7 @@ pub(crate) fn get_4d_pair_lanes(
     a: &mut [[f32; 8]; 4],
     b: &mut [[f32; 8]; 4],
 ) -> bool {
-    let Some(first) = samplers.first() else { return false };
-    let Some(index) = lane_indices(samplers) else { return false };
+    let Some((first, index)) = lane_indices(samplers) else { return false };
     let (seed_a, seed_b) = (first.sobol_seed(set_a), first.sobol_seed(set_b));
     // SAFETY: AVX2 is enabled at compile time; loads and stores are unaligned.
     unsafe { sobol_lanes_avx2(index, [seed_a, seed_b], [a, b]) };
@@ -193,17 +192,18 @@ pub(crate) fn get_4d_pair_lanes(
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[inline(always)]
 pub(crate) fn get_4d_lanes(samplers: &[PixelSample], set: u32, out: &mut [[f32; 8]; 4]) -> bool {
-    let (Some(first), Some(index)) = (samplers.first(), lane_indices(samplers)) else { return false };
+    let Some((first, index)) = lane_indices(samplers) else { return false };
     // SAFETY: AVX2 is enabled at compile time; loads and stores are unaligned.
     unsafe { sobol_lanes_avx2(index, [first.sobol_seed(set)], [out]) };
     true
 }
 
-/// The Sobol indices of up to eight samplers that share their seeds (all Sobol, one pixel, one
-/// 2^16 block; lanes past the samplers repeat the first), or None.
+/// The first of up to eight samplers that share their seeds (all Sobol, one pixel, one 2^16
+/// block), whose seeds serve them all, and their Sobol indices (lanes past the samplers repeat
+/// the first); None when they do not share them.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[inline(always)]
-fn lane_indices(samplers: &[PixelSample]) -> Option<[u32; 8]> {
+fn lane_indices(samplers: &[PixelSample]) -> Option<(&PixelSample, [u32; 8])> {
     let first = samplers.first()?;
     let same = |s: &PixelSample| {
         s.kind == SamplerKind::Sobol && s.pixel_seed == first.pixel_seed && s.index >> 16 == first.index >> 16
@@ -215,7 +215,7 @@ fn lane_indices(samplers: &[PixelSample]) -> Option<[u32; 8]> {
     for (i, s) in index.iter_mut().zip(samplers) {
         *i = s.index & 0xffff;
     }
-    Some(index)
+    Some((first, index))
 }
 
 /// [`get_4d_pair_lanes`]' arithmetic: `sobol_4d(index[k], seeds[s])` for the eight lanes k into

@@ -52,6 +52,22 @@ template <typename F> static std::pair<double, size_t> timed(size_t n, F query) 
     return {n / s / 1e6, hits};
 }
 
+// Ray i of `r` into a ray, or into lane k of a packet (`at` picks the lane's element, or the
+// field itself for a single ray): closest-hit rays go along `r.d` to infinity, occlusion rays
+// (`shadow`) along `r.sd` to `r.st`.
+template <typename Ray, typename At>
+static void set_ray(Ray &ray, At at, const Rays &r, size_t i, bool shadow) {
+    const std::vector<float> &d = shadow ? r.sd : r.d;
+    at(ray.org_x) = r.o[3 * i], at(ray.org_y) = r.o[3 * i + 1], at(ray.org_z) = r.o[3 * i + 2];
+    at(ray.dir_x) = d[3 * i], at(ray.dir_y) = d[3 * i + 1], at(ray.dir_z) = d[3 * i + 2];
+    at(ray.tfar) = shadow ? r.st[i] : INFINITY;
+    at(ray.mask) = ~0u;
+}
+
+// Ray i of a packet of W starting at ray `first`, for lane k: past the rays' end, the first ray
+// again (its lane marked invalid by the caller).
+static size_t lane_ray(size_t first, int k, size_t n) { return first + k < n ? first + k : first; }
+
 template <int W, typename RayHitW, typename Fn>
 static size_t closest_packets(RTCScene scene, const Rays &r, Fn intersect) {
     RTCIntersectContext ctx;
@@ -62,12 +78,8 @@ static size_t closest_packets(RTCScene scene, const Rays &r, Fn intersect) {
         alignas(64) int valid[W];
         std::memset(&rh, 0, sizeof rh);
         for (int k = 0; k < W; k++) {
-            size_t j = i + k < n ? i + k : i;
             valid[k] = i + k < n ? -1 : 0;
-            rh.ray.org_x[k] = r.o[3 * j], rh.ray.org_y[k] = r.o[3 * j + 1], rh.ray.org_z[k] = r.o[3 * j + 2];
-            rh.ray.dir_x[k] = r.d[3 * j], rh.ray.dir_y[k] = r.d[3 * j + 1], rh.ray.dir_z[k] = r.d[3 * j + 2];
-            rh.ray.tfar[k] = INFINITY;
-            rh.ray.mask[k] = ~0u;
+            set_ray(rh.ray, [k](auto &field) -> auto & { return field[k]; }, r, lane_ray(i, k, n), false);
             rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
         }
         intersect(valid, scene, &ctx, &rh);
@@ -86,12 +98,8 @@ static size_t occluded_packets(RTCScene scene, const Rays &r, Fn occluded) {
         alignas(64) int valid[W];
         std::memset(&ray, 0, sizeof ray);
         for (int k = 0; k < W; k++) {
-            size_t j = i + k < n ? i + k : i;
             valid[k] = i + k < n ? -1 : 0;
-            ray.org_x[k] = r.o[3 * j], ray.org_y[k] = r.o[3 * j + 1], ray.org_z[k] = r.o[3 * j + 2];
-            ray.dir_x[k] = r.sd[3 * j], ray.dir_y[k] = r.sd[3 * j + 1], ray.dir_z[k] = r.sd[3 * j + 2];
-            ray.tfar[k] = r.st[j];
-            ray.mask[k] = ~0u;
+            set_ray(ray, [k](auto &field) -> auto & { return field[k]; }, r, lane_ray(i, k, n), true);
         }
         occluded(valid, scene, &ctx, &ray);
         for (int k = 0; k < W; k++) blocked += valid[k] && ray.tfar[k] < 0.0f;
@@ -130,10 +138,7 @@ int main(int argc, char **argv) {
         for (size_t i = 0; i < n; i++) {
             RTCRayHit rh;
             std::memset(&rh, 0, sizeof rh);
-            rh.ray.org_x = r.o[3 * i], rh.ray.org_y = r.o[3 * i + 1], rh.ray.org_z = r.o[3 * i + 2];
-            rh.ray.dir_x = r.d[3 * i], rh.ray.dir_y = r.d[3 * i + 1], rh.ray.dir_z = r.d[3 * i + 2];
-            rh.ray.tfar = INFINITY;
-            rh.ray.mask = ~0u;
+            set_ray(rh.ray, [](auto &field) -> auto & { return field; }, r, i, false);
             rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
             rtcIntersect1(scene, &ctx, &rh);
             hits += rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
@@ -147,10 +152,7 @@ int main(int argc, char **argv) {
         for (size_t i = 0; i < n; i++) {
             RTCRay ray;
             std::memset(&ray, 0, sizeof ray);
-            ray.org_x = r.o[3 * i], ray.org_y = r.o[3 * i + 1], ray.org_z = r.o[3 * i + 2];
-            ray.dir_x = r.sd[3 * i], ray.dir_y = r.sd[3 * i + 1], ray.dir_z = r.sd[3 * i + 2];
-            ray.tfar = r.st[i];
-            ray.mask = ~0u;
+            set_ray(ray, [](auto &field) -> auto & { return field; }, r, i, true);
             rtcOccluded1(scene, &ctx, &ray);
             blocked += ray.tfar < 0.0f;
         }

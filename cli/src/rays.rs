@@ -45,6 +45,21 @@ pub struct RaysArgs {
     /// random point of another random triangle, stopping just short of it.
     #[arg(long)]
     pub scene: Option<PathBuf>,
+    /// Only this accelerator: obvhs, obvhs-compressed or own (default: all three). With
+    /// `--no-batches`, a run times one walk alone, so two builds can be alternated quickly.
+    #[arg(long)]
+    pub accel: Option<AccelKind>,
+    /// Leave out the batched rows ("paired", "batch of 4", "batch of 16").
+    #[arg(long)]
+    pub no_batches: bool,
+}
+
+impl RaysArgs {
+    /// The accelerators to time, in the table's order.
+    fn kinds(&self) -> Vec<AccelKind> {
+        let all = [AccelKind::Obvhs, AccelKind::ObvhsCompressed, AccelKind::Own];
+        all.into_iter().filter(|k| self.accel.is_none_or(|a| a == *k)).collect()
+    }
 }
 
 /// The `--scene` workload: one origin per ray, its closest-hit direction, and its occlusion ray's
@@ -108,7 +123,7 @@ fn run_scene(a: &RaysArgs, path: &Path) -> Result<()> {
     );
     println!("{:<16} {:>10} {:>16} {:>16}", "accel", "build s", "closest Mrays/s", "occluded Mrays/s");
     let mut closest_t = Vec::new();
-    for kind in [AccelKind::Obvhs, AccelKind::ObvhsCompressed, AccelKind::Own] {
+    for kind in a.kinds() {
         let t = Instant::now();
         let accel = Accel::build_with(mesh, kind);
         let build = t.elapsed().as_secs_f64();
@@ -138,8 +153,11 @@ fn run_scene(a: &RaysArgs, path: &Path) -> Result<()> {
             median(closest),
             median(occluded)
         );
-        if kind == AccelKind::Obvhs {
+        if kind == AccelKind::Obvhs && !a.no_batches {
             batched.print(&accel, a.runs);
+        }
+        // The dump's distances: the first accelerator's (obvhs' unless `--accel` chose another).
+        if closest_t.is_empty() {
             closest_t = ts;
         }
     }
@@ -286,7 +304,7 @@ pub fn run(a: RaysArgs) -> Result<()> {
     );
     println!("{:<16} {:>10} {:>16} {:>16}", "accel", "build s", "closest Mrays/s", "occluded Mrays/s");
     let mut closest_t: Vec<f32> = Vec::new();
-    for kind in [AccelKind::Obvhs, AccelKind::ObvhsCompressed, AccelKind::Own] {
+    for kind in a.kinds() {
         let t = Instant::now();
         let accel = Accel::build_with(&mesh, kind);
         let build = t.elapsed().as_secs_f64();
@@ -324,10 +342,10 @@ pub fn run(a: RaysArgs) -> Result<()> {
                 String::new()
             }
         );
-        if kind == AccelKind::Obvhs || kind == AccelKind::ObvhsCompressed {
+        if (kind == AccelKind::Obvhs || kind == AccelKind::ObvhsCompressed) && !a.no_batches {
             batched.print(&accel, a.runs);
         }
-        if kind == AccelKind::Obvhs {
+        if closest_t.is_empty() {
             closest_t = ts;
         }
     }

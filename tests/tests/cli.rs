@@ -170,4 +170,27 @@ fn bench_rays_on_a_scene_compares_the_accelerators() {
     assert!(obvhs.ends_with(&format!("({finite} closest hits)")), "{finite} finite distances: {stdout}");
     let (ok, _, err) = tessera(&["bench", "rays", "--scene", "missing.gltf", "--rays", "10"], &tmp);
     assert!(!ok && err.contains("missing.gltf"), "{err}");
+    // `--accel own --no-batches`: that accelerator's row alone, the same hits as obvhs found.
+    let (ok, alone, err) = tessera(
+        &[
+            "bench",
+            "rays",
+            "--scene",
+            scene.to_str().unwrap(),
+            "--rays",
+            "2000",
+            "--runs",
+            "1",
+            "--accel",
+            "own",
+            "--no-batches",
+        ],
+        &tmp,
+    );
+    assert!(ok, "{err}");
+    let rows: Vec<&str> = alone.lines().skip(2).collect();
+    assert_eq!(rows.len(), 1, "{alone}");
+    assert!(rows[0].starts_with("own ") && rows[0].ends_with(&format!("({finite} closest hits)")), "{alone}");
+    let (ok, _, err) = tessera(&["bench", "rays", "--scene", scene.to_str().unwrap(), "--accel", "bvh9"], &tmp);
+    assert!(!ok && err.contains("bvh9"), "{err}");
 }

@@ -524,9 +524,7 @@ impl LightTree {
             for s in (0..count).step_by(MAX_WALKS) {
                 let e = (s + MAX_WALKS).min(count);
                 // SAFETY: AVX2 is enabled at compile time; the families' loads are 32-byte aligned.
-                self.walks(&p[s..e], &n[s..e], &u[s..e], &mut out[s..e], |at, p, n, u| unsafe {
-                    choose_avx(self.nodes[at].family.importance_avx(p, n), u)
-                });
+                unsafe { self.walks(&p[s..e], &n[s..e], &u[s..e], &mut out[s..e]) };
             }
             return;
         }
@@ -537,29 +535,42 @@ impl LightTree {
 
     /// Up to [`MAX_WALKS`] walks (`p.len()`, all slices that long), a level each in turn:
     /// `walk`'s steps for each, interleaved. (Only the AVX2 build walks in batches.)
+    ///
+    /// A level goes in two passes over the live walks: every walk's importances at its node
+    /// first, then every walk's choice and step down. A level's chain (the node's loads, the
+    /// importances with their division and square roots, the running sums, the slot, the child's
+    /// index) is some 85 cycles long and about 100 instructions; evaluated and chosen in one
+    /// iteration per walk, the out-of-order core held about two walks' chains at once, and a
+    /// walk cost 120 ns of 16 interleaved against 156 ns alone (`cargo bench --bench
+    /// light_tree`). In the first pass the evaluations share nothing, so the core overlaps as
+    /// many as its window holds. Each walk still takes the steps it takes alone.
+    ///
+    /// # Safety
+    /// AVX2 must be available (it is enabled at compile time where this is compiled).
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[inline(always)]
-    fn walks(
-        &self,
-        p: &[Vec3],
-        n: &[Option<Vec3>],
-        u: &[f32],
-        out: &mut [Option<(usize, f32)>],
-        pick: impl Fn(usize, Vec3, Option<Vec3>, f32) -> Option<(usize, f32, f32)>,
-    ) {
-        let count = p.len();
+    unsafe fn walks(&self, p: &[Vec3], n: &[Option<Vec3>], u: &[f32], out: &mut [Option<(usize, f32)>]) {
+        use std::arch::x86_64::{__m256, _mm256_setzero_ps};
+        let count = p.len().min(MAX_WALKS);
         let (mut at, mut pmf, mut rest) = ([0usize; MAX_WALKS], [1.0f32; MAX_WALKS], [0f32; MAX_WALKS]);
         let mut live = [0u8; MAX_WALKS];
         for k in 0..count {
             rest[k] = u[k];
             live[k] = k as u8;
         }
+        let mut imp: [__m256; MAX_WALKS] = [_mm256_setzero_ps(); MAX_WALKS];
         let mut alive = count;
         while alive > 0 {
+            for j in 0..alive {
+                let k = live[j] as usize;
+                // SAFETY: AVX2 (the caller's contract); the family's loads are 32-byte aligned.
+                imp[j] = unsafe { self.nodes[at[k]].family.importance_avx(p[k], n[k]) };
+            }
             let mut still = 0;
             for j in 0..alive {
                 let k = live[j] as usize;
-                let Some((slot, prob, r)) = pick(at[k], p[k], n[k], rest[k]) else {
+                // SAFETY: as above.
+                let Some((slot, prob, r)) = (unsafe { choose_avx(imp[j], rest[k]) }) else {
                     out[k] = None;
                     continue;
                 };

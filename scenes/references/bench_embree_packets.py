@@ -6,8 +6,8 @@
     python3 scenes/references/bench_embree_packets.py [--scene scenes/glass/glass.gltf] [--rays 500000]
                                                       [--runs 3] [--pairs 3]
 
-Runs `tessera bench rays --scene S --dump DIR` (a path tracer's incoherent rays off the scene's
-surfaces: closest-hit rays in cosine directions, occlusion rays toward points on other triangles),
+Runs `tessera bench rays --scene S --accel obvhs --no-batches --dump DIR` (a path tracer's incoherent
+rays off the scene's surfaces: closest-hit rays in cosine directions, occlusion rays toward points on other triangles),
 builds `embree_packets.cpp` against the Embree 3 that Mitsuba 3 ships (the library its llvm_ad_rgb
 wavefronts call, in packets of the JIT's width) and traces the same rays through it one at a time
 (rtcIntersect1, rtcOccluded1) and in packets of 8 and 16 consecutive rays. --pairs alternations of
@@ -58,7 +58,7 @@ def main():
         hits = {}
         for p in range(a.pairs):
             out = subprocess.run([TESSERA, "bench", "rays", "--scene", a.scene, "--rays", str(a.rays),
-                                  "--runs", str(a.runs)] + (["--dump", tmp] if p == 0 else []),
+                                  "--runs", str(a.runs), "--accel", "obvhs", "--no-batches"] + (["--dump", tmp] if p == 0 else []),
                                  check=True, capture_output=True, text=True).stdout
             for line in out.splitlines():
                 f = line.split()

@@ -5,9 +5,9 @@
     pip install mitsuba numpy; apt-get install libllvm19
     python3 scenes/references/bench_mitsuba_rays.py [--scene scenes/glass/glass.gltf] [--rays 1000000] [--runs 3]
 
-Runs `tessera bench rays --scene S --dump DIR` (a path tracer's rays off the scene's surfaces: closest-hit
-rays in cosine directions, occlusion rays toward points on other triangles), then loads the dumped
-triangles into a Mitsuba 3 scene (one mesh, variant llvm_ad_rgb, one Dr.Jit thread) and traces all the
+Runs `tessera bench rays --scene S --accel obvhs --no-batches --dump DIR` (a path tracer's rays off the
+scene's surfaces: closest-hit rays in cosine directions, occlusion rays toward points on other
+triangles), then loads the dumped triangles into a Mitsuba 3 scene (one mesh, variant llvm_ad_rgb, one Dr.Jit thread) and traces all the
 rays as one wavefront, as Mitsuba's path tracer does: `Scene.ray_intersect_preliminary` (distance,
 triangle and barycentrics, what Tessera's closest-hit query returns) and `Scene.ray_test`, timed after
 a warm-up (the LLVM backend compiles its kernels on the first call), median of --runs. Mitsuba hands
@@ -78,7 +78,8 @@ def main():
 
     with tempfile.TemporaryDirectory() as tmp:
         out = subprocess.run([TESSERA, "bench", "rays", "--scene", a.scene, "--rays", str(a.rays),
-                              "--runs", str(a.runs), "--dump", tmp], check=True, capture_output=True, text=True)
+                              "--runs", str(a.runs), "--accel", "obvhs", "--no-batches", "--dump", tmp],
+                             check=True, capture_output=True, text=True)
         print(out.stdout, end="")
         tess = None
         for line in out.stdout.splitlines():

@@ -68,43 +68,59 @@ static void set_ray(Ray &ray, At at, const Rays &r, size_t i, bool shadow) {
 // again (its lane marked invalid by the caller).
 static size_t lane_ray(size_t first, int k, size_t n) { return first + k < n ? first + k : first; }
 
-template <int W, typename RayHitW, typename Fn>
-static size_t closest_packets(RTCScene scene, const Rays &r, Fn intersect) {
+// What a query needs of its ray structure, a single ray's or a packet's (`at` picks a packet
+// lane's element, or the field itself): the rays it traces, the part holding the ray, what to
+// clear before the call and whether the query found something.
+struct Closest {
+    static constexpr bool shadow = false;
+    template <class P> static auto &ray(P &p) { return p.ray; }
+    template <class P, class At> static void clear(P &p, At at) { at(p.hit.geomID) = RTC_INVALID_GEOMETRY_ID; }
+    template <class P, class At> static bool found(P &p, At at) { return at(p.hit.geomID) != RTC_INVALID_GEOMETRY_ID; }
+};
+struct Occluded {
+    static constexpr bool shadow = true;
+    template <class P> static P &ray(P &p) { return p; }
+    template <class P, class At> static void clear(P &, At) {}
+    template <class P, class At> static bool found(P &p, At at) { return at(p.tfar) < 0.0f; }
+};
+
+// Every ray one at a time (`query` is rtcIntersect1 or rtcOccluded1 on `P`): how many found something.
+template <class Kind, class P, class Query> static size_t singles(RTCScene scene, const Rays &r, Query query) {
     RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
-    size_t hits = 0, n = r.n();
-    for (size_t i = 0; i < n; i += W) {
-        alignas(64) RayHitW rh;
-        alignas(64) int valid[W];
-        std::memset(&rh, 0, sizeof rh);
-        for (int k = 0; k < W; k++) {
-            valid[k] = i + k < n ? -1 : 0;
-            set_ray(rh.ray, [k](auto &field) -> auto & { return field[k]; }, r, lane_ray(i, k, n), false);
-            rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
-        }
-        intersect(valid, scene, &ctx, &rh);
-        for (int k = 0; k < W; k++) hits += valid[k] && rh.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID;
+    auto field = [](auto &f) -> auto & { return f; };
+    size_t found = 0;
+    for (size_t i = 0; i < r.n(); i++) {
+        P p;
+        std::memset(&p, 0, sizeof p);
+        set_ray(Kind::ray(p), field, r, i, Kind::shadow);
+        Kind::clear(p, field);
+        query(scene, &ctx, &p);
+        found += Kind::found(p, field);
     }
-    return hits;
+    return found;
 }
 
-template <int W, typename RayW, typename Fn>
-static size_t occluded_packets(RTCScene scene, const Rays &r, Fn occluded) {
+// The rays in packets of W consecutive ones (`query` is rtcIntersectW or rtcOccludedW on `P`),
+// lanes past the end invalid: how many found something.
+template <class Kind, int W, class P, class Query> static size_t packets(RTCScene scene, const Rays &r, Query query) {
     RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
-    size_t blocked = 0, n = r.n();
+    auto lane = [](int k) { return [k](auto &f) -> auto & { return f[k]; }; };
+    size_t found = 0, n = r.n();
     for (size_t i = 0; i < n; i += W) {
-        alignas(64) RayW ray;
+        alignas(64) P p;
         alignas(64) int valid[W];
-        std::memset(&ray, 0, sizeof ray);
+        std::memset(&p, 0, sizeof p);
         for (int k = 0; k < W; k++) {
             valid[k] = i + k < n ? -1 : 0;
-            set_ray(ray, [k](auto &field) -> auto & { return field[k]; }, r, lane_ray(i, k, n), true);
+            set_ray(Kind::ray(p), lane(k), r, lane_ray(i, k, n), Kind::shadow);
+            Kind::clear(p, lane(k));
         }
-        occluded(valid, scene, &ctx, &ray);
-        for (int k = 0; k < W; k++) blocked += valid[k] && ray.tfar[k] < 0.0f;
+        query(valid, scene, &ctx, &p);
+        for (int k = 0; k < W; k++) found += valid[k] && Kind::found(p, lane(k));
     }
-    return blocked;
+    return found;
 }
 
 int main(int argc, char **argv) {
@@ -131,44 +147,17 @@ int main(int argc, char **argv) {
     rtcReleaseGeometry(geom);
     rtcCommitScene(scene);
 
-    auto closest1 = [&] {
-        RTCIntersectContext ctx;
-        rtcInitIntersectContext(&ctx);
-        size_t hits = 0;
-        for (size_t i = 0; i < n; i++) {
-            RTCRayHit rh;
-            std::memset(&rh, 0, sizeof rh);
-            set_ray(rh.ray, [](auto &field) -> auto & { return field; }, r, i, false);
-            rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-            rtcIntersect1(scene, &ctx, &rh);
-            hits += rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
-        }
-        return hits;
-    };
-    auto occluded1 = [&] {
-        RTCIntersectContext ctx;
-        rtcInitIntersectContext(&ctx);
-        size_t blocked = 0;
-        for (size_t i = 0; i < n; i++) {
-            RTCRay ray;
-            std::memset(&ray, 0, sizeof ray);
-            set_ray(ray, [](auto &field) -> auto & { return field; }, r, i, true);
-            rtcOccluded1(scene, &ctx, &ray);
-            blocked += ray.tfar < 0.0f;
-        }
-        return blocked;
-    };
     struct Query {
         const char *name;
         std::function<size_t()> run;
     };
     std::vector<Query> queries = {
-        {"closest1", closest1},
-        {"closest8", [&] { return closest_packets<8, RTCRayHit8>(scene, r, rtcIntersect8); }},
-        {"closest16", [&] { return closest_packets<16, RTCRayHit16>(scene, r, rtcIntersect16); }},
-        {"occluded1", occluded1},
-        {"occluded8", [&] { return occluded_packets<8, RTCRay8>(scene, r, rtcOccluded8); }},
-        {"occluded16", [&] { return occluded_packets<16, RTCRay16>(scene, r, rtcOccluded16); }},
+        {"closest1", [&] { return singles<Closest, RTCRayHit>(scene, r, rtcIntersect1); }},
+        {"closest8", [&] { return packets<Closest, 8, RTCRayHit8>(scene, r, rtcIntersect8); }},
+        {"closest16", [&] { return packets<Closest, 16, RTCRayHit16>(scene, r, rtcIntersect16); }},
+        {"occluded1", [&] { return singles<Occluded, RTCRay>(scene, r, rtcOccluded1); }},
+        {"occluded8", [&] { return packets<Occluded, 8, RTCRay8>(scene, r, rtcOccluded8); }},
+        {"occluded16", [&] { return packets<Occluded, 16, RTCRay16>(scene, r, rtcOccluded16); }},
     };
     for (auto &q : queries) {
         q.run();  // warm-up

@@ -30,7 +30,7 @@ def main():
     a = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         subprocess.run([TESSERA, "bench", "rays", "--level", str(a.level), "--rays", "1", "--runs", "1",
-                        "--dump", tmp], check=True, capture_output=True)
+                        "--accel", "obvhs", "--no-batches", "--dump", tmp], check=True, capture_output=True)
         v = np.fromfile(os.path.join(tmp, "vertices.f32"), dtype="<f4").reshape(-1, 3)
     n = v / np.linalg.norm(v, axis=1, keepdims=True)
     bump = 1.0 + 0.08 * np.sin(9 * n[:, 0:1]) * np.sin(7 * n[:, 1:2]) * np.sin(11 * n[:, 2:3])

@@ -7,11 +7,12 @@
 
 Runs `tessera bench rays --scene S --accel obvhs --no-batches --dump DIR` (a path tracer's rays off the
 scene's surfaces: closest-hit rays in cosine directions, occlusion rays toward points on other
-triangles), then loads the dumped triangles into a Mitsuba 3 scene (one mesh, variant llvm_ad_rgb,
-one Dr.Jit thread) and traces all the rays as one wavefront, as Mitsuba's path tracer does: `Scene.ray_intersect_preliminary` (distance,
-triangle and barycentrics, what Tessera's closest-hit query returns) and `Scene.ray_test`, timed after
-a warm-up (the LLVM backend compiles its kernels on the first call), median of --runs. Mitsuba hands
-such wavefronts to Embree in packets; bench_embree.py's embreex loop is Embree one ray at a time.
+triangles), then loads the dumped triangles into a Mitsuba 3 scene (one mesh, variant llvm_ad_rgb, one
+Dr.Jit thread) and traces all the rays as one wavefront, as Mitsuba's path tracer does:
+`Scene.ray_intersect_preliminary` (distance, triangle and barycentrics, what Tessera's closest-hit
+query returns) and `Scene.ray_test`, timed after a warm-up (the LLVM backend compiles its kernels on
+the first call), median of --runs. Mitsuba hands such wavefronts to Embree in packets;
+bench_embree.py's embreex loop is Embree one ray at a time.
 
 `--vector-width N` (4, 8 or 16) sets Dr.Jit's LLVM vector width, and with it the packet width Mitsuba hands
 Embree (`rtcIntersect4/8/16`); by default Dr.Jit takes the host's widest (16 with AVX-512).

@@ -1239,6 +1239,39 @@ mod tests {
         );
     }
 
+    /// A direction component of −0.0 (a negated normal's zero, say) is a direction like +0.0: its
+    /// safe inverse is −1/ε, so the box's near plane on that axis is the upper one. Choosing
+    /// planes by `d < 0` (false for −0.0) swapped them, and the ray missed every box, at every
+    /// accelerator and node form, alone and in batches.
+    #[test]
+    fn signed_zero_directions_hit_what_they_point_at() {
+        let mut b = crate::testing::SceneBuilder::default();
+        let m = b.material(crate::testing::lambert(Vec3::splat(0.5)));
+        b.quad(Vec3::ZERO, Vec3::X, Vec3::Z, m);
+        // More geometry, so the floor sits below inner nodes too.
+        b.sphere(Vec3::new(0.0, 3.0, 0.0), 0.5, 3, false, m);
+        let zeros = [0.0f32, -0.0];
+        for kind in [AccelKind::Obvhs, AccelKind::ObvhsCompressed, AccelKind::Own] {
+            let accel = Accel::build_with(&b.mesh, kind);
+            for (sx, sz) in zeros.iter().flat_map(|&x| zeros.iter().map(move |&z| (x, z))) {
+                let (o, d) = (Vec3::new(0.3, 1.0, -0.2), Vec3::new(sx, -1.0, sz));
+                let hit = accel.intersect(o, d, f32::INFINITY);
+                assert!(
+                    hit.is_some_and(|h| (h.t - 1.0).abs() < 1e-5),
+                    "{kind:?}, direction {d:?}: {hit:?}, want t = 1"
+                );
+                assert!(accel.occluded(o, d, 2.0), "{kind:?}, direction {d:?}: not occluded");
+                let (os, ds) = ([o; 3], [d; 3]);
+                let mut out = [None; 3];
+                accel.intersect_batch(&os, &ds, f32::INFINITY, &mut out);
+                assert!(out.iter().all(|h| h.is_some_and(|h| (h.t - 1.0).abs() < 1e-5)), "{kind:?} batch {d:?}");
+                let mut blocked = [false; 3];
+                accel.occluded_batch(&os, &ds, &[2.0; 3], &mut blocked);
+                assert!(blocked.iter().all(|&x| x), "{kind:?} batch {d:?}: not occluded");
+            }
+        }
+    }
+
     /// Windows cover exactly the slots a group names, block-aligned, highest block first.
     #[test]
     fn windows_cover_the_group_block_by_block() {

@@ -12,9 +12,12 @@
 //! multiply-add; the same max/min operand order, which decides what a NaN does), but for the
 //! lower bound on a child's entry distance: obvhs clamps it to 10⁻⁴ (its `EPSILON`), which
 //! drops every child the ray leaves before t = 10⁻⁴, an absolute distance in scene units; here
-//! it is 0 ([`NODE_TMIN`]). So the hit masks are obvhs' (`CwBvhNode::intersect_ray`) plus the
-//! children that end within 10⁻⁴ of the origin; a test compares the two on every node a set of
-//! random rays visits, and holds the SIMD test to a scalar reference ([`intersect_scalar`]).
+//! it is 0 ([`NODE_TMIN`]); and the near plane on an axis is chosen by the sign of the inverse
+//! direction, not by obvhs' `d < 0`, which for a component of −0.0 (safe inverse −1/ε) swapped
+//! the planes and missed every box. So the hit masks are obvhs' (`CwBvhNode::intersect_ray`)
+//! plus the children that end within 10⁻⁴ of the origin (and, for −0.0, the boxes it missed); a
+//! test compares the two on every node a set of random rays visits, and holds the SIMD test to a
+//! scalar reference ([`intersect_scalar`]).
 
 use obvhs::cwbvh::node::CwBvhNode;
 use obvhs::ray::Ray;
@@ -95,7 +98,7 @@ fn slot_intervals(node: &CwBvhNode, ray: &Ray) -> [(f32, f32); 8] {
     std::array::from_fn(|slot| {
         let t = |axis: usize, far: bool| {
             let (lo, hi) = planes[axis];
-            let upper = (ray.direction[axis] < 0.0) != far;
+            let upper = (ray.inv_direction[axis] < 0.0) != far;
             let q = if upper { hi[slot] } else { lo[slot] } as f32;
             q * adj_dir[axis] + adj_org[axis]
         };
@@ -137,14 +140,16 @@ unsafe fn intersect_avx2(node: &CwBvhNode, ray: &Ray, oct_inv4: u32) -> (u32, [f
     let adj_org = (Vec3A::from(node.p) - ray.origin) * ray.inv_direction;
     // Eight plane bytes as eight floats.
     let q = |b: &[u8; 8]| _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_loadl_epi64(b.as_ptr() as *const __m128i)));
+    // `negative`: the inverse direction's sign (a direction of −0.0 has a negative safe inverse,
+    // so enters through the upper plane; obvhs' `d < 0` misses every box for it).
     let slab = |lo: &[u8; 8], hi: &[u8; 8], negative: bool, dir: f32, org: f32| {
         let (near, far) = if negative { (hi, lo) } else { (lo, hi) };
         let (d, o) = (_mm256_set1_ps(dir), _mm256_set1_ps(org));
         (_mm256_add_ps(_mm256_mul_ps(q(near), d), o), _mm256_add_ps(_mm256_mul_ps(q(far), d), o))
     };
-    let (tmin_x, tmax_x) = slab(&node.child_min_x, &node.child_max_x, ray.direction.x < 0.0, adj_dir.x, adj_org.x);
-    let (tmin_y, tmax_y) = slab(&node.child_min_y, &node.child_max_y, ray.direction.y < 0.0, adj_dir.y, adj_org.y);
-    let (tmin_z, tmax_z) = slab(&node.child_min_z, &node.child_max_z, ray.direction.z < 0.0, adj_dir.z, adj_org.z);
+    let (tmin_x, tmax_x) = slab(&node.child_min_x, &node.child_max_x, ray.inv_direction.x < 0.0, adj_dir.x, adj_org.x);
+    let (tmin_y, tmax_y) = slab(&node.child_min_y, &node.child_max_y, ray.inv_direction.y < 0.0, adj_dir.y, adj_org.y);
+    let (tmin_z, tmax_z) = slab(&node.child_min_z, &node.child_max_z, ray.inv_direction.z < 0.0, adj_dir.z, adj_org.z);
     let tmin = _mm256_max_ps(tmin_x, _mm256_max_ps(tmin_y, tmin_z));
     let tmax = _mm256_min_ps(tmax_x, _mm256_min_ps(tmax_y, tmax_z));
     let tmin = _mm256_max_ps(tmin, _mm256_set1_ps(NODE_TMIN));

@@ -101,7 +101,9 @@ impl WideNode {
     unsafe fn intersect_avx2(&self, ray: &Ray, inv_far: Vec3A, oct_inv4: u32) -> (u32, [f32; 8]) {
         use std::arch::x86_64::*;
         let ld = |a: &[f32; 8]| _mm256_load_ps(a.as_ptr());
-        // A negative direction enters a box through its upper plane.
+        // A ray with a negative inverse enters a box through its upper plane. The inverse's sign,
+        // not the direction's `< 0`: a direction of −0.0 has the safe inverse −1/ε, and
+        // choosing its planes by `d < 0` swapped them and missed every box.
         let slab = |axis: usize, negative: bool| {
             let (near, far) = if negative { (1, 0) } else { (0, 1) };
             let o = _mm256_set1_ps(ray.origin[axis]);
@@ -111,9 +113,9 @@ impl WideNode {
                 _mm256_mul_ps(_mm256_sub_ps(ld(&self.planes[axis][far]), o), inv_far),
             )
         };
-        let (nx, fx) = slab(0, ray.direction.x < 0.0);
-        let (ny, fy) = slab(1, ray.direction.y < 0.0);
-        let (nz, fz) = slab(2, ray.direction.z < 0.0);
+        let (nx, fx) = slab(0, ray.inv_direction.x < 0.0);
+        let (ny, fy) = slab(1, ray.inv_direction.y < 0.0);
+        let (nz, fz) = slab(2, ray.inv_direction.z < 0.0);
         let tmin = _mm256_max_ps(_mm256_max_ps(nx, ny), _mm256_max_ps(nz, _mm256_set1_ps(NODE_TMIN)));
         let tmax = _mm256_min_ps(_mm256_min_ps(fx, fy), _mm256_min_ps(fz, _mm256_set1_ps(ray.tmax)));
         let hit = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LE_OQ>(tmin, tmax));
@@ -140,7 +142,7 @@ impl WideNode {
     /// (the child is hit when the first is at most the second).
     fn slot_interval(&self, slot: usize, ray: &Ray, inv_far: Vec3A) -> (f32, f32) {
         let t = |axis: usize, far: bool| {
-            let side = (ray.direction[axis] < 0.0) != far;
+            let side = (ray.inv_direction[axis] < 0.0) != far;
             let inv = if far { inv_far[axis] } else { ray.inv_direction[axis] };
             (self.planes[axis][side as usize][slot] - ray.origin[axis]) * inv
         };

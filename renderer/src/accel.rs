@@ -12,10 +12,10 @@
 
 use crate::math::{Vec3, Vec3A};
 use crate::mesh::Mesh;
+use crate::node_ray::NodeRay;
 use crate::wide_node::WideNode;
 use obvhs::cwbvh::node::CwBvhNode;
 use obvhs::cwbvh::CwBvh;
-use obvhs::ray::Ray as BvhRay;
 
 use crate::triangle::{RtTriangle, TriangleBlocks, WatertightRay, LANES, NO_HIT8};
 use std::mem::MaybeUninit;
@@ -71,16 +71,6 @@ const STACK: usize = 256;
 /// The most rays [`Accel::intersect_batch`] walks at once.
 pub const MAX_BATCH: usize = 16;
 
-/// obvhs' ray octant code (`CwBvh::new_traversal`): in every byte, bit 2, 1, 0 set for a
-/// non-negative x, y, z direction component. XORed with a child's slot it gives the child's
-/// traversal priority (the node test's hit-mask bit).
-#[inline(always)]
-fn octant_inv4(d: Vec3A) -> u32 {
-    (if d.x < 0.0 { 0 } else { 0x0404_0404 })
-        | (if d.y < 0.0 { 0 } else { 0x0202_0202 })
-        | (if d.z < 0.0 { 0 } else { 0x0101_0101 })
-}
-
 /// The node index of the inner child in `slot` of `node`: inner children are stored from
 /// `child_base_idx` in slot order.
 #[inline(always)]
@@ -94,15 +84,15 @@ fn inner_child(node: &impl TraversalNode, slot: u32) -> u32 {
 trait TraversalNode {
     /// The hit mask in obvhs' format and each child's entry distance by slot (see
     /// [`crate::cwbvh_node::intersect_entry`]).
-    fn test(&self, ray: &BvhRay, inv_far: Vec3A, oct_inv4: u32) -> (u32, [f32; 8]);
+    fn test(&self, ray: &NodeRay) -> (u32, [f32; 8]);
     /// obvhs' `(child_base_idx, primitive_base_idx, imask)`.
     fn links(&self) -> (u32, u32, u32);
 }
 
 impl TraversalNode for CwBvhNode {
     #[inline(always)]
-    fn test(&self, ray: &BvhRay, _: Vec3A, oct_inv4: u32) -> (u32, [f32; 8]) {
-        crate::cwbvh_node::intersect_entry(self, ray, oct_inv4)
+    fn test(&self, ray: &NodeRay) -> (u32, [f32; 8]) {
+        crate::cwbvh_node::intersect_entry(self, ray)
     }
     #[inline(always)]
     fn links(&self) -> (u32, u32, u32) {
@@ -112,8 +102,8 @@ impl TraversalNode for CwBvhNode {
 
 impl TraversalNode for WideNode {
     #[inline(always)]
-    fn test(&self, ray: &BvhRay, inv_far: Vec3A, oct_inv4: u32) -> (u32, [f32; 8]) {
-        self.intersect(ray, inv_far, oct_inv4)
+    fn test(&self, ray: &NodeRay) -> (u32, [f32; 8]) {
+        self.intersect(ray)
     }
     #[inline(always)]
     fn links(&self) -> (u32, u32, u32) {
@@ -136,8 +126,8 @@ impl TraversalNode for WideNode {
 fn traverse_closest<N: TraversalNode>(
     nodes: &[N],
     stack: &mut [MaybeUninit<Deferred>],
-    ray: BvhRay,
-    mut group: impl FnMut(&BvhRay, usize, u32) -> f32,
+    ray: NodeRay,
+    mut group: impl FnMut(&NodeRay, usize, u32) -> f32,
 ) {
     if nodes.is_empty() {
         return;
@@ -156,8 +146,8 @@ fn traverse_closest_batch<N: TraversalNode>(
     nodes: &[N],
     stack: &mut [MaybeUninit<Deferred>],
     len: usize,
-    rays: &[BvhRay],
-    mut group: impl FnMut(usize, &BvhRay, usize, u32) -> f32,
+    rays: &[NodeRay],
+    mut group: impl FnMut(usize, &NodeRay, usize, u32) -> f32,
     touch: impl Fn(usize, u32),
 ) {
     let n = rays.len().min(MAX_BATCH);
@@ -172,7 +162,7 @@ fn traverse_closest_batch<N: TraversalNode>(
         walks[k].step::<N, true>(
             nodes,
             &mut stack[k * len..(k + 1) * len],
-            &mut |r: &BvhRay, b, m| group(k, r, b, m),
+            &mut |r: &NodeRay, b, m| group(k, r, b, m),
             &touch,
         )
     });
@@ -221,9 +211,7 @@ pub(crate) fn prefetch<N>(node: &N) {
 /// handed to each step, so a batch's stacks are plain borrows.
 #[derive(Clone, Copy)]
 struct Walk {
-    ray: BvhRay,
-    inv_far: Vec3A,
-    oct_inv4: u32,
+    ray: NodeRay,
     sp: usize,
     current: u32,
     /// A batch's pending leaf test ([`Walk::step`]): the node's first primitive slot and
@@ -234,10 +222,8 @@ struct Walk {
 
 impl Walk {
     #[inline(always)]
-    fn new(ray: BvhRay) -> Self {
-        let oct_inv4 = octant_inv4(ray.direction);
-        let inv_far = crate::wide_node::far_inverse(&ray);
-        Walk { ray, inv_far, oct_inv4, sp: 0, current: 0, leaf_base: 0, leaf_prims: 0 }
+    fn new(ray: NodeRay) -> Self {
+        Walk { ray, sp: 0, current: 0, leaf_base: 0, leaf_prims: 0 }
     }
 
     /// Visits the current node and picks the next; false when no node is left to visit.
@@ -253,7 +239,7 @@ impl Walk {
         &mut self,
         nodes: &[N],
         stack: &mut [MaybeUninit<Deferred>],
-        group: &mut impl FnMut(&BvhRay, usize, u32) -> f32,
+        group: &mut impl FnMut(&NodeRay, usize, u32) -> f32,
         touch: &impl Fn(usize, u32),
     ) -> bool {
         if BATCH && self.leaf_prims != 0 {
@@ -264,9 +250,9 @@ impl Walk {
             self.leaf_prims = 0;
             return self.next::<N, BATCH>(nodes, stack, self.sp);
         }
-        let oct = self.oct_inv4 & 7;
+        let oct = self.ray.oct_inv4 & 7;
         let node = &nodes[self.current as usize];
-        let (hits, entry) = node.test(&self.ray, self.inv_far, self.oct_inv4);
+        let (hits, entry) = node.test(&self.ray);
         let prims = hits & 0x00ff_ffff;
         if !BATCH && prims != 0 {
             let t = group(&self.ray, node.links().1 as usize, prims);
@@ -347,8 +333,8 @@ impl Walk {
             self.leaf_prims = 0;
         } else {
             let node = &nodes[self.current as usize];
-            let hits = node.test(&self.ray, self.inv_far, self.oct_inv4).0;
-            self.sp = defer_unordered(node, hits, self.oct_inv4 & 7, stack, self.sp);
+            let hits = node.test(&self.ray).0;
+            self.sp = defer_unordered(node, hits, self.ray.oct_inv4 & 7, stack, self.sp);
             let prims = hits & 0x00ff_ffff;
             if prims != 0 {
                 let base = node.links().1;
@@ -396,19 +382,17 @@ fn defer_unordered<N: TraversalNode>(
 fn traverse_any<N: TraversalNode>(
     nodes: &[N],
     stack: &mut [MaybeUninit<Deferred>],
-    ray: BvhRay,
+    ray: NodeRay,
     mut group: impl FnMut(usize, u32) -> bool,
 ) -> bool {
     if nodes.is_empty() {
         return false;
     }
-    let oct_inv4 = octant_inv4(ray.direction);
-    let oct = oct_inv4 & 7;
-    let inv_far = crate::wide_node::far_inverse(&ray);
+    let oct = ray.oct_inv4 & 7;
     let (mut sp, mut current) = (0usize, 0u32);
     loop {
         let node = &nodes[current as usize];
-        let hits = node.test(&ray, inv_far, oct_inv4).0;
+        let hits = node.test(&ray).0;
         let prims = hits & 0x00ff_ffff;
         if prims != 0 && group(node.links().1 as usize, prims) {
             return true;
@@ -433,7 +417,7 @@ fn traverse_any_batch<N: TraversalNode>(
     nodes: &[N],
     stack: &mut [MaybeUninit<Deferred>],
     len: usize,
-    rays: &[BvhRay],
+    rays: &[NodeRay],
     mut group: impl FnMut(usize, usize, u32) -> bool,
     touch: impl Fn(usize, u32),
     hit: &mut [bool],
@@ -460,15 +444,21 @@ fn traverse_any_batch<N: TraversalNode>(
 
 /// Runs `f` with a traversal stack of `len` entries: on the call stack when that fits
 /// [`STACK`], else on the heap.
+///
+/// `f` is called from one place, so LLVM inlines the walk into its caller: called from two (one
+/// per kind of stack), it stayed a function of its own, and every ray paid for its call and for
+/// the captures written out and read back.
 #[inline(always)]
 fn with_stack<R>(len: usize, f: impl FnOnce(&mut [MaybeUninit<Deferred>]) -> R) -> R {
-    if len <= STACK {
-        let mut stack: [MaybeUninit<Deferred>; STACK] = [const { MaybeUninit::uninit() }; STACK];
-        f(&mut stack)
+    let mut on_stack: [MaybeUninit<Deferred>; STACK] = [const { MaybeUninit::uninit() }; STACK];
+    let mut on_heap = Vec::new();
+    let stack: &mut [MaybeUninit<Deferred>] = if len <= STACK {
+        &mut on_stack
     } else {
-        let mut stack = vec![MaybeUninit::uninit(); len];
-        f(&mut stack)
-    }
+        on_heap.resize(len, MaybeUninit::uninit());
+        &mut on_heap
+    };
+    f(stack)
 }
 
 /// A batch's rays (at most [`MAX_BATCH`]) for the node tests and the leaf tests, ray k ending at
@@ -477,12 +467,12 @@ fn batch_rays(
     o: &[Vec3],
     d: &[Vec3],
     tmax: impl Fn(usize) -> f32,
-) -> ([BvhRay; MAX_BATCH], [WatertightRay; MAX_BATCH]) {
-    let mut rays = [BvhRay::new(Vec3A::ZERO, Vec3A::X, 0.0, 0.0); MAX_BATCH];
+) -> ([NodeRay; MAX_BATCH], [WatertightRay; MAX_BATCH]) {
+    let mut rays = [NodeRay::new(Vec3A::ZERO, Vec3A::X, 0.0); MAX_BATCH];
     let mut wrays = [WatertightRay::new(Vec3A::ZERO, Vec3A::X); MAX_BATCH];
     for k in 0..o.len().min(d.len()).min(MAX_BATCH) {
         let (oa, da) = (Vec3A::from(o[k]), Vec3A::from(d[k]));
-        rays[k] = BvhRay::new(oa, da, 0.0, tmax(k));
+        rays[k] = NodeRay::new(oa, da, tmax(k));
         wrays[k] = WatertightRay::new(oa, da);
     }
     (rays, wrays)
@@ -516,6 +506,13 @@ fn stack_len(bvh: &CwBvh) -> usize {
         }
     }
     7 * deepest + 1
+}
+
+/// Whether every component of `o` and `d` is finite, in one vector test: `0·x` is ±0 for a finite
+/// x and NaN for ±∞ or NaN.
+#[inline(always)]
+fn finite(o: Vec3A, d: Vec3A) -> bool {
+    (o * 0.0 + d * 0.0).cmpeq(Vec3A::ZERO).all()
 }
 
 /// The bits i of `mask`, highest first (the order the traversal loop hands primitives over in).
@@ -764,7 +761,7 @@ impl Accel {
     /// [`traverse_closest`] over this BVH's nodes, wide or compressed, for the top level of a
     /// two-level BVH (one-level BVHs, the hot path, go through [`Self::intersect_nodes`]).
     #[inline(always)]
-    fn closest(&self, ray: BvhRay, group: impl FnMut(&BvhRay, usize, u32) -> f32) {
+    fn closest(&self, ray: NodeRay, group: impl FnMut(&NodeRay, usize, u32) -> f32) {
         with_stack(self.stack_len, |stack| {
             if self.wide.is_empty() {
                 traverse_closest(&self.bvh.nodes, stack, ray, group)
@@ -777,7 +774,7 @@ impl Accel {
     /// [`traverse_any`] over this BVH's nodes, wide or compressed, for the top level of a
     /// two-level BVH (one-level BVHs go through [`Self::occluded_nodes`]).
     #[inline(always)]
-    fn any(&self, ray: BvhRay, group: impl FnMut(usize, u32) -> bool) -> bool {
+    fn any(&self, ray: NodeRay, group: impl FnMut(usize, u32) -> bool) -> bool {
         with_stack(self.stack_len, |stack| {
             if self.wide.is_empty() {
                 traverse_any(&self.bvh.nodes, stack, ray, group)
@@ -796,27 +793,37 @@ impl Accel {
     }
 
     /// Closest hit along `o + t d`, `0 < t < tmax`.
+    ///
+    /// The one-level walk is the hot path; the two-level and own-BVH queries are calls of their
+    /// own, so that this stays small enough to need no stack frame (inlined here, the two-level
+    /// query's frame and saved registers cost every ray some 40 instructions).
     pub fn intersect(&self, o: Vec3, d: Vec3, tmax: f32) -> Option<Hit> {
         if let Some(top) = &self.top {
             return self.intersect_two_level(top, Vec3A::from(o), Vec3A::from(d), tmax);
         }
         if let Some(own) = &self.own {
-            return own.intersect(o, d, tmax, false).map(|(t, i, b1, b2)| Hit {
-                t,
-                triangle: own.tris[i].id,
-                b1,
-                b2,
-                instance: NO_INSTANCE,
-            });
+            return Self::intersect_own(own, o, d, tmax);
         }
         self.intersect_object(Vec3A::from(o), Vec3A::from(d), tmax)
     }
 
+    #[inline(never)]
+    fn intersect_own(own: &crate::bvh::Bvh, o: Vec3, d: Vec3, tmax: f32) -> Option<Hit> {
+        own.intersect(o, d, tmax, false).map(|(t, i, b1, b2)| Hit {
+            t,
+            triangle: own.tris[i].id,
+            b1,
+            b2,
+            instance: NO_INSTANCE,
+        })
+    }
+
+    #[inline(never)]
     fn intersect_two_level(&self, top: &TopLevel, oa: Vec3A, da: Vec3A, tmax: f32) -> Option<Hit> {
-        if top.prims.is_empty() || !da.is_finite() || !oa.is_finite() {
+        if top.prims.is_empty() || !finite(oa, da) {
             return None;
         }
-        let ray = BvhRay::new(oa, da, 0.0, tmax);
+        let ray = NodeRay::new(oa, da, tmax);
         let wray = WatertightRay::new(oa, da);
         let mut best: Option<Hit> = None;
         self.closest(ray, |r, base, mask| {
@@ -847,8 +854,9 @@ impl Accel {
 
     /// Closest hit in a one-level BVH (the scene's, or a prototype's with the ray already in object
     /// space, direction unnormalised).
+    #[inline(always)]
     fn intersect_object(&self, oa: Vec3A, da: Vec3A, tmax: f32) -> Option<Hit> {
-        if self.tris.is_empty() || !da.is_finite() || !oa.is_finite() {
+        if self.tris.is_empty() || !finite(oa, da) {
             return None;
         }
         if self.wide.is_empty() {
@@ -862,9 +870,9 @@ impl Accel {
     /// each node type's traversal has a leaf test of its own, called from one place: LLVM then
     /// inlines it into the traversal loop (called from two, the test stayed a call, and the
     /// ray's registers were saved and reloaded around it at every node with leaves).
-    #[inline(always)]
+    #[inline(never)]
     fn intersect_nodes<N: TraversalNode>(&self, nodes: &[N], oa: Vec3A, da: Vec3A, tmax: f32) -> Option<Hit> {
-        let ray = BvhRay::new(oa, da, 0.0, tmax);
+        let ray = NodeRay::new(oa, da, tmax);
         let wray = WatertightRay::new(oa, da);
         let mut best = (tmax, NO_LEAF, 0.0, 0.0);
         with_stack(self.stack_len, |stack| {
@@ -963,14 +971,14 @@ impl Accel {
     fn intersect_batch_nodes<N: TraversalNode>(
         &self,
         nodes: &[N],
-        rays: &[BvhRay],
+        rays: &[NodeRay],
         wrays: &[WatertightRay],
         best: &mut [LeafHit],
     ) {
         let len = self.stack_len;
         with_batch_stack(len * rays.len(), |stack| {
             let group =
-                |k: usize, r: &BvhRay, base, mask| self.closest_in_group(&wrays[k], &mut best[k], r.tmax, base, mask);
+                |k: usize, r: &NodeRay, base, mask| self.closest_in_group(&wrays[k], &mut best[k], r.tmax, base, mask);
             let touch = |base, mask| self.tris.prefetch(base, mask);
             traverse_closest_batch(nodes, stack, len, rays, group, touch)
         });
@@ -1027,7 +1035,7 @@ impl Accel {
     fn occluded_batch_nodes<N: TraversalNode>(
         &self,
         nodes: &[N],
-        rays: &[BvhRay],
+        rays: &[NodeRay],
         wrays: &[WatertightRay],
         tmax: &[f32],
         out: &mut [bool],
@@ -1040,36 +1048,47 @@ impl Accel {
         });
     }
 
-    /// True when anything lies on `o + t d` for `0 < t < tmax`.
+    /// True when anything lies on `o + t d` for `0 < t < tmax`. (Laid out as [`Self::intersect`].)
     pub fn occluded(&self, o: Vec3, d: Vec3, tmax: f32) -> bool {
         let (oa, da) = (Vec3A::from(o), Vec3A::from(d));
         if let Some(top) = &self.top {
-            if top.prims.is_empty() || !oa.is_finite() || !da.is_finite() {
-                return false;
-            }
-            let ray = BvhRay::new(oa, da, 0.0, tmax);
-            let wray = WatertightRay::new(oa, da);
-            return self.any(ray, |base, mask| {
-                bits_descending(mask).any(|i| match &top.prims[base + i] {
-                    TopPrim::Triangle(tri) => tri.intersect(&wray, tmax).is_some(),
-                    TopPrim::Instance { prototype, to_object, .. } => top.blas[*prototype as usize].occluded_object(
-                        to_object.transform_point3a(oa),
-                        to_object.transform_vector3a(da),
-                        tmax,
-                    ),
-                })
-            });
+            return self.occluded_two_level(top, oa, da, tmax);
         }
         if let Some(own) = &self.own {
-            return own.intersect(o, d, tmax, true).is_some();
+            return Self::occluded_own(own, o, d, tmax);
         }
         self.occluded_object(oa, da, tmax)
     }
 
+    #[inline(never)]
+    fn occluded_own(own: &crate::bvh::Bvh, o: Vec3, d: Vec3, tmax: f32) -> bool {
+        own.intersect(o, d, tmax, true).is_some()
+    }
+
+    #[inline(never)]
+    fn occluded_two_level(&self, top: &TopLevel, oa: Vec3A, da: Vec3A, tmax: f32) -> bool {
+        if top.prims.is_empty() || !finite(oa, da) {
+            return false;
+        }
+        let ray = NodeRay::new(oa, da, tmax);
+        let wray = WatertightRay::new(oa, da);
+        self.any(ray, |base, mask| {
+            bits_descending(mask).any(|i| match &top.prims[base + i] {
+                TopPrim::Triangle(tri) => tri.intersect(&wray, tmax).is_some(),
+                TopPrim::Instance { prototype, to_object, .. } => top.blas[*prototype as usize].occluded_object(
+                    to_object.transform_point3a(oa),
+                    to_object.transform_vector3a(da),
+                    tmax,
+                ),
+            })
+        })
+    }
+
     /// Whether anything lies on the ray before `tmax` in a one-level BVH (the scene's, or a
     /// prototype's with the ray in object space), as [`Self::intersect_object`] for closest hits.
+    #[inline(always)]
     fn occluded_object(&self, oa: Vec3A, da: Vec3A, tmax: f32) -> bool {
-        if self.tris.is_empty() || !oa.is_finite() || !da.is_finite() {
+        if self.tris.is_empty() || !finite(oa, da) {
             return false;
         }
         if self.wide.is_empty() {
@@ -1080,10 +1099,10 @@ impl Accel {
     }
 
     /// [`Self::occluded_object`] over `nodes`, generic for the reason [`Self::intersect_nodes`] is.
-    #[inline(always)]
+    #[inline(never)]
     fn occluded_nodes<N: TraversalNode>(&self, nodes: &[N], oa: Vec3A, da: Vec3A, tmax: f32) -> bool {
         let wray = WatertightRay::new(oa, da);
-        let ray = BvhRay::new(oa, da, 0.0, tmax);
+        let ray = NodeRay::new(oa, da, tmax);
         with_stack(self.stack_len, |stack| {
             traverse_any(nodes, stack, ray, |base, mask| self.any_in_group(&wray, base, mask, tmax))
         })
@@ -1098,12 +1117,14 @@ mod tests {
     /// one leaf triangle at a time and a shrinking bound: the reference for [`traverse_closest`].
     fn obvhs_closest(a: &Accel, o: Vec3A, d: Vec3A, tmax: f32) -> Option<(f32, u32)> {
         use glam::UVec2;
-        let mut ray = BvhRay::new(o, d, 0.0, tmax);
+        // (Our node test with obvhs' octant, which is ours but for a −0.0 component.)
+        let mut ray = NodeRay::new(o, d, tmax);
         let wray = WatertightRay::new(o, d);
-        let mut state = a.bvh.new_traversal(ray.direction);
+        let mut state = a.bvh.new_traversal(d);
+        ray.oct_inv4 = state.oct_inv4;
         let mut node;
         let mut best = None;
-        obvhs::traverse!(a.bvh, node, state, crate::cwbvh_node::intersect(node, &ray, state.oct_inv4), {
+        obvhs::traverse!(a.bvh, node, state, crate::cwbvh_node::intersect(node, &ray), {
             let slot = state.primitive_id as usize;
             if let Some((t, _, _)) = a.tris.get(slot).intersect(&wray, ray.tmax) {
                 ray.tmax = t;
@@ -1237,6 +1258,44 @@ mod tests {
             hits > 40_000 && blocked > 20_000 && open > 10_000,
             "the test rays must do both ({hits}, {blocked}, {open})"
         );
+    }
+
+    /// A ray with a NaN or infinite component in its origin or direction hits nothing and
+    /// occludes nothing (no walk runs on it), at every accelerator, instanced or not; its finite
+    /// twin does hit.
+    #[test]
+    fn non_finite_rays_hit_nothing() {
+        let mut b = crate::testing::SceneBuilder::default();
+        let m = b.material(crate::testing::lambert(Vec3::splat(0.5)));
+        b.quad(Vec3::ZERO, Vec3::X, Vec3::Z, m);
+        let (o, d) = (Vec3::new(0.3, 1.0, -0.2), Vec3::new(0.0, -1.0, 0.0));
+        let mut accels: Vec<Accel> = [AccelKind::Obvhs, AccelKind::ObvhsCompressed, AccelKind::Own]
+            .map(|k| Accel::build_with(&b.mesh, k))
+            .into();
+        // The quad as an instance of itself, one level down.
+        let mut instanced = crate::testing::SceneBuilder::default();
+        instanced.quad(Vec3::ZERO, Vec3::X, Vec3::Z, m);
+        let mut instanced = instanced.mesh;
+        instanced.triangles.iter_mut().for_each(|t| t.flags |= crate::mesh::flags::OBJECT_SPACE);
+        instanced.prototypes.push(0..2);
+        instanced.instances.extend(crate::mesh::Instance::new(0, glam::Mat4::IDENTITY));
+        accels.push(Accel::build(&instanced));
+        assert!(accels[3].top.is_some());
+        for (n, accel) in accels.iter().enumerate() {
+            assert!(accel.intersect(o, d, f32::INFINITY).is_some() && accel.occluded(o, d, 2.0), "accel {n}");
+            for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+                for axis in 0..6 {
+                    let (mut o, mut d) = (o, d);
+                    if axis < 3 {
+                        o[axis] = bad;
+                    } else {
+                        d[axis - 3] = bad;
+                    }
+                    assert!(accel.intersect(o, d, f32::INFINITY).is_none(), "accel {n}: {o:?} {d:?}");
+                    assert!(!accel.occluded(o, d, 2.0), "accel {n}: {o:?} {d:?}");
+                }
+            }
+        }
     }
 
     /// A direction component of −0.0 (a negated normal's zero, say) is a direction like +0.0: its

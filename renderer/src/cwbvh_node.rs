@@ -19,8 +19,8 @@
 //! test compares the two on every node a set of random rays visits, and holds the SIMD test to a
 //! scalar reference ([`intersect_scalar`]).
 
+use crate::node_ray::NodeRay;
 use obvhs::cwbvh::node::CwBvhNode;
-use obvhs::ray::Ray;
 
 /// The lower bound on a child's entry distance: 0, the ray's own start (the renderer offsets
 /// origins off surfaces, `math::offset_ray_origin`, so a surface behind the origin is never
@@ -33,8 +33,8 @@ pub(crate) const NODE_TMIN: f32 = 0.0;
 /// Hit mask of `node`'s children for `ray` (the format `obvhs::traverse!` expects: leaf children's
 /// primitive bits in the low 24 bits, inner children's bits in the high 8 at their octant slot).
 #[inline(always)]
-pub fn intersect(node: &CwBvhNode, ray: &Ray, oct_inv4: u32) -> u32 {
-    intersect_entry(node, ray, oct_inv4).0
+pub fn intersect(node: &CwBvhNode, ray: &NodeRay) -> u32 {
+    intersect_entry(node, ray).0
 }
 
 /// [`intersect`] and each child's entry distance (lane = child slot; meaningful for the children
@@ -42,23 +42,23 @@ pub fn intersect(node: &CwBvhNode, ray: &Ray, oct_inv4: u32) -> u32 {
 /// A closest-hit traversal keeps it with a child it defers, and skips the child if the ray has
 /// meanwhile been cut shorter than that.
 #[inline(always)]
-pub fn intersect_entry(node: &CwBvhNode, ray: &Ray, oct_inv4: u32) -> (u32, [f32; 8]) {
+pub fn intersect_entry(node: &CwBvhNode, ray: &NodeRay) -> (u32, [f32; 8]) {
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     // SAFETY: AVX2 is enabled at compile time (the cfg above); every load reads 8 bytes of an
     // `[u8; 8]` field of `node`.
     unsafe {
-        intersect_avx2(node, ray, oct_inv4)
+        intersect_avx2(node, ray)
     }
     #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
     {
-        intersect_scalar(node, ray, oct_inv4)
+        intersect_scalar(node, ray)
     }
 }
 
 /// [`intersect_entry`] one child at a time, in the SIMD test's operations and operand order: the
 /// reference that test is held to, and the test where AVX2 is missing.
-pub fn intersect_scalar(node: &CwBvhNode, ray: &Ray, oct_inv4: u32) -> (u32, [f32; 8]) {
-    let (child_bits8, bit_index8) = node.get_child_and_index_bits(oct_inv4);
+pub fn intersect_scalar(node: &CwBvhNode, ray: &NodeRay) -> (u32, [f32; 8]) {
+    let (child_bits8, bit_index8) = node.get_child_and_index_bits(ray.oct_inv4);
     let intervals = slot_intervals(node, ray);
     mask_and_entry(child_bits8, bit_index8, |slot| intervals[slot])
 }
@@ -87,9 +87,9 @@ pub(crate) fn child_bits(child_bits8: u64, index8: u64, slot: usize) -> u32 {
 
 /// The part of the ray inside each child's box, by slot, as the SIMD test computes it lane by
 /// lane (a child is hit when the first is at most the second).
-fn slot_intervals(node: &CwBvhNode, ray: &Ray) -> [(f32, f32); 8] {
-    let adj_dir = node.compute_extent() * ray.inv_direction;
-    let adj_org = (glam::Vec3A::from(node.p) - ray.origin) * ray.inv_direction;
+fn slot_intervals(node: &CwBvhNode, ray: &NodeRay) -> [(f32, f32); 8] {
+    let adj_dir = node.compute_extent() * ray.inv;
+    let adj_org = (glam::Vec3A::from(node.p) - ray.origin) * ray.inv;
     let planes = [
         (&node.child_min_x, &node.child_max_x),
         (&node.child_min_y, &node.child_max_y),
@@ -98,7 +98,7 @@ fn slot_intervals(node: &CwBvhNode, ray: &Ray) -> [(f32, f32); 8] {
     std::array::from_fn(|slot| {
         let t = |axis: usize, far: bool| {
             let (lo, hi) = planes[axis];
-            let upper = (ray.inv_direction[axis] < 0.0) != far;
+            let upper = ray.enters_upper(axis) != far;
             let q = if upper { hi[slot] } else { lo[slot] } as f32;
             q * adj_dir[axis] + adj_org[axis]
         };
@@ -131,13 +131,13 @@ pub(crate) fn simd_min(a: f32, b: f32) -> f32 {
 
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[inline(always)]
-unsafe fn intersect_avx2(node: &CwBvhNode, ray: &Ray, oct_inv4: u32) -> (u32, [f32; 8]) {
+unsafe fn intersect_avx2(node: &CwBvhNode, ray: &NodeRay) -> (u32, [f32; 8]) {
     use glam::Vec3A;
     use std::arch::x86_64::*;
 
     // The ray in the node's quantised frame: child plane q (a byte) lies at t = q·adj_dir + adj_org.
-    let adj_dir = node.compute_extent() * ray.inv_direction;
-    let adj_org = (Vec3A::from(node.p) - ray.origin) * ray.inv_direction;
+    let adj_dir = node.compute_extent() * ray.inv;
+    let adj_org = (Vec3A::from(node.p) - ray.origin) * ray.inv;
     // Eight plane bytes as eight floats.
     let q = |b: &[u8; 8]| _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_loadl_epi64(b.as_ptr() as *const __m128i)));
     // `negative`: the inverse direction's sign (a direction of −0.0 has a negative safe inverse,
@@ -147,9 +147,9 @@ unsafe fn intersect_avx2(node: &CwBvhNode, ray: &Ray, oct_inv4: u32) -> (u32, [f
         let (d, o) = (_mm256_set1_ps(dir), _mm256_set1_ps(org));
         (_mm256_add_ps(_mm256_mul_ps(q(near), d), o), _mm256_add_ps(_mm256_mul_ps(q(far), d), o))
     };
-    let (tmin_x, tmax_x) = slab(&node.child_min_x, &node.child_max_x, ray.inv_direction.x < 0.0, adj_dir.x, adj_org.x);
-    let (tmin_y, tmax_y) = slab(&node.child_min_y, &node.child_max_y, ray.inv_direction.y < 0.0, adj_dir.y, adj_org.y);
-    let (tmin_z, tmax_z) = slab(&node.child_min_z, &node.child_max_z, ray.inv_direction.z < 0.0, adj_dir.z, adj_org.z);
+    let (tmin_x, tmax_x) = slab(&node.child_min_x, &node.child_max_x, ray.enters_upper(0), adj_dir.x, adj_org.x);
+    let (tmin_y, tmax_y) = slab(&node.child_min_y, &node.child_max_y, ray.enters_upper(1), adj_dir.y, adj_org.y);
+    let (tmin_z, tmax_z) = slab(&node.child_min_z, &node.child_max_z, ray.enters_upper(2), adj_dir.z, adj_org.z);
     let tmin = _mm256_max_ps(tmin_x, _mm256_max_ps(tmin_y, tmin_z));
     let tmax = _mm256_min_ps(tmax_x, _mm256_min_ps(tmax_y, tmax_z));
     let tmin = _mm256_max_ps(tmin, _mm256_set1_ps(NODE_TMIN));
@@ -157,8 +157,11 @@ unsafe fn intersect_avx2(node: &CwBvhNode, ray: &Ray, oct_inv4: u32) -> (u32, [f
     let hit = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LE_OQ>(tmin, tmax));
 
     // Per child: its bits (leaf: unary primitive count; inner: 1) shifted to its slot, kept where hit.
-    let (child_bits8, bit_index8) = node.get_child_and_index_bits(oct_inv4);
+    let (child_bits8, bit_index8) = node.get_child_and_index_bits(ray.oct_inv4);
     let widen = |x: u64| _mm256_cvtepu8_epi32(_mm_cvtsi64_si128(x as i64));
+    // The shifts are below 32; masking says so to LLVM, which else guards `vpsllvd` (as in
+    // `WideNode::intersect`).
+    let bit_index8 = bit_index8 & 0x1f1f_1f1f_1f1f_1f1f;
     let bits = _mm256_and_si256(_mm256_sllv_epi32(widen(child_bits8), widen(bit_index8)), hit);
     // OR across the eight lanes.
     let x = _mm_or_si128(_mm256_castsi256_si128(bits), _mm256_extracti128_si256::<1>(bits));
@@ -183,7 +186,8 @@ mod tests {
         let bvh = crate::testing::icosphere_cwbvh(4, |v| v, true);
         let (mut nodes_checked, mut hits, mut near) = (0usize, 0usize, 0usize);
         for i in 0..4000u64 {
-            let Some(mut ray) = crate::testing::node_test_ray(i) else { continue };
+            let Some(mut obvhs_ray) = crate::testing::node_test_ray(i) else { continue };
+            let mut ray = NodeRay::new(obvhs_ray.origin, obvhs_ray.direction, obvhs_ray.tmax);
             if i % 4 == 0 {
                 // Moved to 5·10⁻⁵ before where it leaves the first child box it crosses (of
                 // some node): that child ends before obvhs' 10⁻⁴.
@@ -192,14 +196,16 @@ mod tests {
                     intervals.into_iter().find(|&(t0, t1)| t0 <= t1 && t1.is_finite() && t1 > 1e-3).map(|(_, t1)| t1)
                 });
                 if let Some(t1) = crossed {
-                    ray = obvhs::ray::Ray::new(ray.origin + ray.direction * (t1 - 5e-5), ray.direction, 0.0, ray.tmax);
+                    let origin = obvhs_ray.origin + obvhs_ray.direction * (t1 - 5e-5);
+                    obvhs_ray = obvhs::ray::Ray::new(origin, obvhs_ray.direction, 0.0, obvhs_ray.tmax);
+                    ray = NodeRay::new(origin, obvhs_ray.direction, obvhs_ray.tmax);
                 }
             }
-            let oct = bvh.new_traversal(ray.direction).oct_inv4;
+            let oct = bvh.new_traversal(obvhs_ray.direction).oct_inv4;
             // Every node, hit or not (not just those a closest-hit traversal would reach).
             for (n, node) in bvh.nodes.iter().enumerate() {
-                let (ours, entry) = intersect_entry(node, &ray, oct);
-                let (reference, ref_entry) = intersect_scalar(node, &ray, oct);
+                let (ours, entry) = intersect_entry(node, &ray);
+                let (reference, ref_entry) = intersect_scalar(node, &ray);
                 let intervals = slot_intervals(node, &ray);
                 assert_eq!(ours, reference, "ray {i} node {n}: SIMD against the scalar reference");
                 let bits = |e: [f32; 8]| e.map(f32::to_bits);
@@ -209,7 +215,7 @@ mod tests {
                         assert_eq!(bits(entry)[slot], bits(ref_entry)[slot], "ray {i} node {n} slot {slot}");
                     }
                 }
-                let theirs = node.intersect_ray(&ray, oct);
+                let theirs = node.intersect_ray(&obvhs_ray, oct);
                 assert_eq!(theirs & !ours, 0, "ray {i} node {n}: obvhs hits a child we miss");
                 if ours != theirs {
                     // Every child only we hit ends before obvhs' 10⁻⁴.

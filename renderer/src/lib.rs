@@ -53,6 +53,7 @@ pub mod math;
 pub mod mesh;
 pub mod meshopt_views;
 pub mod microfacet;
+pub mod node_ray;
 pub mod noise;
 pub mod punctual;
 pub mod render;

@@ -21,9 +21,8 @@
 //! contains everything the compressed one did. The child metadata is obvhs' own, pre-split per
 //! node into the parts of `CwBvhNode::get_child_and_index_bits` that do not depend on the ray.
 
-use glam::Vec3A;
+use crate::node_ray::NodeRay;
 use obvhs::cwbvh::node::CwBvhNode;
-use obvhs::ray::Ray;
 
 // The lower bound on a child's entry distance (0, not obvhs' 10⁻⁴), the scalar lane operations
 // and the scalar mask: shared with the compressed node's test.
@@ -80,47 +79,47 @@ impl WideNode {
 
     /// The hit mask of the children `ray` enters before `ray.tmax` (obvhs' format: leaf
     /// children's primitive bits in the low 24 bits, inner children's bits in the high 8 at
-    /// their traversal-priority slot) and each child's entry distance by slot. `inv_far` is
-    /// [`far_inverse`] of the ray; `oct_inv4` obvhs' octant code of the direction.
+    /// their traversal-priority slot) and each child's entry distance by slot.
     #[inline(always)]
-    pub fn intersect(&self, ray: &Ray, inv_far: Vec3A, oct_inv4: u32) -> (u32, [f32; 8]) {
+    pub fn intersect(&self, ray: &NodeRay) -> (u32, [f32; 8]) {
         #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
         // SAFETY: AVX2 is enabled at compile time; every load reads a 32-byte-aligned
         // [f32; 8] of `self` (the struct is 64-byte aligned, each row 32 bytes).
         unsafe {
-            self.intersect_avx2(ray, inv_far, oct_inv4)
+            self.intersect_avx2(ray)
         }
         #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
         {
-            self.intersect_scalar(ray, inv_far, oct_inv4)
+            self.intersect_scalar(ray)
         }
     }
 
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[inline(always)]
-    unsafe fn intersect_avx2(&self, ray: &Ray, inv_far: Vec3A, oct_inv4: u32) -> (u32, [f32; 8]) {
+    unsafe fn intersect_avx2(&self, ray: &NodeRay) -> (u32, [f32; 8]) {
         use std::arch::x86_64::*;
         let ld = |a: &[f32; 8]| _mm256_load_ps(a.as_ptr());
-        // A ray with a negative inverse enters a box through its upper plane. The inverse's sign,
-        // not the direction's `< 0`: a direction of −0.0 has the safe inverse −1/ε, and
-        // choosing its planes by `d < 0` swapped them and missed every box.
-        let slab = |axis: usize, negative: bool| {
-            let (near, far) = if negative { (1, 0) } else { (0, 1) };
+        // A ray with a negative inverse enters a box through its upper plane ([`NodeRay::negative`]).
+        let slab = |axis: usize| {
+            let (near, far) = if ray.enters_upper(axis) { (1, 0) } else { (0, 1) };
             let o = _mm256_set1_ps(ray.origin[axis]);
-            let (inv, inv_far) = (_mm256_set1_ps(ray.inv_direction[axis]), _mm256_set1_ps(inv_far[axis]));
+            let (inv, inv_far) = (_mm256_set1_ps(ray.inv[axis]), _mm256_set1_ps(ray.inv_far[axis]));
             (
                 _mm256_mul_ps(_mm256_sub_ps(ld(&self.planes[axis][near]), o), inv),
                 _mm256_mul_ps(_mm256_sub_ps(ld(&self.planes[axis][far]), o), inv_far),
             )
         };
-        let (nx, fx) = slab(0, ray.inv_direction.x < 0.0);
-        let (ny, fy) = slab(1, ray.inv_direction.y < 0.0);
-        let (nz, fz) = slab(2, ray.inv_direction.z < 0.0);
+        let (nx, fx) = slab(0);
+        let (ny, fy) = slab(1);
+        let (nz, fz) = slab(2);
         let tmin = _mm256_max_ps(_mm256_max_ps(nx, ny), _mm256_max_ps(nz, _mm256_set1_ps(NODE_TMIN)));
         let tmax = _mm256_min_ps(_mm256_min_ps(fx, fy), _mm256_min_ps(fz, _mm256_set1_ps(ray.tmax)));
         let hit = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LE_OQ>(tmin, tmax));
-        // Each hit child's bits shifted to its place in the mask, ORed across the lanes.
-        let index8 = self.index8 ^ ((oct_inv4 as u64 | (oct_inv4 as u64) << 32) & self.inner8);
+        // Each hit child's bits shifted to its place in the mask, ORed across the lanes. Every
+        // shift is below 32 (a slot + 24 or a primitive offset below 24, the octant XOR touching
+        // only bits 0–2); the mask says so to LLVM, which otherwise guards `vpsllvd`'s
+        // out-of-range rule with five more instructions a node.
+        let index8 = self.index8(ray.oct_inv4) & 0x1f1f_1f1f_1f1f_1f1f;
         let widen = |x: u64| _mm256_cvtepu8_epi32(_mm_cvtsi64_si128(x as i64));
         let bits = _mm256_and_si256(_mm256_sllv_epi32(widen(self.child_bits8), widen(index8)), hit);
         let x = _mm_or_si128(_mm256_castsi256_si128(bits), _mm256_extracti128_si256::<1>(bits));
@@ -131,19 +130,25 @@ impl WideNode {
         (_mm_cvtsi128_si32(x) as u32, entry)
     }
 
+    /// Each child's place in the hit mask for a ray of octant code `oct_inv4`: obvhs'
+    /// `get_child_and_index_bits` step that depends on the ray.
+    #[inline(always)]
+    fn index8(&self, oct_inv4: u32) -> u64 {
+        self.index8 ^ ((oct_inv4 as u64 | (oct_inv4 as u64) << 32) & self.inner8)
+    }
+
     /// The same, one child at a time: the reference the SIMD test is held to, and the test where
     /// AVX2 is missing.
-    pub fn intersect_scalar(&self, ray: &Ray, inv_far: Vec3A, oct_inv4: u32) -> (u32, [f32; 8]) {
-        let index8 = self.index8 ^ ((oct_inv4 as u64 | (oct_inv4 as u64) << 32) & self.inner8);
-        mask_and_entry(self.child_bits8, index8, |slot| self.slot_interval(slot, ray, inv_far))
+    pub fn intersect_scalar(&self, ray: &NodeRay) -> (u32, [f32; 8]) {
+        mask_and_entry(self.child_bits8, self.index8(ray.oct_inv4), |slot| self.slot_interval(slot, ray))
     }
 
     /// The part of the ray inside child `slot`'s box, as the SIMD test computes it lane by lane
     /// (the child is hit when the first is at most the second).
-    fn slot_interval(&self, slot: usize, ray: &Ray, inv_far: Vec3A) -> (f32, f32) {
+    fn slot_interval(&self, slot: usize, ray: &NodeRay) -> (f32, f32) {
         let t = |axis: usize, far: bool| {
-            let side = (ray.inv_direction[axis] < 0.0) != far;
-            let inv = if far { inv_far[axis] } else { ray.inv_direction[axis] };
+            let side = ray.enters_upper(axis) != far;
+            let inv = if far { ray.inv_far[axis] } else { ray.inv[axis] };
             (self.planes[axis][side as usize][slot] - ray.origin[axis]) * inv
         };
         // The SIMD operand order, which decides what a NaN does.
@@ -151,15 +156,6 @@ impl WideNode {
         let tmax = simd_min(simd_min(t(0, true), t(1, true)), simd_min(t(2, true), ray.tmax));
         (tmin, tmax)
     }
-}
-
-/// The ray's inverse direction for far-plane distances: `1/d · (1 + 4γ₃)`, γ₃ = 3u/(1 − 3u) with u
-/// the unit roundoff 2⁻²⁴ (pbrt-v4 §6.8.1 and `Bounds3::IntersectP`).
-#[inline(always)]
-pub fn far_inverse(ray: &Ray) -> Vec3A {
-    const U: f32 = f32::EPSILON * 0.5;
-    const GAMMA3: f32 = 3.0 * U / (1.0 - 3.0 * U);
-    ray.inv_direction * (1.0 + 4.0 * GAMMA3)
 }
 
 /// The largest f32 ≤ x.
@@ -196,15 +192,14 @@ mod tests {
         let wide: Vec<WideNode> = bvh.nodes.iter().map(WideNode::from_compressed).collect();
         let (mut checked, mut hits) = (0usize, 0usize);
         for i in 0..3000u64 {
-            let Some(ray) = crate::testing::node_test_ray(i) else { continue };
-            let oct = bvh.new_traversal(ray.direction).oct_inv4;
-            let inv_far = far_inverse(&ray);
+            let Some(theirs) = crate::testing::node_test_ray(i) else { continue };
+            let ray = NodeRay::new(theirs.origin, theirs.direction, theirs.tmax);
             for (n, w) in bvh.nodes.iter().zip(&wide) {
-                let (mask, entry) = w.intersect(&ray, inv_far, oct);
-                let (mask_ref, entry_ref) = w.intersect_scalar(&ray, inv_far, oct);
+                let (mask, entry) = w.intersect(&ray);
+                let (mask_ref, entry_ref) = w.intersect_scalar(&ray);
                 assert_eq!(mask, mask_ref, "ray {i}");
                 assert_eq!(entry.map(f32::to_bits), entry_ref.map(f32::to_bits), "ray {i}");
-                let compressed = crate::cwbvh_node::intersect(n, &ray, oct);
+                let compressed = crate::cwbvh_node::intersect(n, &ray);
                 assert_eq!(compressed & !mask, 0, "ray {i}: a child the compressed box test hits was missed");
                 checked += 1;
                 hits += (mask != 0) as usize;
@@ -249,18 +244,18 @@ mod tests {
             if d.abs().min_element() <= 1e-3 {
                 continue; // keep clear of obvhs' capped inverse (safe_inverse)
             }
-            let ray = Ray::new(target - d * (2.0 + 10.0 * u(4 * i + 8)), d, 0.0, f32::INFINITY);
+            let ray = NodeRay::new(target - d * (2.0 + 10.0 * u(4 * i + 8)), d, f32::INFINITY);
             let (mut lo_t, mut hi_t) = (NODE_TMIN as f64, f64::INFINITY);
             for a in 0..3 {
                 let (p0, p1) = (w.planes[a][0][slot] as f64, w.planes[a][1][slot] as f64);
-                let (o, dd) = (ray.origin[a] as f64, ray.direction[a] as f64);
+                let (o, dd) = (ray.origin[a] as f64, d[a] as f64);
                 let (t0, t1) = ((p0 - o) / dd, (p1 - o) / dd);
                 lo_t = lo_t.max(t0.min(t1));
                 hi_t = hi_t.min(t0.max(t1));
             }
             if lo_t <= hi_t {
                 crossings += 1;
-                let (tmin, tmax) = w.slot_interval(slot, &ray, far_inverse(&ray));
+                let (tmin, tmax) = w.slot_interval(slot, &ray);
                 lost += (tmin > tmax) as usize;
             }
         }

@@ -869,7 +869,10 @@ impl Accel {
     /// [`Self::intersect_object`] over `nodes` (this BVH's, wide or compressed). Generic so that
     /// each node type's traversal has a leaf test of its own, called from one place: LLVM then
     /// inlines it into the traversal loop (called from two, the test stayed a call, and the
-    /// ray's registers were saved and reloaded around it at every node with leaves).
+    /// ray's registers were saved and reloaded around it at every node with leaves). Not
+    /// inlined, so each node type's walk is a function of its own: inlined, both walks shared
+    /// `intersect_object`'s registers and it spilled more than the call cost (635 instructions
+    /// a glass query against 623).
     #[inline(never)]
     fn intersect_nodes<N: TraversalNode>(&self, nodes: &[N], oa: Vec3A, da: Vec3A, tmax: f32) -> Option<Hit> {
         let ray = NodeRay::new(oa, da, tmax);
@@ -1098,7 +1101,8 @@ impl Accel {
         }
     }
 
-    /// [`Self::occluded_object`] over `nodes`, generic for the reason [`Self::intersect_nodes`] is.
+    /// [`Self::occluded_object`] over `nodes`, generic and not inlined for the reasons
+    /// [`Self::intersect_nodes`] is.
     #[inline(never)]
     fn occluded_nodes<N: TraversalNode>(&self, nodes: &[N], oa: Vec3A, da: Vec3A, tmax: f32) -> bool {
         let wray = WatertightRay::new(oa, da);

@@ -451,11 +451,11 @@ fn traverse_any_batch<N: TraversalNode>(
 #[inline(always)]
 fn with_stack<R>(len: usize, f: impl FnOnce(&mut [MaybeUninit<Deferred>]) -> R) -> R {
     let mut on_stack: [MaybeUninit<Deferred>; STACK] = [const { MaybeUninit::uninit() }; STACK];
-    let mut on_heap = Vec::new();
+    let mut on_heap;
     let stack: &mut [MaybeUninit<Deferred>] = if len <= STACK {
         &mut on_stack
     } else {
-        on_heap.resize(len, MaybeUninit::uninit());
+        on_heap = vec![MaybeUninit::uninit(); len];
         &mut on_heap
     };
     f(stack)

@@ -533,8 +533,9 @@ impl LightTree {
         }
     }
 
-    /// Up to [`MAX_WALKS`] walks (`p.len()`, all slices that long), a level each in turn:
-    /// `walk`'s steps for each, interleaved. (Only the AVX2 build walks in batches.)
+    /// Up to [`MAX_WALKS`] walks (`p.len()`, all slices that long) into `out`, a level of each
+    /// in turn, each taking the steps [`Self::sample`] takes. (Only the AVX2 build walks in
+    /// batches.)
     ///
     /// A level goes in two passes over the live walks: every walk's importances at its node
     /// first, then every walk's choice and step down. A level's chain (the node's loads, the

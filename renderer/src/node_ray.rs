@@ -71,7 +71,7 @@ fn safe_inverse(d: Vec3A) -> Vec3A {
 /// unit roundoff 2⁻²⁴ (pbrt-v4 §6.8.1 and `Bounds3::IntersectP`): rounding can then only widen a
 /// box's interval, never lose a box the ray touches.
 #[inline(always)]
-pub fn far_inverse(inv: Vec3A) -> Vec3A {
+fn far_inverse(inv: Vec3A) -> Vec3A {
     const U: f32 = f32::EPSILON * 0.5;
     const GAMMA3: f32 = 3.0 * U / (1.0 - 3.0 * U);
     inv * (1.0 + 4.0 * GAMMA3)

@@ -75,12 +75,21 @@ impl Table<'_> {
     /// for a u outside [0, 1)). The first of a sample's dependent loads (`sample_batch`).
     #[inline(always)]
     fn search_range(&self, u: f32) -> (usize, usize) {
+        match self.guide_slot(u) {
+            Some(k) => (self.guide[k] as usize, self.guide[k + 1] as usize),
+            None => (0, self.entries.len()),
+        }
+    }
+
+    /// The guide entry k whose pair [`Self::search_range`] reads for u (entries k and k + 1);
+    /// None for a u outside [0, 1), which searches the whole CDF.
+    #[inline(always)]
+    fn guide_slot(&self, u: f32) -> Option<usize> {
         if !(0.0..1.0).contains(&u) {
-            return (0, self.entries.len());
+            return None;
         }
         let g = self.guide.len() - 1;
-        let k = ((u * g as f32) as usize).min(g - 1);
-        (self.guide[k] as usize, self.guide[k + 1] as usize)
+        Some(((u * g as f32) as usize).min(g - 1))
     }
 
     /// [`Self::entries_at_most`] given its [`Self::search_range`].
@@ -203,14 +212,29 @@ impl Distribution2D {
     /// then each row's search): an environment map's rows are megabytes, so each step is a cache
     /// miss, and one sample's misses follow one another while different samples' can overlap,
     /// but only when their loads are issued close together rather than a whole sample apart.
+    ///
+    /// Each step first asks the cache for the lines the next one reads (the guide entries, then
+    /// the CDF entries at both ends of each search): a step's loop over eight samples is longer
+    /// than the processor's window, so without the prefetches its last samples' loads were only
+    /// issued once its first ones had arrived.
     pub fn sample_batch(&self, us: &[[f32; 2]], out: &mut [([f32; 2], f32)]) {
         let n = us.len().min(out.len());
         for (us, out) in us[..n].chunks(BATCH).zip(out[..n].chunks_mut(BATCH)) {
             let mut rows = [(0f32, 0f32, 0usize, 0usize, 0usize); BATCH];
             for (u, r) in us.iter().zip(&mut rows) {
                 let (v, pdf_v, row) = self.marginal.sample(u[1]);
-                let (lo, hi) = self.row(row).search_range(u[0]);
-                *r = (v, pdf_v, row, lo, hi);
+                if let Some(k) = self.row(row).guide_slot(u[0]) {
+                    crate::accel::prefetch(&self.row_guides[row * self.guide_len + k]);
+                }
+                *r = (v, pdf_v, row, 0, 0);
+            }
+            for (u, r) in us.iter().zip(&mut rows) {
+                let t = self.row(r.2);
+                let (lo, hi) = t.search_range(u[0]);
+                for e in [lo, hi.max(lo + 1) - 1] {
+                    t.entries.get(e).map(crate::accel::prefetch);
+                }
+                (r.3, r.4) = (lo, hi);
             }
             for ((u, &(v, pdf_v, row, lo, hi)), o) in us.iter().zip(&rows).zip(out) {
                 let t = self.row(row);
@@ -228,8 +252,25 @@ impl Distribution2D {
     }
 
     pub fn pdf(&self, uv: [f32; 2]) -> f32 {
+        let (row, column) = self.cell(uv);
+        self.row(row).entries[column][1] * self.marginal.pdf(uv[1])
+    }
+
+    /// The row and column of the cell [`Self::pdf`] reads at `uv`.
+    #[inline(always)]
+    fn cell(&self, uv: [f32; 2]) -> (usize, usize) {
         let row = ((uv[1] * self.nv as f32) as usize).min(self.nv - 1);
-        self.row(row).pdf(uv[0]) * self.marginal.pdf(uv[1])
+        (row, ((uv[0] * self.nu as f32) as usize).min(self.nu - 1))
+    }
+
+    /// Asks the cache for the row entry [`Self::pdf`]`(uv)` reads (the marginal is small enough
+    /// to stay cached).
+    #[inline(always)]
+    pub fn prefetch_pdf(&self, uv: [f32; 2]) {
+        let (row, column) = self.cell(uv);
+        if let Some(e) = self.row_entries.get(row * (self.nu + 1) + column) {
+            crate::accel::prefetch(e);
+        }
     }
 }
 

@@ -93,6 +93,14 @@ fn half_pair(t: &[[u16; 4]], i: usize, j: usize) -> (Vec3A, Vec3A) {
     (half_texel(&t[i]), half_texel(&t[j]))
 }
 
+/// A world direction's place on an environment map: the direction in the map's frame and its
+/// (u, v), found once by [`Environment::map_point`] for a prefetch and the lookup after it.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct MapPoint {
+    dm: Vec3,
+    uv: Vec2,
+}
+
 /// Settings of the environment: a map file or a uniform color, scaled and rotated.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -310,16 +318,55 @@ impl Environment {
     /// weighed by MIS needs both; the arctangent and arcsine were a visible share of an
     /// environment-lit render).
     pub fn eval_pdf(&self, d: Vec3) -> (Vec3, f32) {
-        if self.uniform {
-            return (self.eval(d), self.pdf(d));
-        }
-        let dm = self.to_map(d);
-        let uv = dir_to_uv(dm);
-        (self.eval_uv(uv), self.pdf_map(dm, uv))
+        self.eval_pdf_at(self.map_point(d))
     }
 
-    /// The bilinear lookup of [`Self::eval`] at map coordinates `uv` (u in [0, 1), v in [0, 1]).
-    fn eval_uv(&self, uv: Vec2) -> Vec3 {
+    /// Where the world direction `d` falls on the map (nothing to find on a uniform one).
+    #[inline]
+    pub fn map_point(&self, d: Vec3) -> MapPoint {
+        if self.uniform {
+            return MapPoint { dm: d, uv: Vec2::ZERO };
+        }
+        let dm = self.to_map(d);
+        MapPoint { dm, uv: dir_to_uv(dm) }
+    }
+
+    /// [`Self::eval`] of the direction `p` was found for.
+    pub fn eval_at(&self, p: MapPoint) -> Vec3 {
+        if self.uniform {
+            return self.texels.get(0);
+        }
+        self.eval_uv(p.uv)
+    }
+
+    /// [`Self::eval_pdf`] of the direction `p` was found for.
+    pub fn eval_pdf_at(&self, p: MapPoint) -> (Vec3, f32) {
+        if self.uniform {
+            return (self.texels.get(0), 1.0 / (4.0 * PI));
+        }
+        (self.eval_uv(p.uv), self.pdf_map(p.dm, p.uv))
+    }
+
+    /// Asks the cache for what [`Self::eval_pdf_at`]`(p)` reads: the map's texels and the
+    /// distribution's rows are megabytes, and a lookup's miss is more than the arithmetic around
+    /// it can hide. One lookup after another, each lane waited for its own miss; asking for every
+    /// lane's lines first and then looking them up (`spmd::radiance8`'s escape) lets the misses
+    /// overlap.
+    pub fn prefetch(&self, p: &MapPoint) {
+        if self.uniform {
+            return;
+        }
+        self.prefetch_uv(p.uv);
+        if let Some(dist) = &self.distribution {
+            dist.prefetch_pdf([p.uv.x, p.uv.y]);
+        }
+    }
+
+    /// The four texels of a bilinear lookup at map coordinates `uv` and the weights of the right
+    /// and lower ones: columns xa, xb and rows ya, yb. [`Self::eval_uv`] reads them and
+    /// [`Self::prefetch_uv`] asks the cache for them, so both find the same texels.
+    #[inline(always)]
+    fn corners(&self, uv: Vec2) -> ([usize; 4], f32, f32) {
         let x = uv.x * self.width as f32 - 0.5;
         let y = (uv.y * (self.height - 1) as f32).clamp(0.0, (self.height - 1) as f32);
         let (x0, y0) = (x.floor(), y.floor());
@@ -330,6 +377,12 @@ impl Environment {
         let xb = if xa + 1 == self.width { 0 } else { xa + 1 };
         let ya = y0 as usize;
         let yb = (ya + 1).min(self.height - 1);
+        ([xa, xb, ya, yb], fx, fy)
+    }
+
+    /// The bilinear lookup of [`Self::eval`] at map coordinates `uv` (u in [0, 1), v in [0, 1]).
+    fn eval_uv(&self, uv: Vec2) -> Vec3 {
+        let ([xa, xb, ya, yb], fx, fy) = self.corners(uv);
         // The same products and sums per channel, in the same order, from either storage.
         let (gx, gy) = (1.0 - fx, 1.0 - fy);
         let blend = |a: Vec3A, b: Vec3A, c: Vec3A, d: Vec3A| (a * gx + b * fx) * gy + (c * gx + d * fx) * fy;
@@ -344,6 +397,19 @@ impl Environment {
                 let (c, d) = half_pair(t, yb * w + xa, yb * w + xb);
                 blend(a, b, c, d).into()
             }
+        }
+    }
+
+    /// Asks the cache for the texels [`Self::eval_uv`]`(uv)` reads.
+    #[inline(always)]
+    fn prefetch_uv(&self, uv: Vec2) {
+        let ([xa, xb, ya, yb], ..) = self.corners(uv);
+        let w = self.width;
+        for i in [ya * w + xa, ya * w + xb, yb * w + xa, yb * w + xb] {
+            match &self.texels {
+                Texels::Full(t) => t.get(i).map(crate::accel::prefetch),
+                Texels::Half(t) => t.get(i).map(crate::accel::prefetch),
+            };
         }
     }
 
@@ -387,6 +453,10 @@ impl Environment {
             }
             let mut found = [([0f32; 2], 0f32); crate::distribution::BATCH];
             dist.sample_batch(&q[..e - s], &mut found[..e - s]);
+            // Every sample's texels asked for before any is read, so their misses overlap.
+            for &(uv, _) in &found[..e - s] {
+                self.prefetch_uv(Vec2::new(uv[0], uv[1]));
+            }
             for (o, &(uv, map_pdf)) in out[s..e].iter_mut().zip(&found) {
                 *o = self.sampled(uv, map_pdf);
             }
@@ -648,5 +718,41 @@ mod tests {
             rotated.eval(plus_x),
             env.eval(plus_z)
         );
+    }
+
+    /// A lookup through [`Environment::map_point`] (the escape's prefetch, then the lookup) reads
+    /// what the direct lookups read, bit for bit: radiance and pdf, uniform and mapped, rotated,
+    /// at the poles, the seam and texel edges; and a prefetch anywhere, non-finite directions
+    /// included, stays inside the tables.
+    #[test]
+    fn map_point_lookups_are_the_direct_lookups() {
+        let (w, h) = (8usize, 5usize);
+        let texels: Vec<Vec3> = (0..w * h).map(|i| Vec3::new(i as f32, (i * i % 11) as f32, 0.5)).collect();
+        let maps = [
+            Environment::from_texels(w, h, texels.clone(), false, 0.0, true, true),
+            Environment::from_texels(w, h, texels.clone(), false, 37.0, true, false),
+            Environment::from_texels(w, h, texels, false, 0.0, false, false),
+            Environment::from_texels(1, 1, vec![Vec3::new(0.25, 0.5, 2.0)], true, 0.0, true, false),
+        ];
+        let mut dirs: Vec<Vec3> = (0..400u64)
+            .map(|i| {
+                let (a, b) = (crate::sampler::hash_unit(2 * i), crate::sampler::hash_unit(2 * i + 1));
+                uv_to_dir(Vec2::new(a, b))
+            })
+            .collect();
+        dirs.extend([Vec3::Y, -Vec3::Y, -Vec3::X, Vec3::new(-1.0, 0.0, -1e-7).normalize(), Vec3::Z]);
+        for (m, env) in maps.iter().enumerate() {
+            for &d in &dirs {
+                let p = env.map_point(d);
+                env.prefetch(&p);
+                let bits = |v: Vec3| v.to_array().map(f32::to_bits);
+                assert_eq!(bits(env.eval_at(p)), bits(env.eval(d)), "map {m}, {d:?}");
+                let ((le, pdf), (le_direct, pdf_direct)) = (env.eval_pdf_at(p), (env.eval(d), env.pdf(d)));
+                assert_eq!((bits(le), pdf.to_bits()), (bits(le_direct), pdf_direct.to_bits()), "map {m}, {d:?}");
+            }
+            for d in [Vec3::NAN, Vec3::INFINITY, Vec3::new(f32::NEG_INFINITY, 0.0, 1.0), Vec3::ZERO] {
+                env.prefetch(&env.map_point(d));
+            }
+        }
     }
 }

@@ -3,7 +3,7 @@
 //! (pbrt-v4 §12.2 and §12.5; Veach 1997 §9).
 
 use crate::alias::AliasTable;
-use crate::environment::Environment;
+use crate::environment::{Environment, MapPoint};
 use crate::light_tree::{LightBounds, LightTree, MAX_WALKS};
 use crate::material::Material;
 use crate::math::{luminance, sample_uniform_triangle, Vec2, Vec3, PI};
@@ -449,10 +449,17 @@ impl LightSet {
     /// there (0 when it is not sampled), with the map looked up once. None without an environment.
     pub fn environment_eval_pdf(&self, d: Vec3, reference: Vec3, normal: Option<Vec3>) -> Option<(Vec3, f32)> {
         let env = self.environment.as_ref()?;
+        self.environment_eval_pdf_at(env.map_point(d), reference, normal)
+    }
+
+    /// [`Self::environment_eval_pdf`] of the direction `p` was found for
+    /// ([`Environment::map_point`]).
+    pub fn environment_eval_pdf_at(&self, p: MapPoint, reference: Vec3, normal: Option<Vec3>) -> Option<(Vec3, f32)> {
+        let env = self.environment.as_ref()?;
         if !env.is_sampled() {
-            return Some((env.eval(d), 0.0));
+            return Some((env.eval_at(p), 0.0));
         }
-        let (le, pdf) = env.eval_pdf(d);
+        let (le, pdf) = env.eval_pdf_at(p);
         Some((le, self.select_pmf(self.environment_index(), reference, normal) * pdf))
     }
 

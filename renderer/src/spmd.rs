@@ -19,6 +19,8 @@ use crate::bsdf::Bsdf;
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use crate::bsdf8::{normalize_or_zero, sample_cosine_hemisphere, Glass8, OpaqueBsdf8, Sample8};
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+use crate::environment::MapPoint;
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use crate::lanes::{select, F8, I8, M8, V8};
 use crate::material::Material;
 use crate::math::Vec3;
@@ -366,11 +368,17 @@ pub fn radiance8(
         // lookups in a loop of their own, so their cache misses (the map and its rows are
         // megabytes) overlap rather than wait a whole lane's shading apart.
         if let (true, Some(env)) = (escaped != 0, &scene.lights.environment) {
+            // Every escaped lane's map lines asked for first (`Environment::prefetch`).
+            let mut points = [MapPoint::default(); 8];
+            for k in lanes_of(escaped) {
+                points[k] = env.map_point(dirs[k]);
+                env.prefetch(&points[k]);
+            }
             for k in lanes_of(escaped) {
                 if prev_bits & (1 << k) == 0 {
-                    emit[k] = env.eval(dirs[k]);
+                    emit[k] = env.eval_at(points[k]);
                 } else if let Some((le, light_pdf)) =
-                    scene.lights.environment_eval_pdf(dirs[k], prev_p[k], Some(prev_n[k]))
+                    scene.lights.environment_eval_pdf_at(points[k], prev_p[k], Some(prev_n[k]))
                 {
                     emit[k] = le;
                     emit_w[k] = crate::integrator::mis_weight(settings.mis_heuristic, prev_pdf[k], light_pdf);

@@ -13,6 +13,7 @@
 use crate::math::{Vec3, Vec3A};
 use crate::mesh::Mesh;
 use crate::node_ray::NodeRay;
+use crate::ray_bundle::RayBundle;
 use crate::wide_node::WideNode;
 use obvhs::cwbvh::node::CwBvhNode;
 use obvhs::cwbvh::CwBvh;
@@ -70,6 +71,10 @@ const STACK: usize = 256;
 
 /// The most rays [`Accel::intersect_batch`] walks at once.
 pub const MAX_BATCH: usize = 16;
+
+/// How many nodes [`Accel::bundle_misses`] visits before it gives up and leaves the rays to
+/// their own walks (a bundle that passes between many boxes costs no more than this).
+const BUNDLE_VISITS: usize = 16;
 
 /// The node index of the inner child in `slot` of `node`: inner children are stored from
 /// `child_base_idx` in slot order.
@@ -808,6 +813,42 @@ impl Accel {
         self.intersect_object(Vec3A::from(o), Vec3A::from(d), tmax)
     }
 
+    /// True when no ray from `origin` along `directions` can hit anything: the bundle's interval
+    /// test ([`RayBundle`]) walked down the decompressed nodes finds no leaf it may enter. False
+    /// as soon as it reaches one, after [`BUNDLE_VISITS`] nodes, or where the test does not
+    /// apply (compressed or instanced BVHs, the own BVH, non-finite values); the rays are then
+    /// traced one by one as before. A true answer is what each ray's own walk would find, so
+    /// the caller may skip their walks and nothing changes (`bundle_misses_only_when_every_ray_misses`).
+    pub fn bundle_misses(&self, origin: Vec3, directions: &[Vec3]) -> bool {
+        if self.wide.is_empty() || self.top.is_some() || self.own.is_some() {
+            return false;
+        }
+        let Some(bundle) = RayBundle::new(origin, directions) else { return false };
+        let (mut stack, mut len) = ([0u32; BUNDLE_VISITS], 1);
+        let mut visits = 0;
+        while len > 0 {
+            len -= 1;
+            let Some(node) = self.wide.get(stack[len] as usize) else { return false };
+            visits += 1;
+            if visits > BUNDLE_VISITS {
+                return false;
+            }
+            let mut mask = node.bundle_mask(&bundle);
+            while mask != 0 {
+                let slot = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                match node.inner_child(slot) {
+                    Some(child) if len < BUNDLE_VISITS => {
+                        stack[len] = child;
+                        len += 1;
+                    }
+                    _ => return false,
+                }
+            }
+        }
+        true
+    }
+
     #[inline(never)]
     fn intersect_own(own: &crate::bvh::Bvh, o: Vec3, d: Vec3, tmax: f32) -> Option<Hit> {
         own.intersect(o, d, tmax, false).map(|(t, i, b1, b2)| Hit {
@@ -1334,6 +1375,49 @@ mod tests {
                 accel.occluded_batch(&os, &ds, &[2.0; 3], &mut blocked);
                 assert!(blocked.iter().all(|&x| x), "{kind:?} batch {d:?}: not occluded");
             }
+        }
+    }
+
+    /// `bundle_misses` says so only for bundles every ray of which misses (each ray's own walk
+    /// agrees), and it does say so for most bundles that miss: pixel-sized bundles from camera
+    /// positions around a scene of spheres and quads, some aimed at the geometry, some past it,
+    /// and wide ones. Other accelerators never cull.
+    #[test]
+    fn bundle_misses_only_when_every_ray_misses() {
+        let mut b = crate::testing::SceneBuilder::default();
+        let m = b.material(crate::testing::lambert(Vec3::splat(0.5)));
+        for k in 0..6 {
+            let c = Vec3::new((k % 3) as f32 * 3.0 - 3.0, (k / 3) as f32 * 2.0, -(k as f32));
+            b.sphere(c, 0.4 + 0.1 * k as f32, 2, false, m);
+        }
+        b.quad(Vec3::new(0.0, -1.0, -2.0), Vec3::X * 4.0, Vec3::Z * 3.0, m);
+        let accel = Accel::build(&b.mesh);
+        let u = crate::sampler::hash_unit;
+        let (mut culled, mut all_missed, mut some_hit) = (0, 0, 0);
+        for i in 0..4000u64 {
+            let o = Vec3::new(u(64 * i) * 16.0 - 8.0, u(64 * i + 1) * 10.0 - 3.0, 8.0 + u(64 * i + 2) * 4.0);
+            let aim = Vec3::new(u(64 * i + 3) * 12.0 - 6.0, u(64 * i + 4) * 8.0 - 3.0, u(64 * i + 5) * 6.0 - 6.0);
+            let spread = if i % 5 == 0 { 0.3 } else { 0.004 };
+            let dirs: Vec<Vec3> = (0..8u64)
+                .map(|k| {
+                    let j = Vec3::new(u(64 * i + 8 + 3 * k), u(64 * i + 9 + 3 * k), u(64 * i + 10 + 3 * k));
+                    ((aim - o).normalize() + (j - 0.5) * spread).normalize()
+                })
+                .collect();
+            let misses = dirs.iter().all(|&d| accel.intersect(o, d, f32::INFINITY).is_none());
+            let said = accel.bundle_misses(o, &dirs);
+            assert!(!said || misses, "bundle {i} from {o:?}: culled, but a ray hits");
+            culled += said as usize;
+            all_missed += misses as usize;
+            some_hit += !misses as usize;
+        }
+        assert!(some_hit > 500 && all_missed > 500, "{some_hit} bundles hit, {all_missed} missed");
+        assert!(culled * 4 > all_missed * 3, "culled {culled} of {all_missed} bundles that miss");
+        let o = Vec3::new(0.0, 10.0, 10.0);
+        let away = [Vec3::new(0.0, 1.0, 0.1).normalize(); 8];
+        assert!(accel.bundle_misses(o, &away), "a bundle pointing away from everything");
+        for kind in [AccelKind::ObvhsCompressed, AccelKind::Own] {
+            assert!(!Accel::build_with(&b.mesh, kind).bundle_misses(o, &away), "{kind:?} culled");
         }
     }
 

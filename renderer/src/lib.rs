@@ -56,6 +56,7 @@ pub mod microfacet;
 pub mod node_ray;
 pub mod noise;
 pub mod punctual;
+pub mod ray_bundle;
 pub mod render;
 pub mod sampler;
 pub mod scene;

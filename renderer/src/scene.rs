@@ -419,6 +419,13 @@ impl Scene {
         }
     }
 
+    /// True when every ray from `origin` along `directions` certainly hits nothing
+    /// ([`crate::accel::Accel::bundle_misses`]): what [`Self::intersect_surface_batch`] would
+    /// answer for each, found without their walks.
+    pub fn bundle_misses(&self, origin: Vec3, directions: &[Vec3]) -> bool {
+        self.accel.bundle_misses(origin, directions)
+    }
+
     /// [`Self::visibility`] for up to [`crate::accel::MAX_BATCH`] rays, ray k to `tmax[k]`, into
     /// `out`: traced together ([`Accel::occluded_batch`]) where no surface is transparent, else
     /// one after the other. The same fractions either way.

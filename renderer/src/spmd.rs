@@ -332,7 +332,16 @@ pub fn radiance8(
             count += 1;
         }
         let mut hits = [None; LANES];
-        scene.intersect_surface_batch(&qo[..count], &qd[..count], &[0; LANES][..count], &mut hits[..count]);
+        // A pixel's camera rays share their origin and nearly their direction: where one
+        // interval test shows that none of them can hit anything (a background), their walks
+        // are skipped, which is what they would have found (`Accel::bundle_misses`).
+        let background = depth == 0 && count > 0 && {
+            let (o, d) = (&qo[..count], &qd[..count]);
+            o.iter().all(|&x| x == o[0]) && scene.bundle_misses(o[0], d)
+        };
+        if !background {
+            scene.intersect_surface_batch(&qo[..count], &qd[..count], &[0; LANES][..count], &mut hits[..count]);
+        }
         // The hit triangles' vertices, gathered lane by lane; the surface points eight-wide.
         let (mut v0, mut v1, mut v2) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
         let (mut n0, mut n1, mut n2) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);

@@ -22,6 +22,7 @@
 //! node into the parts of `CwBvhNode::get_child_and_index_bits` that do not depend on the ray.
 
 use crate::node_ray::NodeRay;
+use crate::ray_bundle::RayBundle;
 use obvhs::cwbvh::node::CwBvhNode;
 
 // The lower bound on a child's entry distance (0, not obvhs' 10⁻⁴), the scalar lane operations
@@ -75,6 +76,65 @@ impl WideNode {
             primitive_base_idx: n.primitive_base_idx,
             imask: n.imask as u32,
         }
+    }
+
+    /// Child `slot`'s box as its lower and upper corners, or None for an empty slot.
+    pub fn child_box(&self, slot: usize) -> Option<([f32; 3], [f32; 3])> {
+        let lo = [0, 1, 2].map(|a| self.planes[a][0][slot]);
+        let hi = [0, 1, 2].map(|a| self.planes[a][1][slot]);
+        // An empty slot's lower planes are +∞ and its upper −∞.
+        (lo[0] <= hi[0]).then_some((lo, hi))
+    }
+
+    /// The node index of child `slot` when it is an inner node, None when it is a leaf or empty:
+    /// inner children follow `child_base_idx` in slot order (obvhs' `child_node_index`).
+    pub fn inner_child(&self, slot: usize) -> Option<u32> {
+        let below = (1u32 << slot) - 1;
+        (self.imask & (1 << slot) != 0).then(|| self.child_base_idx + (self.imask & below).count_ones())
+    }
+
+    /// Bit `slot` set for each used child some ray of `bundle` may enter
+    /// ([`RayBundle::may_enter`] on all eight children at once: the loops over slots are
+    /// written for LLVM to vectorize).
+    #[inline]
+    pub fn bundle_mask(&self, bundle: &RayBundle) -> u32 {
+        #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+        {
+            use crate::lanes::F8;
+            let (mut enter, mut leave) = (F8::zero(), F8::splat(f32::INFINITY));
+            for a in 0..3 {
+                let Some(ax) = bundle.axis(a) else { continue };
+                let (e, l) = ax.span8(F8::from_array(self.planes[a][0]), F8::from_array(self.planes[a][1]));
+                enter = enter.max(e);
+                leave = leave.min(l);
+            }
+            // An empty slot (lower +∞, upper −∞) is entered by nothing.
+            let used = F8::from_array(self.planes[0][0]).le(F8::from_array(self.planes[0][1]));
+            (used & enter.le(leave)).bits()
+        }
+        #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
+        self.bundle_mask_scalar(bundle)
+    }
+
+    /// [`Self::bundle_mask`] a slot at a time (the build without AVX2, and the reference in
+    /// tests).
+    pub fn bundle_mask_scalar(&self, bundle: &RayBundle) -> u32 {
+        let (mut enter, mut leave) = ([0f32; 8], [f32::INFINITY; 8]);
+        for a in 0..3 {
+            let Some(ax) = bundle.axis(a) else { continue };
+            for s in 0..8 {
+                let (e, l) = ax.span(self.planes[a][0][s], self.planes[a][1][s]);
+                enter[s] = enter[s].max(e);
+                leave[s] = leave[s].min(l);
+            }
+        }
+        let mut mask = 0;
+        for s in 0..8 {
+            // An empty slot (lower +∞, upper −∞) is entered by nothing.
+            let used = self.planes[0][0][s] <= self.planes[0][1][s];
+            mask |= u32::from(used && enter[s] <= leave[s]) << s;
+        }
+        mask
     }
 
     /// The hit mask of the children `ray` enters before `ray.tmax` (obvhs' format: leaf
@@ -231,6 +291,54 @@ mod tests {
             }
         }
         assert!(checked > 100_000 && hits > 10_000, "{checked} node tests, {hits} with hits");
+    }
+
+    /// A node's inner children are the nodes obvhs' own walk goes to (`child_node_index`), and
+    /// its used slots are the children the compressed node has.
+    #[test]
+    fn inner_children_and_boxes_follow_the_compressed_nodes() {
+        let bvh = crate::testing::icosphere_cwbvh(4, |v| v, true);
+        let (mut inner, mut leaves) = (0, 0);
+        for n in &bvh.nodes {
+            let w = WideNode::from_compressed(n);
+            for slot in 0..8 {
+                assert_eq!(w.child_box(slot).is_some(), n.child_meta[slot] != 0, "slot {slot}");
+                let want = (n.imask & (1 << slot) != 0).then(|| n.child_node_index(slot));
+                assert_eq!(w.inner_child(slot), want, "slot {slot}");
+                inner += want.is_some() as usize;
+                leaves += (want.is_none() && n.child_meta[slot] != 0) as usize;
+            }
+        }
+        assert!(inner > 100 && leaves > 100, "{inner} inner children, {leaves} leaves");
+    }
+
+    /// The eight-at-once bundle test equals the one-box test on every child of every node, for
+    /// bundles that cull some children and keep others.
+    #[test]
+    fn bundle_mask_is_the_one_box_test_on_each_child() {
+        let bvh = crate::testing::icosphere_cwbvh(3, |v| v, true);
+        let wide: Vec<WideNode> = bvh.nodes.iter().map(WideNode::from_compressed).collect();
+        let u = crate::sampler::hash_unit;
+        let (mut kept, mut culled) = (0, 0);
+        for i in 0..200u64 {
+            let o = [0, 1, 2].map(|a| u(32 * i + a) * 4.0 - 2.0);
+            let aim = [0, 1, 2].map(|a| u(32 * i + 3 + a) * 2.0 - 1.0 - o[a as usize]);
+            let dirs: Vec<[f32; 3]> =
+                (0..8u64).map(|k| [0, 1, 2].map(|a| aim[a as usize] + 0.05 * u(32 * i + 6 + 3 * k + a))).collect();
+            let dirs: Vec<crate::math::Vec3> = dirs.into_iter().map(crate::math::Vec3::from).collect();
+            let Some(b) = RayBundle::new(crate::math::Vec3::from(o), &dirs) else { continue };
+            for w in &wide {
+                let mask = w.bundle_mask(&b);
+                assert_eq!(mask, w.bundle_mask_scalar(&b), "bundle {i}");
+                for slot in 0..8 {
+                    let want = w.child_box(slot).is_some_and(|(lo, hi)| b.may_enter(lo, hi));
+                    assert_eq!(mask >> slot & 1 == 1, want, "bundle {i}, slot {slot}");
+                    kept += want as usize;
+                    culled += (!want && w.child_box(slot).is_some()) as usize;
+                }
+            }
+        }
+        assert!(kept > 1000 && culled > 1000, "{kept} kept, {culled} culled");
     }
 
     /// Far from the world origin, with rays grazing the boxes' faces, every child the ray truly

@@ -820,7 +820,8 @@ impl Accel {
     /// traced one by one as before. A true answer is what each ray's own walk would find, so
     /// the caller may skip their walks and nothing changes (`bundle_misses_only_when_every_ray_misses`).
     pub fn bundle_misses(&self, origin: Vec3, directions: &[Vec3]) -> bool {
-        if self.wide.is_empty() || self.top.is_some() || self.own.is_some() {
+        // The own BVH has no decompressed nodes; a two-level BVH's are its top level's.
+        if self.wide.is_empty() || self.top.is_some() {
             return false;
         }
         let Some(bundle) = RayBundle::new(origin, directions) else { return false };
@@ -837,13 +838,12 @@ impl Accel {
             while mask != 0 {
                 let slot = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
-                match node.inner_child(slot) {
-                    Some(child) if len < BUNDLE_VISITS => {
-                        stack[len] = child;
-                        len += 1;
-                    }
-                    _ => return false,
+                // A leaf the bundle may enter, or more nodes than the stack holds: give up.
+                if node.imask & (1 << slot) == 0 || len == BUNDLE_VISITS {
+                    return false;
                 }
+                stack[len] = inner_child(node, slot as u32);
+                len += 1;
             }
         }
         true
@@ -1419,6 +1419,27 @@ mod tests {
         for kind in [AccelKind::ObvhsCompressed, AccelKind::Own] {
             assert!(!Accel::build_with(&b.mesh, kind).bundle_misses(o, &away), "{kind:?} culled");
         }
+    }
+
+    /// `inner_child` (which `bundle_misses` and the walks share) names the node obvhs' own walk
+    /// goes to (`child_node_index`) for every inner child of the decompressed nodes, and their
+    /// used slots are the children the compressed node has.
+    #[test]
+    fn inner_children_and_boxes_follow_the_compressed_nodes() {
+        let bvh = crate::testing::icosphere_cwbvh(4, |v| v, true);
+        let (mut inner, mut leaves) = (0, 0);
+        for n in &bvh.nodes {
+            let w = WideNode::from_compressed(n);
+            for slot in 0..8 {
+                assert_eq!(w.child_box(slot).is_some(), n.child_meta[slot] != 0, "slot {slot}");
+                let want = (n.imask & (1 << slot) != 0).then(|| n.child_node_index(slot));
+                let ours = (w.imask & (1 << slot) != 0).then(|| inner_child(&w, slot as u32));
+                assert_eq!(ours, want, "slot {slot}");
+                inner += want.is_some() as usize;
+                leaves += (want.is_none() && n.child_meta[slot] != 0) as usize;
+            }
+        }
+        assert!(inner > 100 && leaves > 100, "{inner} inner children, {leaves} leaves");
     }
 
     /// Windows cover exactly the slots a group names, block-aligned, highest block first.

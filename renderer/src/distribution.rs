@@ -123,8 +123,14 @@ impl Table<'_> {
     /// Density at x in [0,1).
     #[inline]
     fn pdf(&self, x: f32) -> f32 {
+        self.entries[self.bin(x)][1]
+    }
+
+    /// The bin [`Self::pdf`] reads for x.
+    #[inline(always)]
+    fn bin(&self, x: f32) -> usize {
         let n = self.bins();
-        self.entries[((x * n as f32) as usize).min(n - 1)][1]
+        ((x * n as f32) as usize).min(n - 1)
     }
 }
 
@@ -223,8 +229,9 @@ impl Distribution2D {
             let mut rows = [(0f32, 0f32, 0usize, 0usize, 0usize); BATCH];
             for (u, r) in us.iter().zip(&mut rows) {
                 let (v, pdf_v, row) = self.marginal.sample(u[1]);
-                if let Some(k) = self.row(row).guide_slot(u[0]) {
-                    crate::accel::prefetch(&self.row_guides[row * self.guide_len + k]);
+                let t = self.row(row);
+                if let Some(k) = t.guide_slot(u[0]) {
+                    crate::accel::prefetch(&t.guide[k]);
                 }
                 *r = (v, pdf_v, row, 0, 0);
             }
@@ -252,25 +259,21 @@ impl Distribution2D {
     }
 
     pub fn pdf(&self, uv: [f32; 2]) -> f32 {
-        let (row, column) = self.cell(uv);
-        self.row(row).entries[column][1] * self.marginal.pdf(uv[1])
+        self.row_at(uv[1]).pdf(uv[0]) * self.marginal.pdf(uv[1])
     }
 
-    /// The row and column of the cell [`Self::pdf`] reads at `uv`.
+    /// The row [`Self::pdf`] reads at v.
     #[inline(always)]
-    fn cell(&self, uv: [f32; 2]) -> (usize, usize) {
-        let row = ((uv[1] * self.nv as f32) as usize).min(self.nv - 1);
-        (row, ((uv[0] * self.nu as f32) as usize).min(self.nu - 1))
+    fn row_at(&self, v: f32) -> Table<'_> {
+        self.row(((v * self.nv as f32) as usize).min(self.nv - 1))
     }
 
     /// Asks the cache for the row entry [`Self::pdf`]`(uv)` reads (the marginal is small enough
     /// to stay cached).
     #[inline(always)]
     pub fn prefetch_pdf(&self, uv: [f32; 2]) {
-        let (row, column) = self.cell(uv);
-        if let Some(e) = self.row_entries.get(row * (self.nu + 1) + column) {
-            crate::accel::prefetch(e);
-        }
+        let t = self.row_at(uv[1]);
+        crate::accel::prefetch(&t.entries[t.bin(uv[0])]);
     }
 }
 

@@ -378,7 +378,7 @@ pub fn radiance8(
         // megabytes) overlap rather than wait a whole lane's shading apart.
         if let (true, Some(env)) = (escaped != 0, &scene.lights.environment) {
             // Every escaped lane's map lines asked for first (`Environment::prefetch`).
-            let mut points = [MapPoint::default(); 8];
+            let mut points = [MapPoint::default(); LANES];
             for k in lanes_of(escaped) {
                 points[k] = env.map_point(dirs[k]);
                 env.prefetch(&points[k]);

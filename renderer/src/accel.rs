@@ -274,6 +274,11 @@ impl Walk {
             let slot = inner.trailing_zeros() ^ oct;
             inner &= inner - 1;
             let d = Deferred { node: inner_child(node, slot), entry: entry[slot as usize] };
+            if !BATCH {
+                if let Some(child) = nodes.get(d.node as usize) {
+                    prefetch(child);
+                }
+            }
             let mut i = sp;
             // SAFETY: every entry below `sp` has been written.
             while i > run && unsafe { stack[i - 1].assume_init() }.entry < d.entry {
@@ -402,7 +407,14 @@ fn traverse_any<N: TraversalNode>(
         if prims != 0 && group(node.links().1 as usize, prims) {
             return true;
         }
+        let below = sp;
         sp = defer_unordered(node, hits, oct, stack, sp);
+        for e in &stack[below..sp] {
+            // SAFETY: entries below `sp` have been written.
+            if let Some(child) = nodes.get(unsafe { e.assume_init() }.node as usize) {
+                prefetch(child);
+            }
+        }
         if sp == 0 {
             return false;
         }

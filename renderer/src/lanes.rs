@@ -252,6 +252,9 @@ impl Neg for F8 {
     }
 }
 
+// `V8::from_lanes` and `to_lanes` read and write eight `Vec3`s as 24 consecutive floats.
+const _: () = assert!(std::mem::size_of::<[Vec3; LANES]>() == 24 * std::mem::size_of::<f32>());
+
 /// Eight 3-vectors, one coordinate a register. Operations follow glam's `Vec3` component by
 /// component (its `dot` is `(x·x + y·y) + z·z`).
 #[derive(Clone, Copy)]
@@ -270,12 +273,64 @@ impl V8 {
     pub fn zero() -> V8 {
         V8 { x: F8::zero(), y: F8::zero(), z: F8::zero() }
     }
+    /// Eight vectors side by side, lane k the k-th: the 24 floats loaded as six halves and
+    /// sorted into coordinates by five shuffles (the AoS-to-SoA transpose of Intel's "3D Vector
+    /// Normalization Using 256-Bit Intel AVX", 2011). Picked out one coordinate at a time, the
+    /// compiler moved the floats one by one (24 loads and inserts); the kernel transposes some
+    /// twenty times a bounce. The same bits as [`Self::from_lanes_scalar`] (a test compares).
     #[inline(always)]
     pub fn from_lanes(v: &[Vec3; LANES]) -> V8 {
+        // SAFETY: `[Vec3; 8]` is 24 consecutive f32 (glam's `Vec3` is `repr(C)` x, y, z, with no
+        // padding: asserted below), so every 4-float load lies inside `v`.
+        unsafe {
+            let p = v.as_ptr() as *const f32;
+            let half = |i: usize| _mm_loadu_ps(p.add(4 * i));
+            // [x0 y0 z0 x1 | x4 y4 z4 x5], [y1 z1 x2 y2 | y5 z5 x6 y6], [z2 x3 y3 z3 | z6 x7 y7 z7]
+            let m03 = _mm256_insertf128_ps::<1>(_mm256_castps128_ps256(half(0)), half(3));
+            let m14 = _mm256_insertf128_ps::<1>(_mm256_castps128_ps256(half(1)), half(4));
+            let m25 = _mm256_insertf128_ps::<1>(_mm256_castps128_ps256(half(2)), half(5));
+            // [x2 y2 x3 y3 | x6 y6 x7 y7] and [y0 z0 y1 z1 | y4 z4 y5 z5]
+            let xy = _mm256_shuffle_ps::<0b10_01_11_10>(m14, m25);
+            let yz = _mm256_shuffle_ps::<0b01_00_10_01>(m03, m14);
+            V8 {
+                x: F8(_mm256_shuffle_ps::<0b10_00_11_00>(m03, xy)),
+                y: F8(_mm256_shuffle_ps::<0b11_01_10_00>(yz, xy)),
+                z: F8(_mm256_shuffle_ps::<0b11_00_11_01>(yz, m25)),
+            }
+        }
+    }
+
+    /// [`Self::from_lanes`] a coordinate at a time: the reference.
+    pub fn from_lanes_scalar(v: &[Vec3; LANES]) -> V8 {
         V8 { x: F8::from_array(v.map(|v| v.x)), y: F8::from_array(v.map(|v| v.y)), z: F8::from_array(v.map(|v| v.z)) }
     }
+
+    /// The lanes as eight vectors: [`Self::from_lanes`]' transpose run backwards (six shuffles,
+    /// three lane swaps, three stores). The same bits as [`Self::to_lanes_scalar`].
     #[inline(always)]
     pub fn to_lanes(self) -> [Vec3; LANES] {
+        let mut out = [Vec3::ZERO; LANES];
+        // SAFETY: as in `from_lanes`: the three 8-float stores fill `out`'s 24 floats exactly.
+        unsafe {
+            let (x, y, z) = (self.x.0, self.y.0, self.z.0);
+            // [x0 x2 y0 y2 | x4 x6 y4 y6], [y1 y3 z1 z3 | …], [z0 z2 x1 x3 | …]
+            let rxy = _mm256_shuffle_ps::<0b10_00_10_00>(x, y);
+            let ryz = _mm256_shuffle_ps::<0b11_01_11_01>(y, z);
+            let rzx = _mm256_shuffle_ps::<0b11_01_10_00>(z, x);
+            // [x0 y0 z0 x1 | x4 y4 z4 x5], [y1 z1 x2 y2 | y5 z5 x6 y6], [z2 x3 y3 z3 | z6 x7 y7 z7]
+            let r03 = _mm256_shuffle_ps::<0b10_00_10_00>(rxy, rzx);
+            let r14 = _mm256_shuffle_ps::<0b11_01_10_00>(ryz, rxy);
+            let r25 = _mm256_shuffle_ps::<0b11_01_11_01>(rzx, ryz);
+            let p = out.as_mut_ptr() as *mut f32;
+            _mm256_storeu_ps(p, _mm256_permute2f128_ps::<0x20>(r03, r14));
+            _mm256_storeu_ps(p.add(8), _mm256_permute2f128_ps::<0x30>(r25, r03));
+            _mm256_storeu_ps(p.add(16), _mm256_permute2f128_ps::<0x31>(r14, r25));
+        }
+        out
+    }
+
+    /// [`Self::to_lanes`] a lane at a time: the reference.
+    pub fn to_lanes_scalar(self) -> [Vec3; LANES] {
         let (x, y, z) = (self.x.to_array(), self.y.to_array(), self.z.to_array());
         std::array::from_fn(|k| Vec3::new(x[k], y[k], z[k]))
     }
@@ -350,5 +405,36 @@ impl Neg for V8 {
     #[inline(always)]
     fn neg(self) -> V8 {
         V8 { x: -self.x, y: -self.y, z: -self.z }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The transposes move every float to its place: distinct bit patterns (NaNs, ±0, ∞ among
+    /// them) in every position, through both directions and back.
+    #[test]
+    fn transposes_are_the_coordinate_at_a_time_ones() {
+        let specials = [f32::NAN, -0.0, 0.0, f32::INFINITY, f32::NEG_INFINITY, f32::MIN_POSITIVE, -1.5];
+        for round in 0..64u32 {
+            let v: [Vec3; LANES] = std::array::from_fn(|k| {
+                let c = |j: u32| {
+                    let i = 3 * k as u32 + j;
+                    match (i + round) % 11 {
+                        s if (s as usize) < specials.len() && round % 2 == 1 => specials[s as usize],
+                        _ => (i * 1000 + round) as f32 + 0.25,
+                    }
+                };
+                Vec3::new(c(0), c(1), c(2))
+            });
+            let (fast, slow) = (V8::from_lanes(&v), V8::from_lanes_scalar(&v));
+            for (a, b) in [(fast.x, slow.x), (fast.y, slow.y), (fast.z, slow.z)] {
+                assert_eq!(a.to_array().map(f32::to_bits), b.to_array().map(f32::to_bits), "round {round}");
+            }
+            let bits = |a: [Vec3; LANES]| a.map(|v| v.to_array().map(f32::to_bits));
+            assert_eq!(bits(fast.to_lanes()), bits(slow.to_lanes_scalar()), "round {round}");
+            assert_eq!(bits(fast.to_lanes()), bits(v), "round {round}");
+        }
     }
 }

@@ -722,8 +722,9 @@ pub fn radiance8(
         depth += 1;
         let mut go = go;
         if depth >= settings.rr_depth {
-            // β's largest channel times η² of the transmissions so far.
-            let m = beta.max_element() * eta_scale;
+            // β's largest channel times η² of the transmissions so far, in units of the threshold
+            // (`integrator::RR_THRESHOLD`; the scalar path's arithmetic, in its order).
+            let m = beta.max_element() * eta_scale * F8::splat(1.0 / crate::integrator::RR_THRESHOLD);
             let low = m.lt(one);
             let q = (one - m).max_finite(zero);
             let u_rr = F8::from_array(u_bsdf[(dims::RUSSIAN_ROULETTE % 4) as usize]);

@@ -67,3 +67,58 @@ fn roulette_inside_glass_does_not_make_fireflies() {
         assert!(rel_sd < 0.4, "{integrator:?}: relative standard deviation {rel_sd:.3}");
     }
 }
+
+/// A white-furnace render (`testing::furnace`) of a grey Lambert sphere of `albedo`, BSDF
+/// sampling only, roulette from the first bounce on: the sums of the central 8×8 pixels, which
+/// see only the sphere (it spans 29° of the camera's 35°).
+fn furnace_centre(albedo: f32) -> renderer::film::PartialSums {
+    let scene = renderer::testing::furnace(renderer::testing::lambert(Vec3::splat(albedo)));
+    let s = RenderSettings {
+        width: 16,
+        height: 16,
+        spp: 32,
+        integrator: IntegratorKind::Bsdf,
+        max_depth: 16,
+        rr_depth: 1,
+        ..RenderSettings::default()
+    };
+    render_tile(&scene, &s, Rect { x0: 4, y0: 4, width: 8, height: 8 }, 0..s.spp)
+}
+
+/// Russian roulette leaves a path alone while its throughput is at least
+/// `integrator::RR_THRESHOLD`: the sphere (albedo 0.5) sends every path on to the black emitter
+/// carrying 0.5, so every sample of every pixel is 0.5 and the pixels have no variance. The
+/// roulette of pbrt and Mitsuba (played below throughput 1) killed half of those paths and
+/// doubled the rest: samples of 0 or 1, a variance of the mean of 0.008 at 32 spp (Sobol's
+/// stratification kept the means at exactly 0.5, so it is the variance that tells).
+#[test]
+fn roulette_spares_paths_above_its_threshold() {
+    assert_eq!(renderer::integrator::RR_THRESHOLD, 0.25);
+    let sums = furnace_centre(0.5);
+    for i in 0..sums.rect.pixels() {
+        let (m, v) = (sums.mean(i)[1], sums.variance_of_mean(i));
+        assert!(
+            (m - 0.5).abs() < 1e-4 && v < 1e-8,
+            "pixel {i}: mean {m}, variance {v}: a roulette played above the threshold"
+        );
+    }
+}
+
+/// Below the threshold it plays, unbiased: an albedo-0.2 sphere's paths survive with probability
+/// 0.8 and go on carrying 0.25, so each sample is 0 or 0.25 and the mean stays 0.2.
+#[test]
+fn roulette_below_its_threshold_stays_unbiased() {
+    let sums = furnace_centre(0.2);
+    let n = sums.rect.pixels();
+    let (mut sum, mut var, mut played) = (0.0f64, 0.0f64, 0);
+    for i in 0..n {
+        sum += sums.mean(i)[1] as f64;
+        let v = sums.variance_of_mean(i) as f64;
+        var += v;
+        played += (v > 0.0) as usize;
+    }
+    let mean = sum / n as f64;
+    let sd = (var / (n * n) as f64).sqrt();
+    assert!(played > n / 2, "the roulette plays below the threshold ({played} of {n} pixels vary)");
+    assert!((mean - 0.2).abs() < 4.0 * sd, "mean {mean} ± {sd}, expected 0.2");
+}

@@ -56,7 +56,8 @@ pub struct RenderFlags {
     /// Maximum number of bounces (0 = emission only, 1 = direct lighting; default 64).
     #[arg(long)]
     pub max_depth: Option<u64>,
-    /// Bounce from which Russian roulette may end paths (default 5).
+    /// Bounce from which Russian roulette may end paths (default 5); it plays only on paths whose
+    /// throughput has fallen below 1/4.
     #[arg(long)]
     pub rr_depth: Option<u64>,
     /// Pixel filter, importance-sampled: box (default) or tent.

@@ -16,16 +16,17 @@ use crate::scene::Scene;
 use crate::settings::{IntegratorKind, MisHeuristic, RenderSettings};
 
 /// Russian roulette plays only once a path's throughput (its largest channel, times η²) is below
-/// this: such a path survives with probability (throughput / threshold) and goes on carrying the
-/// threshold, so no path's weight is ever raised above it (a "weight window" with its floor
-/// here, Arvo and Kirk 1990; pbrt-v4 and Mitsuba play from throughput 1). A path's remaining
-/// contribution is at most its throughput times the light it will meet, so below 1 the paths
-/// pbrt's roulette kills still carry much of the image in bright scenes, and the survivors' boost
-/// (up to 1/throughput) is where the noise was. With 1/4 (relMSE against the Mitsuba references
-/// of `scenes/references`, 256 spp, median of 9 alternating runs, seeds 0–8): cornell relMSE 3.61e-4 → 2.86e-4 in 1.07× the time, glass 1.60e-2 →
-/// 1.19e-2 in 1.12×, envlit 5.41e-4 → 4.42e-4 in 0.97× (efficiency +18 %, +19 %, +15 %);
-/// 1/2 and 1/8 measured +5 to +14 % and +9 to +16 %. Unbiased whatever the value (the survivors
-/// are divided by their survival probability). The SPMD kernel uses the same constant.
+/// this: such a path survives with probability throughput / threshold and goes on carrying the
+/// threshold, so roulette never raises a path's weight above it (the lower bound of a weight
+/// window, as Monte Carlo particle transport calls it; Arvo and Kirk 1990 brought roulette to
+/// rendering). pbrt-v4 and Mitsuba play below throughput 1: in a bright scene the paths they kill
+/// there still carry much of the image, and their survivors' boost (up to 1/throughput) was
+/// where our deep paths' noise was. With 1/4 (relMSE against the Mitsuba references of
+/// `scenes/references`, 256 spp, median of 9 alternating runs, seeds 0–8): cornell 3.61e-4 →
+/// 2.86e-4 in 1.07× the time, glass 1.60e-2 → 1.19e-2 in 1.12×, envlit 5.41e-4 → 4.42e-4 in
+/// 0.97× (efficiency +18 %, +19 %, +15 %); 1/2 and 1/8 measured +7 to +19 % and +9 to +19 %.
+/// Unbiased whatever the value (survivors are divided by their survival probability). The SPMD
+/// kernel uses the same constant in the same arithmetic.
 pub const RR_THRESHOLD: f32 = 0.25;
 
 #[inline]

@@ -4,6 +4,7 @@
     cargo build --release
     apt-get install libllvm19    # for Mitsuba's vectorised CPU backend (llvm_ad_rgb)
     python3 scenes/references/bench_peers.py [--spp 64] [--runs 3] [--variants scalar_rgb llvm_ad_rgb] [scenes...]
+    python3 scenes/references/bench_peers.py --before /tmp/tessera-before ...   # before and after in one command
 
 For each scene with a Mitsuba reference (make_references.py) it renders, at the reference's resolution
 and `--spp`, with `tessera render` (default settings: mis, Sobol; the render time Tessera reports,
@@ -59,6 +60,10 @@ def main():
     ap.add_argument("--variants", nargs="+", default=["scalar_rgb", "llvm_ad_rgb"],
                     help='Mitsuba variants to run beside Tessera; "none" for Tessera alone')
     ap.add_argument("--tessera-args", default="", help="extra flags for tessera render (quoted)")
+    ap.add_argument("--before", metavar="BIN",
+                    help="another tessera build (e.g. the commit before a change), run in the same "
+                         "alternation with the same seeds: a 'tessera before' row and before/after ratios, "
+                         "so a noisy machine's slow spells fall on both builds alike")
     ap.add_argument("--vector-width", type=int, choices=[4, 8, 16],
                     help="Dr.Jit's LLVM vector width for the llvm variants (default: the host's widest)")
     ap.add_argument("scenes", nargs="*", default=list(mr.SCENES))
@@ -99,21 +104,25 @@ def main():
                     peers.append((variant, scene, [], []))
                 except Exception as e:  # a missing libLLVM says so and the others still run
                     print(f"{name}: {variant} unavailable: {e}", file=sys.stderr)
-            times, errs = [], []
+            builds = [(TESSERA, [], [])] + ([(a.before, [], [])] if a.before else [])
             for r in range(a.runs):
                 out = os.path.join(tmp, "t.exr")
-                p = subprocess.run([TESSERA, "render", os.path.join(mr.ROOT, rel), "-o", out, "--spp", str(a.spp),
-                                    "--width", str(w), "--height", str(h), "--seed", str(r), *env_args,
-                                    *a.tessera_args.split()], check=True, stderr=subprocess.PIPE, text=True)
-                times.append(float(p.stderr.split(" in ")[1].split("s ")[0]))
-                errs.append(rel_mse(np.array(mi.Bitmap(out), dtype=np.float64)[:, :, :3], ref))
+                # The two builds swap places every run: whichever follows a peer's render (whose
+                # threads may still be winding down) is not always the same one.
+                for binary, times, errs in (builds if r % 2 == 0 else builds[::-1]):
+                    p = subprocess.run([binary, "render", os.path.join(mr.ROOT, rel), "-o", out, "--spp", str(a.spp),
+                                        "--width", str(w), "--height", str(h), "--seed", str(r), *env_args,
+                                        *a.tessera_args.split()], check=True, stderr=subprocess.PIPE, text=True)
+                    times.append(float(p.stderr.split(" in ")[1].split("s ")[0]))
+                    errs.append(rel_mse(np.array(mi.Bitmap(out), dtype=np.float64)[:, :, :3], ref))
                 for variant, scene, ptimes, perrs in peers:
                     mi.set_variant(variant)
                     t0 = time.perf_counter()
                     img = np.array(mi.render(scene, seed=1000 + r, spp=a.spp), dtype=np.float64)[:, :, :3]
                     ptimes.append(time.perf_counter() - t0)
                     perrs.append(rel_mse(img, ref))
-            rows = [("tessera", statistics.median(times), statistics.median(errs))]
+            rows = [(label, statistics.median(t), statistics.median(e))
+                    for label, (_, t, e) in zip(["tessera", "tessera before"], builds)]
             rows += [(f"mitsuba {v}", statistics.median(t), statistics.median(e)) for v, _, t, e in peers]
             del peers
         # Efficiency from the relMSE less the reference's own (floored at a tenth of the measured
@@ -136,10 +145,16 @@ def main():
           "(the reference's own noise subtracted; raw: as measured)")
     for name in a.scenes:
         mine = [s for s in summary if s[0] == name and s[1] == "tessera"]
+        before = [s for s in summary if s[0] == name and s[1] == "tessera before"]
         for s in summary:
-            if s[0] == name and s[1] != "tessera" and mine:
+            if s[0] == name and not s[1].startswith("tessera") and mine:
+                then = ""
+                if before:
+                    # The peer's efficiency over the earlier build's: both are over the current one.
+                    then = (f"   (before: paths/s ratio {before[0][3] / s[3]:.2f}, peer efficiency ratio "
+                            f"{s[5] / before[0][5]:.2f})")
                 print(f"{name:<14} vs {s[1]:<22} paths/s ratio {mine[0][3] / s[3]:>6.2f}   peer efficiency ratio "
-                      f"{s[5]:>6.2f}   raw {s[6]:>6.2f}")
+                      f"{s[5]:>6.2f}   raw {s[6]:>6.2f}{then}")
 
 
 if __name__ == "__main__":

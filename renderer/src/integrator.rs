@@ -20,14 +20,11 @@ use crate::settings::{IntegratorKind, MisHeuristic, RenderSettings};
 /// threshold, so roulette never raises a path's weight above it (the lower bound of a weight
 /// window, as Monte Carlo particle transport calls it; Arvo and Kirk 1990 brought roulette to
 /// rendering). pbrt-v4 and Mitsuba play below throughput 1: in a bright scene the paths they kill
-/// there still carry much of the image, and their survivors' boost (up to 1/throughput) was
-/// where our deep paths' noise was. With 1/4 (relMSE against the Mitsuba references of
-/// `scenes/references`, 256 spp, seeds 0–8, medians of runs alternating with the previous build
-/// in swapped order): cornell 3.61e-4 → 2.85e-4 in 1.11× the time, glass 1.60e-2 → 1.19e-2 in
-/// 1.08×, envlit 5.41e-4 → 4.42e-4 in 1.00× (efficiency +14 %, +23 %, +12 %). 1/2 and 1/8 did
-/// no better (ARCHITECTURE.md, thirteenth round).
-/// Unbiased whatever the value (survivors are divided by their survival probability). The SPMD
-/// kernel uses the same constant in the same arithmetic.
+/// there still carry much of the image, and their survivors' boost (up to 1/throughput) was where
+/// our deep paths' noise was. Unbiased whatever the value (survivors are divided by their
+/// survival probability); 1/4 is the measured choice (ARCHITECTURE.md, thirteenth round:
+/// `bench_peers.py --variants none --before <previous build>`). The SPMD kernel uses the same
+/// constant in the same arithmetic.
 pub const RR_THRESHOLD: f32 = 0.25;
 
 #[inline]

@@ -93,8 +93,9 @@ fn furnace_centre(albedo: f32) -> renderer::film::PartialSums {
 /// stratification kept the means at exactly 0.5, so it is the variance that tells).
 #[test]
 fn roulette_spares_paths_above_its_threshold() {
-    // What the scene relies on: the sphere's throughput, 0.5, is at or above the threshold.
-    assert!(renderer::integrator::RR_THRESHOLD <= 0.5, "the test's albedo must not be below the threshold");
+    // What the scene relies on, checked at compile time: the sphere's throughput, 0.5, is at or
+    // above the threshold.
+    const { assert!(renderer::integrator::RR_THRESHOLD <= 0.5, "the test's albedo must not be below the threshold") };
     let sums = furnace_centre(0.5);
     for i in 0..sums.rect.pixels() {
         let (m, v) = (sums.mean(i)[1], sums.variance_of_mean(i));

@@ -76,6 +76,11 @@ pub const MAX_BATCH: usize = 16;
 /// their own walks (a bundle that passes between many boxes costs no more than this).
 const BUNDLE_VISITS: usize = 16;
 
+/// How many nodes [`Accel::intersect_bundle`] visits, and how many nodes' leaf groups it
+/// gathers, before it leaves the rays to their own walks.
+const BUNDLE_NODES: usize = 64;
+const BUNDLE_GROUPS: usize = 32;
+
 /// The node index of the inner child in `slot` of `node`: inner children are stored from
 /// `child_base_idx` in slot order.
 #[inline(always)]
@@ -861,6 +866,109 @@ impl Accel {
         true
     }
 
+    /// Each ray's closest hit from `origin` along `directions` into `out` (what
+    /// [`Self::intersect`] finds with no distance limit), found together: one walk of the
+    /// bundle's interval test ([`RayBundle`], the test `bundle_misses` walks) gathers the node
+    /// leaf groups some ray may reach, nearest first, and each ray tests those groups until the
+    /// next begins beyond its closest hit; its node tests, the largest part of a walk that ends
+    /// in a few leaves, are done once for all. False, with nothing written, where it does not
+    /// apply (as `bundle_misses`, and the scalar reference) or the bundle reaches more than
+    /// [`BUNDLE_NODES`] nodes or [`BUNDLE_GROUPS`] leaf groups: the rays are then traced one by one.
+    ///
+    /// The answers are the walks' own, bit for bit. The bundle's groups contain every triangle a
+    /// ray's walk can test, and maybe more, grouped otherwise; a walk keeps the nearest hit, and
+    /// of hits at the same distance the first it meets, which depends on its order. So a ray keeps
+    /// the bundle's answer only when that nearest hit is unique (`TriangleBlocks::closest8_unique`,
+    /// no hit at the same distance in another group) and away from edges; otherwise it takes its
+    /// own walk (`bundle_answers_are_the_walks`).
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    pub fn intersect_bundle(&self, origin: Vec3, directions: &[Vec3], out: &mut [Option<Hit>]) -> bool {
+        if self.wide.is_empty() || self.top.is_some() || self.scalar_reference {
+            return false;
+        }
+        let n = directions.len().min(out.len());
+        let Some(bundle) = RayBundle::new(origin, &directions[..n]) else { return false };
+        // (lower bound on any ray's entry, first primitive slot, primitive mask) per leaf group.
+        let mut groups = [(0f32, 0u32, 0u32); BUNDLE_GROUPS];
+        let mut count = 0;
+        let (mut stack, mut len) = ([0u32; BUNDLE_NODES], 1);
+        let mut visits = 0;
+        while len > 0 {
+            len -= 1;
+            let Some(node) = self.wide.get(stack[len] as usize) else { return false };
+            visits += 1;
+            if visits > BUNDLE_NODES {
+                return false;
+            }
+            let (mut mask, enter) = node.bundle_span(&bundle);
+            let (mut prims, mut near) = (0u32, f32::INFINITY);
+            while mask != 0 {
+                let slot = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                if node.imask & (1 << slot) == 0 {
+                    prims |= node.leaf_prims(slot);
+                    near = near.min(enter[slot]);
+                } else {
+                    if len == BUNDLE_NODES {
+                        return false;
+                    }
+                    stack[len] = inner_child(node, slot as u32);
+                    len += 1;
+                }
+            }
+            if prims != 0 {
+                if count == BUNDLE_GROUPS {
+                    return false;
+                }
+                groups[count] = (near, node.primitive_base_idx, prims);
+                count += 1;
+            }
+        }
+        let groups = &mut groups[..count];
+        groups.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        for (d, hit) in directions[..n].iter().zip(out.iter_mut()) {
+            *hit = match self.bundle_ray(groups, Vec3A::from(origin), Vec3A::from(*d)) {
+                Some(h) => h,
+                None => self.intersect(origin, *d, f32::INFINITY),
+            };
+        }
+        true
+    }
+
+    /// One ray of [`Self::intersect_bundle`]: its nearest hit among `groups` (nearest first),
+    /// None where that is not unique.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[inline(always)]
+    fn bundle_ray(&self, groups: &[(f32, u32, u32)], oa: Vec3A, da: Vec3A) -> Option<Option<Hit>> {
+        let wray = WatertightRay::new(oa, da);
+        let mut best: LeafHit = (f32::INFINITY, NO_LEAF, 0.0, 0.0);
+        for &(near, base, prims) in groups {
+            // Every hit in the group lies at `near` or beyond.
+            if near > best.0 {
+                break;
+            }
+            let mut mask = prims;
+            while mask != 0 {
+                let (start, lanes) = next_window(base as usize, &mut mask);
+                // Hits at the best distance too (t < the next float up), to see a tie.
+                let (t, slot, b1, b2) = self.tris.closest8_unique(&wray, start, lanes, best.0.next_up())?;
+                if t == best.0 && t != f32::INFINITY {
+                    return None;
+                }
+                if t < best.0 {
+                    best = (t, slot, b1, b2);
+                }
+            }
+        }
+        Some(self.leaf_hit(best))
+    }
+
+    /// Not built without AVX2 (the SPMD kernel, its one caller, needs it).
+    #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
+    pub fn intersect_bundle(&self, _origin: Vec3, _directions: &[Vec3], _out: &mut [Option<Hit>]) -> bool {
+        false
+    }
+
     #[inline(never)]
     fn intersect_own(own: &crate::bvh::Bvh, o: Vec3, d: Vec3, tmax: f32) -> Option<Hit> {
         own.intersect(o, d, tmax, false).map(|(t, i, b1, b2)| Hit {
@@ -1431,6 +1539,102 @@ mod tests {
         for kind in [AccelKind::ObvhsCompressed, AccelKind::Own] {
             assert!(!Accel::build_with(&b.mesh, kind).bundle_misses(o, &away), "{kind:?} culled");
         }
+    }
+
+    /// `intersect_bundle` answers each ray as its own walk does, bit for bit: pixel-sized and
+    /// wider bundles from around a scene of spheres and a quad, some aimed at the spheres'
+    /// vertices (rays on shared edges), some at the quad, which is there twice (every hit on it a
+    /// tie between two triangles at the same distance, which the walk and the bundle may meet in
+    /// different orders). And it does answer most bundles; the other accelerators never do.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[test]
+    fn bundle_answers_are_the_walks() {
+        let mut b = crate::testing::SceneBuilder::default();
+        let m = b.material(crate::testing::lambert(Vec3::splat(0.5)));
+        for k in 0..6 {
+            let c = Vec3::new((k % 3) as f32 * 3.0 - 3.0, (k / 3) as f32 * 2.0, -(k as f32));
+            b.sphere(c, 0.4 + 0.1 * k as f32, 2, false, m);
+        }
+        b.quad(Vec3::new(0.0, -1.0, -2.0), Vec3::X * 4.0, Vec3::Z * 3.0, m);
+        // The same quad again: each hit on it ties with the first's, at the same distance bit for
+        // bit, and which of the two a walk keeps depends on the order it meets them.
+        b.quad(Vec3::new(0.0, -1.0, -2.0), Vec3::X * 4.0, Vec3::Z * 3.0, m);
+        let accel = Accel::build(&b.mesh);
+        let vertices = b.mesh.positions.clone();
+        let u = crate::sampler::hash_unit;
+        let (mut answered, mut hits) = (0, 0);
+        for i in 0..6000u64 {
+            let o = Vec3::new(u(64 * i) * 16.0 - 8.0, u(64 * i + 1) * 10.0 - 3.0, 8.0 + u(64 * i + 2) * 4.0);
+            let aim = match i % 3 {
+                0 => vertices[(u(64 * i + 3) * vertices.len() as f32) as usize % vertices.len()],
+                1 => Vec3::new(u(64 * i + 3) * 4.0, -1.0, u(64 * i + 5) * 3.0 - 2.0),
+                _ => Vec3::new(u(64 * i + 3) * 12.0 - 6.0, u(64 * i + 4) * 8.0 - 3.0, u(64 * i + 5) * 6.0 - 6.0),
+            };
+            let spread = if i % 5 == 0 {
+                0.3
+            } else if i % 3 == 0 {
+                0.0
+            } else {
+                0.004
+            };
+            let dirs: Vec<Vec3> = (0..8u64)
+                .map(|k| {
+                    let j = Vec3::new(u(64 * i + 8 + 3 * k), u(64 * i + 9 + 3 * k), u(64 * i + 10 + 3 * k));
+                    ((aim - o).normalize() + (j - 0.5) * spread).normalize()
+                })
+                .collect();
+            let mut out = [Some(Hit { t: -1.0, triangle: u32::MAX, b1: 0.0, b2: 0.0, instance: 0 }); 8];
+            if !accel.intersect_bundle(o, &dirs, &mut out) {
+                assert!(out.iter().all(|h| h.is_some_and(|h| h.t == -1.0)), "bundle {i}: refused, yet wrote");
+                continue;
+            }
+            answered += 1;
+            for (k, (&d, got)) in dirs.iter().zip(&out).enumerate() {
+                let want = accel.intersect(o, d, f32::INFINITY);
+                let bits = |h: Option<Hit>| h.map(|h| (h.t.to_bits(), h.triangle, h.b1.to_bits(), h.b2.to_bits()));
+                assert_eq!(bits(*got), bits(want), "bundle {i} ray {k} from {o:?} along {d:?}");
+                hits += want.is_some() as usize;
+            }
+        }
+        assert!(answered > 4000 && hits > 5000, "{answered} bundles answered, {hits} hits");
+        let o = Vec3::new(0.0, 10.0, 10.0);
+        let down = [Vec3::new(0.0, -1.0, -0.9).normalize(); 8];
+        for kind in [AccelKind::ObvhsCompressed, AccelKind::Own] {
+            let mut out = [None; 8];
+            assert!(!Accel::build_with(&b.mesh, kind).intersect_bundle(o, &down, &mut out), "{kind:?} answered");
+        }
+    }
+
+    /// A bundle's ray gives up (None: its own walk answers it) on a hit that ties with another
+    /// at the same distance, in another group or in the same window, and on a ray through an
+    /// edge; a unique hit it keeps.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[test]
+    fn bundle_rays_leave_ties_and_edges_to_their_walks() {
+        let mut b = crate::testing::SceneBuilder::default();
+        let m = b.material(crate::testing::lambert(Vec3::splat(0.5)));
+        // One quad twice: mesh triangles 0 and 2 are the same triangle, as are 1 and 3.
+        for _ in 0..2 {
+            b.quad(Vec3::ZERO, Vec3::X, Vec3::Z, m);
+        }
+        let accel = Accel::build(&b.mesh);
+        let slot = |tri: u32| accel.tris.ids.iter().position(|&i| i == tri).expect("every triangle has a slot");
+        let (s0, s1, s2) = (slot(0), slot(1), slot(2));
+        assert!(s0.max(s1).max(s2) < 24, "four triangles, slots {s0} {s1} {s2}");
+        let group = |slots: &[usize]| (0.0f32, 0u32, slots.iter().fold(0u32, |m, &s| m | 1 << s));
+        let down = Vec3A::new(0.0, -1.0, 0.0);
+        // Inside triangle 0 (and 2), off every edge: (0.5, 0, −0.5) lies below the diagonal.
+        let o = Vec3A::new(0.5, 1.0, -0.5);
+        let alone = accel.bundle_ray(&[group(&[s0])], o, down).expect("a unique hit");
+        assert_eq!(alone.map(|h| h.triangle), Some(0));
+        assert!(accel.bundle_ray(&[group(&[s0]), group(&[s2])], o, down).is_none(), "a tie across groups");
+        if s0 / LANES == s2 / LANES {
+            assert!(accel.bundle_ray(&[group(&[s0, s2])], o, down).is_none(), "a tie in one window");
+        }
+        // On the quad's diagonal, the edge triangles 0 and 1 share: each edge function is 0 exactly.
+        let on_edge = Vec3A::new(0.25, 1.0, 0.25);
+        assert!(accel.bundle_ray(&[group(&[s0])], on_edge, down).is_none(), "a ray through an edge");
+        assert!(accel.bundle_ray(&[group(&[s0, s1])], on_edge, down).is_none(), "a ray through a shared edge");
     }
 
     /// `inner_child` (which `bundle_misses` and the walks share) names the node obvhs' own walk

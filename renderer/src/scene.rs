@@ -426,6 +426,14 @@ impl Scene {
         self.accel.bundle_misses(origin, directions)
     }
 
+    /// [`Self::intersect_surface_batch`] for rays from one `origin` whose directions lie close
+    /// together (a pixel's camera rays), their node tests done once for all
+    /// ([`crate::accel::Accel::intersect_bundle`]): the same hits. False, with nothing written,
+    /// where that does not apply (then trace them as a batch).
+    pub fn intersect_bundle(&self, origin: Vec3, directions: &[Vec3], out: &mut [Option<Hit>]) -> bool {
+        !self.has_transparency() && self.accel.intersect_bundle(origin, directions, out)
+    }
+
     /// [`Self::visibility`] for up to [`crate::accel::MAX_BATCH`] rays, ray k to `tmax[k]`, into
     /// `out`: traced together ([`Accel::occluded_batch`]) where no surface is transparent, else
     /// one after the other. The same fractions either way.

@@ -334,6 +334,45 @@ impl TriangleBlocks {
         (_mm256_cvtss_f32(m), start + k as usize, pick(l.e1) * inv, pick(l.e2) * inv)
     }
 
+    /// [`Self::closest8`]'s answer where it is the only one a test of these slots can give
+    /// (`Some`), else None: when a lane lies within rounding of an edge (`closest8` then asks the
+    /// scalar reference) or two lanes share the least t (which one is kept then depends on the
+    /// slots grouped with them). A bundle of rays that tests other groupings of the slots than a
+    /// ray's own walk would (`Accel::intersect_bundle`) keeps only such answers and leaves the
+    /// others to that walk. "No hit" is t = ∞.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[inline(always)]
+    pub fn closest8_unique(
+        &self,
+        r: &WatertightRay,
+        start: usize,
+        lanes: u32,
+        tmax: f32,
+    ) -> Option<(f32, usize, f32, f32)> {
+        use std::arch::x86_64::*;
+        // SAFETY: as in `intersect8`.
+        unsafe {
+            let l = self.lanes_avx2(r, start, lanes, tmax);
+            if l.on_edge != 0 {
+                return None;
+            }
+            // `closest8_avx2`'s choice, with the count of lanes at the minimum.
+            let inf = _mm256_set1_ps(f32::INFINITY);
+            let t = _mm256_blendv_ps(inf, l.t, l.hit);
+            let m = _mm256_min_ps(t, _mm256_permute2f128_ps::<1>(t, t));
+            let m = _mm256_min_ps(m, _mm256_permute_ps::<0b01_00_11_10>(m));
+            let m = _mm256_min_ps(m, _mm256_permute_ps::<0b10_11_00_01>(m));
+            let at_min = _mm256_movemask_ps(_mm256_and_ps(_mm256_cmp_ps::<_CMP_EQ_OQ>(t, m), l.hit)) as u32;
+            if at_min.count_ones() > 1 {
+                return None;
+            }
+            let k = 31 - (at_min | 1).leading_zeros();
+            let pick = |v: __m256| _mm256_cvtss_f32(_mm256_permutevar8x32_ps(v, _mm256_set1_epi32(k as i32)));
+            let inv = pick(l.inv);
+            Some((_mm256_cvtss_f32(m), start + k as usize, pick(l.e1) * inv, pick(l.e2) * inv))
+        }
+    }
+
     /// The watertight test on eight slots at once, lane by lane as `RtTriangle::intersect`.
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[inline(always)]

@@ -86,28 +86,45 @@ impl WideNode {
         (lo[0] <= hi[0]).then_some((lo, hi))
     }
 
-    /// Bit `slot` set for each used child some ray of `bundle` may enter
-    /// ([`RayBundle::may_enter`] on all eight children at once, with AVX2: written as a loop
-    /// over slots, LLVM left it scalar: `bundle_misses` took 780 instructions a pixel batch
-    /// against 470, callgrind on veach).
+    /// Bit `slot` set for each used child some ray of `bundle` may enter (with AVX2, the mask of
+    /// [`Self::bundle_span`]).
     #[inline]
     pub fn bundle_mask(&self, bundle: &RayBundle) -> u32 {
         #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
         {
-            use crate::lanes::F8;
-            let (mut enter, mut leave) = (F8::zero(), F8::splat(f32::INFINITY));
-            for a in 0..3 {
-                let Some(ax) = bundle.axis(a) else { continue };
-                let (e, l) = ax.span8(F8::from_array(self.planes[a][0]), F8::from_array(self.planes[a][1]));
-                enter = enter.max(e);
-                leave = leave.min(l);
-            }
-            // An empty slot (lower +∞, upper −∞) is entered by nothing.
-            let used = F8::from_array(self.planes[0][0]).le(F8::from_array(self.planes[0][1]));
-            (used & enter.le(leave)).bits()
+            self.bundle_span(bundle).0
         }
         #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
         self.bundle_mask_scalar(bundle)
+    }
+
+    /// [`Self::bundle_mask`] with, per slot, a lower bound on the distance at which any ray of
+    /// the bundle enters that child (0 at least; meaningless where the mask's bit is clear):
+    /// [`RayBundle::may_enter`] on all eight children at once (written as a loop over slots,
+    /// LLVM left it scalar: `bundle_misses` took 780 instructions a pixel batch against 470,
+    /// callgrind on veach).
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[inline]
+    pub fn bundle_span(&self, bundle: &RayBundle) -> (u32, [f32; 8]) {
+        use crate::lanes::F8;
+        let (mut enter, mut leave) = (F8::zero(), F8::splat(f32::INFINITY));
+        for a in 0..3 {
+            let Some(ax) = bundle.axis(a) else { continue };
+            let (e, l) = ax.span8(F8::from_array(self.planes[a][0]), F8::from_array(self.planes[a][1]));
+            enter = enter.max(e);
+            leave = leave.min(l);
+        }
+        let used = F8::from_array(self.planes[0][0]).le(F8::from_array(self.planes[0][1]));
+        ((used & enter.le(leave)).bits(), enter.to_array())
+    }
+
+    /// The primitive bits (obvhs' hit-mask format, relative to `primitive_base_idx`) of leaf
+    /// child `slot`: its unary primitive count shifted to its first primitive's offset.
+    #[inline(always)]
+    pub fn leaf_prims(&self, slot: usize) -> u32 {
+        let count = ((self.child_bits8 >> (8 * slot)) & 0x7) as u32;
+        let offset = ((self.index8 >> (8 * slot)) & 0x1f) as u32;
+        count << offset
     }
 
     /// [`Self::bundle_mask`] a child at a time by [`RayBundle::may_enter`] (the build without

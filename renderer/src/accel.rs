@@ -924,6 +924,11 @@ impl Accel {
                 count += 1;
             }
         }
+        // No leaf in reach (a background): no ray hits anything, as `bundle_misses` finds.
+        if count == 0 {
+            out[..n].fill(None);
+            return true;
+        }
         let groups = &mut groups[..count];
         groups.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
         for (d, hit) in directions[..n].iter().zip(out.iter_mut()) {

@@ -1503,32 +1503,46 @@ mod tests {
         }
     }
 
-    /// `bundle_misses` says so only for bundles every ray of which misses (each ray's own walk
-    /// agrees), and it does say so for most bundles that miss: pixel-sized bundles from camera
-    /// positions around a scene of spheres and quads, some aimed at the geometry, some past it,
-    /// and wide ones. Other accelerators never cull.
-    #[test]
-    fn bundle_misses_only_when_every_ray_misses() {
+    /// Six spheres over a quad (`quads` copies of it), the scene the bundle tests look at.
+    fn bundle_scene(quads: usize) -> crate::testing::SceneBuilder {
         let mut b = crate::testing::SceneBuilder::default();
         let m = b.material(crate::testing::lambert(Vec3::splat(0.5)));
         for k in 0..6 {
             let c = Vec3::new((k % 3) as f32 * 3.0 - 3.0, (k / 3) as f32 * 2.0, -(k as f32));
             b.sphere(c, 0.4 + 0.1 * k as f32, 2, false, m);
         }
-        b.quad(Vec3::new(0.0, -1.0, -2.0), Vec3::X * 4.0, Vec3::Z * 3.0, m);
+        for _ in 0..quads {
+            b.quad(Vec3::new(0.0, -1.0, -2.0), Vec3::X * 4.0, Vec3::Z * 3.0, m);
+        }
+        b
+    }
+
+    /// Bundle `i`'s camera position, and its eight directions towards `aim`, `spread` apart.
+    fn bundle_rays(i: u64, aim: Vec3, spread: f32) -> (Vec3, Vec<Vec3>) {
+        let u = crate::sampler::hash_unit;
+        let o = Vec3::new(u(64 * i) * 16.0 - 8.0, u(64 * i + 1) * 10.0 - 3.0, 8.0 + u(64 * i + 2) * 4.0);
+        let dirs = (0..8u64)
+            .map(|k| {
+                let j = Vec3::new(u(64 * i + 8 + 3 * k), u(64 * i + 9 + 3 * k), u(64 * i + 10 + 3 * k));
+                ((aim - o).normalize() + (j - 0.5) * spread).normalize()
+            })
+            .collect();
+        (o, dirs)
+    }
+
+    /// `bundle_misses` says so only for bundles every ray of which misses (each ray's own walk
+    /// agrees), and it does say so for most bundles that miss: pixel-sized bundles from camera
+    /// positions around a scene of spheres and quads, some aimed at the geometry, some past it,
+    /// and wide ones. Other accelerators never cull.
+    #[test]
+    fn bundle_misses_only_when_every_ray_misses() {
+        let b = bundle_scene(1);
         let accel = Accel::build(&b.mesh);
         let u = crate::sampler::hash_unit;
         let (mut culled, mut all_missed, mut some_hit) = (0, 0, 0);
         for i in 0..4000u64 {
-            let o = Vec3::new(u(64 * i) * 16.0 - 8.0, u(64 * i + 1) * 10.0 - 3.0, 8.0 + u(64 * i + 2) * 4.0);
             let aim = Vec3::new(u(64 * i + 3) * 12.0 - 6.0, u(64 * i + 4) * 8.0 - 3.0, u(64 * i + 5) * 6.0 - 6.0);
-            let spread = if i % 5 == 0 { 0.3 } else { 0.004 };
-            let dirs: Vec<Vec3> = (0..8u64)
-                .map(|k| {
-                    let j = Vec3::new(u(64 * i + 8 + 3 * k), u(64 * i + 9 + 3 * k), u(64 * i + 10 + 3 * k));
-                    ((aim - o).normalize() + (j - 0.5) * spread).normalize()
-                })
-                .collect();
+            let (o, dirs) = bundle_rays(i, aim, if i % 5 == 0 { 0.3 } else { 0.004 });
             let misses = dirs.iter().all(|&d| accel.intersect(o, d, f32::INFINITY).is_none());
             let said = accel.bundle_misses(o, &dirs);
             assert!(!said || misses, "bundle {i} from {o:?}: culled, but a ray hits");
@@ -1554,22 +1568,14 @@ mod tests {
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[test]
     fn bundle_answers_are_the_walks() {
-        let mut b = crate::testing::SceneBuilder::default();
-        let m = b.material(crate::testing::lambert(Vec3::splat(0.5)));
-        for k in 0..6 {
-            let c = Vec3::new((k % 3) as f32 * 3.0 - 3.0, (k / 3) as f32 * 2.0, -(k as f32));
-            b.sphere(c, 0.4 + 0.1 * k as f32, 2, false, m);
-        }
-        b.quad(Vec3::new(0.0, -1.0, -2.0), Vec3::X * 4.0, Vec3::Z * 3.0, m);
-        // The same quad again: each hit on it ties with the first's, at the same distance bit for
+        // The quad twice: each hit on it ties with the other copy's, at the same distance bit for
         // bit, and which of the two a walk keeps depends on the order it meets them.
-        b.quad(Vec3::new(0.0, -1.0, -2.0), Vec3::X * 4.0, Vec3::Z * 3.0, m);
+        let b = bundle_scene(2);
         let accel = Accel::build(&b.mesh);
-        let vertices = b.mesh.positions.clone();
+        let vertices = &b.mesh.positions;
         let u = crate::sampler::hash_unit;
         let (mut answered, mut hits) = (0, 0);
         for i in 0..6000u64 {
-            let o = Vec3::new(u(64 * i) * 16.0 - 8.0, u(64 * i + 1) * 10.0 - 3.0, 8.0 + u(64 * i + 2) * 4.0);
             let aim = match i % 3 {
                 0 => vertices[(u(64 * i + 3) * vertices.len() as f32) as usize % vertices.len()],
                 1 => Vec3::new(u(64 * i + 3) * 4.0, -1.0, u(64 * i + 5) * 3.0 - 2.0),
@@ -1582,12 +1588,7 @@ mod tests {
             } else {
                 0.004
             };
-            let dirs: Vec<Vec3> = (0..8u64)
-                .map(|k| {
-                    let j = Vec3::new(u(64 * i + 8 + 3 * k), u(64 * i + 9 + 3 * k), u(64 * i + 10 + 3 * k));
-                    ((aim - o).normalize() + (j - 0.5) * spread).normalize()
-                })
-                .collect();
+            let (o, dirs) = bundle_rays(i, aim, spread);
             let mut out = [Some(Hit { t: -1.0, triangle: u32::MAX, b1: 0.0, b2: 0.0, instance: 0 }); 8];
             if !accel.intersect_bundle(o, &dirs, &mut out) {
                 assert!(out.iter().all(|h| h.is_some_and(|h| h.t == -1.0)), "bundle {i}: refused, yet wrote");

@@ -180,8 +180,7 @@ fn pilot_variance(
     for (k, pt) in points.iter().enumerate() {
         let frame = Frame::from_normal(pt.n);
         let wo = frame.to_local(pt.wo);
-        let (mut s, mut s2) = (0.0f64, 0.0f64);
-        for r in 0..PILOT_REPLICATES {
+        per_point.push(across_replicates(|r| {
             let seed = crate::sampler::hash_u64(0x5eed_0000 ^ (k as u64 * PILOT_REPLICATES + r)) as u32;
             let mut sum = 0.0f64;
             for i in 0..PILOT_SAMPLES {
@@ -207,14 +206,8 @@ fn pilot_variance(
                 };
                 sum += if c.is_finite() { c } else { 0.0 };
             }
-            let m = sum / PILOT_SAMPLES as f64;
-            s += m;
-            s2 += m * m;
-        }
-        let r = PILOT_REPLICATES as f64;
-        let mean = s / r;
-        let var_of_mean = ((s2 - r * mean * mean) / (r - 1.0)).max(0.0);
-        per_point.push((mean, var_of_mean * PILOT_SAMPLES as f64));
+            sum
+        }));
     }
     // The light the point gathers after a further bounce, the same for every candidate
     // (`rest_of_light`): its mean adds to the level, its variance to the point's.
@@ -248,8 +241,7 @@ fn rest_of_light(scene: &mut Scene, points: &[PilotPoint]) -> Vec<(f64, f64)> {
         };
         let frame = Frame::from_normal(pt.n);
         let wo = frame.to_local(pt.wo);
-        let (mut s, mut s2) = (0.0f64, 0.0f64);
-        for r in 0..PILOT_REPLICATES {
+        out.push(across_replicates(|r| {
             let stream = k as u64 * PILOT_REPLICATES + r;
             let seed_bsdf = crate::sampler::hash_u64(0x1d1d_0000 ^ stream) as u32;
             let seed_light = crate::sampler::hash_u64(0x1d2d_0000 ^ stream) as u32;
@@ -260,16 +252,26 @@ fn rest_of_light(scene: &mut Scene, points: &[PilotPoint]) -> Vec<(f64, f64)> {
                 let c = bounce_estimate(scene, pt, bsdf, &frame, wo, a, b);
                 sum += if c.is_finite() { c } else { 0.0 };
             }
-            let m = sum / PILOT_SAMPLES as f64;
-            s += m;
-            s2 += m * m;
-        }
-        let r = PILOT_REPLICATES as f64;
-        let mean = s / r;
-        let var_of_mean = ((s2 - r * mean * mean) / (r - 1.0)).max(0.0);
-        out.push((mean, var_of_mean * PILOT_SAMPLES as f64));
+            sum
+        }));
     }
     out
+}
+
+/// The mean of [`PILOT_REPLICATES`] replicates' means and the per-sample variance measured across
+/// them (unbiased, R − 1 degrees of freedom, × [`PILOT_SAMPLES`] to put it per sample);
+/// `replicate(r)` is replicate r's sum over its samples.
+fn across_replicates(mut replicate: impl FnMut(u64) -> f64) -> (f64, f64) {
+    let (mut s, mut s2) = (0.0f64, 0.0f64);
+    for r in 0..PILOT_REPLICATES {
+        let m = replicate(r) / PILOT_SAMPLES as f64;
+        s += m;
+        s2 += m * m;
+    }
+    let r = PILOT_REPLICATES as f64;
+    let mean = s / r;
+    let var_of_mean = ((s2 - r * mean * mean) / (r - 1.0)).max(0.0);
+    (mean, var_of_mean * PILOT_SAMPLES as f64)
 }
 
 /// One sample of `rest_of_light`'s estimate (luminance): f·|cos|/pdf at the point times the

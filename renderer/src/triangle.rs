@@ -311,16 +311,23 @@ impl TriangleBlocks {
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[inline(always)]
     unsafe fn closest8_avx2(&self, r: &WatertightRay, start: usize, lanes: u32, tmax: f32) -> (f32, usize, f32, f32) {
-        use std::arch::x86_64::*;
         let l = self.lanes_avx2(r, start, lanes, tmax);
         if l.on_edge != 0 {
             // Rare (a ray within rounding of an edge): the reference answer for the whole group.
             return self.intersect8_scalar(r, start, lanes, tmax).unwrap_or(NO_HIT8);
         }
-        // Without branches on the hits (the data decide them, so they were mispredicted often):
-        // the smallest t of the hit lanes (∞ for none), the highest hit lane holding it (the
-        // scalar order, highest lane first with a strict comparison, keeps that one), then its
-        // barycentrics. A hit's t is below tmax, so finite: ∞ means no hit.
+        Self::nearest_lane(&l, start).0
+    }
+
+    /// The nearest of `l`'s hit lanes as `closest8` answers (t, slot, b1, b2), and the lanes at
+    /// that distance. Without branches on the hits (the data decide them, so they were
+    /// mispredicted often): the smallest t of the hit lanes (∞ for none), the highest hit lane
+    /// holding it (the scalar order, highest lane first with a strict comparison, keeps that
+    /// one), then its barycentrics. A hit's t is below tmax, so finite: ∞ means no hit.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[inline(always)]
+    unsafe fn nearest_lane(l: &Lanes8, start: usize) -> ((f32, usize, f32, f32), u32) {
+        use std::arch::x86_64::*;
         let inf = _mm256_set1_ps(f32::INFINITY);
         let t = _mm256_blendv_ps(inf, l.t, l.hit);
         let m = _mm256_min_ps(t, _mm256_permute2f128_ps::<1>(t, t));
@@ -331,7 +338,7 @@ impl TriangleBlocks {
         let k = 31 - (at_min | 1).leading_zeros();
         let pick = |v: __m256| _mm256_cvtss_f32(_mm256_permutevar8x32_ps(v, _mm256_set1_epi32(k as i32)));
         let inv = pick(l.inv);
-        (_mm256_cvtss_f32(m), start + k as usize, pick(l.e1) * inv, pick(l.e2) * inv)
+        ((_mm256_cvtss_f32(m), start + k as usize, pick(l.e1) * inv, pick(l.e2) * inv), at_min)
     }
 
     /// [`Self::closest8`]'s answer where it is the only one a test of these slots can give
@@ -349,27 +356,14 @@ impl TriangleBlocks {
         lanes: u32,
         tmax: f32,
     ) -> Option<(f32, usize, f32, f32)> {
-        use std::arch::x86_64::*;
         // SAFETY: as in `intersect8`.
         unsafe {
             let l = self.lanes_avx2(r, start, lanes, tmax);
             if l.on_edge != 0 {
                 return None;
             }
-            // `closest8_avx2`'s choice, with the count of lanes at the minimum.
-            let inf = _mm256_set1_ps(f32::INFINITY);
-            let t = _mm256_blendv_ps(inf, l.t, l.hit);
-            let m = _mm256_min_ps(t, _mm256_permute2f128_ps::<1>(t, t));
-            let m = _mm256_min_ps(m, _mm256_permute_ps::<0b01_00_11_10>(m));
-            let m = _mm256_min_ps(m, _mm256_permute_ps::<0b10_11_00_01>(m));
-            let at_min = _mm256_movemask_ps(_mm256_and_ps(_mm256_cmp_ps::<_CMP_EQ_OQ>(t, m), l.hit)) as u32;
-            if at_min.count_ones() > 1 {
-                return None;
-            }
-            let k = 31 - (at_min | 1).leading_zeros();
-            let pick = |v: __m256| _mm256_cvtss_f32(_mm256_permutevar8x32_ps(v, _mm256_set1_epi32(k as i32)));
-            let inv = pick(l.inv);
-            Some((_mm256_cvtss_f32(m), start + k as usize, pick(l.e1) * inv, pick(l.e2) * inv))
+            let (hit, at_min) = Self::nearest_lane(&l, start);
+            (at_min.count_ones() <= 1).then_some(hit)
         }
     }
 

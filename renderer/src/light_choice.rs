@@ -76,7 +76,7 @@ pub const TREE_LEVEL_COST: f64 = 0.044;
 /// measures 1.17× on `scenes/cornell` and 1.13× on `scenes/glass` (two threads, 128×96, 256 spp,
 /// 5 alternating runs, medians 0.927 / 0.794 s and 1.402 / 1.239 s), and 1.63× on
 /// `scenes/sphere_light` (2208 lights: 0.691 / 0.423 s), where the depth term alone gives 1.49×.
-/// Fitted with `TREE_LEVEL_COST` kept: 0.126, 0.086 and 0.140, so 0.12.
+/// Fitted with `TREE_LEVEL_COST` kept (from the unrounded ratios): 0.124, 0.088 and 0.145, so 0.12.
 pub const TREE_FIXED_COST: f64 = 0.12;
 
 /// A uniform number in [0, 1) from a hash of (stream, index).
@@ -104,20 +104,26 @@ fn camera_points(scene: &Scene, view: Option<(Camera, u32, u32)>) -> Vec<PilotPo
             ((k / side) as f32 + rand(9, k)) / side as f32 * h as f32,
         );
         let d = camera.ray_direction(film, w, h);
-        let Some(hit) = scene.intersect(camera.origin, d, f32::INFINITY) else { continue };
-        let sp = scene.surface_point(&hit);
-        let material = scene.mesh.triangles[hit.triangle as usize].material;
-        if scene.materials[material as usize].is_emissive() {
-            continue;
-        }
-        let n = if sp.ng.dot(d) < 0.0 { sp.ng } else { -sp.ng };
-        let bsdf = scene.bsdf(material, &sp);
-        if bsdf.is_delta_only() {
-            continue;
-        }
-        out.push(PilotPoint { p: scene.spawn_origin(sp.p, n, sp.plane_error), n, wo: -d, bsdf: Some(bsdf) });
+        out.extend(shading_point(scene, camera.origin, d));
     }
     out
+}
+
+/// The point a ray from `o` along `d` shades, as a pilot point: None where it finds nothing, an
+/// emitter or a surface no light sample can reach (delta-only: a mirror, smooth glass).
+fn shading_point(scene: &Scene, o: Vec3, d: Vec3) -> Option<PilotPoint> {
+    let hit = scene.intersect(o, d, f32::INFINITY)?;
+    let sp = scene.surface_point(&hit);
+    let material = scene.mesh.triangles[hit.triangle as usize].material;
+    if scene.materials[material as usize].is_emissive() {
+        return None;
+    }
+    let n = if sp.ng.dot(d) < 0.0 { sp.ng } else { -sp.ng };
+    let bsdf = scene.bsdf(material, &sp);
+    if bsdf.is_delta_only() {
+        return None;
+    }
+    Some(PilotPoint { p: scene.spawn_origin(sp.p, n, sp.plane_error), n, wo: -d, bsdf: Some(bsdf) })
 }
 
 /// Deterministic area-weighted points on non-emissive world triangles, either side (instances'
@@ -185,25 +191,7 @@ fn pilot_variance(
             let mut sum = 0.0f64;
             for i in 0..PILOT_SAMPLES {
                 let v = crate::sampler::sobol_4d(i as u32, seed);
-                let u_sel = v[(dims::LIGHT_SELECT % 4) as usize];
-                let u = Vec2::new(v[(dims::LIGHT_POS % 4) as usize], v[(dims::LIGHT_POS % 4 + 1) as usize]);
-                let c = match lights.sample(mesh, materials, textures, pt.p, Some(pt.n), u_sel, u) {
-                    Some(ls) if ls.pdf > 0.0 && ls.wi.dot(pt.n) > 0.0 => {
-                        let wi = frame.to_local(ls.wi);
-                        let (f, bsdf_pdf) = match &pt.bsdf {
-                            Some(b) => {
-                                let (f, p) = b.eval_pdf(wo, wi);
-                                (luminance(f) as f64, p)
-                            }
-                            None => (std::f64::consts::FRAC_1_PI, cosine_hemisphere_pdf(wi.z)),
-                        };
-                        // The render's MIS weight: where BSDF sampling finds the light better (a
-                        // glossy reflection of it), NEE's share is small, and so is its variance.
-                        let w = if ls.delta { 1.0 } else { power_heuristic(ls.pdf, bsdf_pdf) as f64 };
-                        f * luminance(ls.le) as f64 * wi.z as f64 * w / ls.pdf as f64
-                    }
-                    _ => 0.0,
-                };
+                let c = nee_estimate(lights, mesh, materials, textures, pt, &frame, wo, v);
                 sum += if c.is_finite() { c } else { 0.0 };
             }
             sum
@@ -220,10 +208,45 @@ fn pilot_variance(
     per_point.iter().map(|&(m, v)| v / (m * m + 0.01 * avg * avg).max(1e-30)).sum()
 }
 
+/// One unshadowed next-event estimate f·Le·cos·w/pdf (luminance) at `pt` with the light set's
+/// current selection, from the Sobol set `v` (the dimensions the integrator uses: position in 0–1,
+/// selection in 2); `frame` is `pt`'s and `wo` its outgoing direction in it.
+#[allow(clippy::too_many_arguments)]
+fn nee_estimate(
+    lights: &LightSet,
+    mesh: &Mesh,
+    materials: &[Material],
+    textures: &[Texture],
+    pt: &PilotPoint,
+    frame: &Frame,
+    wo: Vec3,
+    v: [f32; 4],
+) -> f64 {
+    let u_sel = v[(dims::LIGHT_SELECT % 4) as usize];
+    let u = Vec2::new(v[(dims::LIGHT_POS % 4) as usize], v[(dims::LIGHT_POS % 4 + 1) as usize]);
+    match lights.sample(mesh, materials, textures, pt.p, Some(pt.n), u_sel, u) {
+        Some(ls) if ls.pdf > 0.0 && ls.wi.dot(pt.n) > 0.0 => {
+            let wi = frame.to_local(ls.wi);
+            let (f, bsdf_pdf) = match &pt.bsdf {
+                Some(b) => {
+                    let (f, p) = b.eval_pdf(wo, wi);
+                    (luminance(f) as f64, p)
+                }
+                None => (std::f64::consts::FRAC_1_PI, cosine_hemisphere_pdf(wi.z)),
+            };
+            // The render's MIS weight: where BSDF sampling finds the light better (a glossy
+            // reflection of it), NEE's share is small, and so is its variance.
+            let w = if ls.delta { 1.0 } else { power_heuristic(ls.pdf, bsdf_pdf) as f64 };
+            f * luminance(ls.le) as f64 * wi.z as f64 * w / ls.pdf as f64
+        }
+        _ => 0.0,
+    }
+}
+
 /// Per point, the mean and per-sample variance (measured as `pilot_variance` measures NEE's, across
 /// Sobol replicates) of the light it gathers after one more bounce: a BSDF-sampled direction and, at
-/// the surface it meets, an unshadowed power-selected NEE estimate (emitters met are NEE's and MIS's
-/// business, not counted). It is the same for every candidate, so it cannot favour one; it stands
+/// the surface it meets, the unshadowed power-selected NEE estimate `pilot_variance` takes (emitters
+/// met are NEE's and MIS's business, not counted). It is the same for every candidate, so it cannot favour one; it stands
 /// for the variance no light selection at the first hit can remove, which the image's relMSE also
 /// holds. Without it the pilot compared first-hit NEE alone: on `scenes/cornell` at 4:3 it scored
 /// the tree 16 % lower in variance than power, but the render's relMSE against the reference was
@@ -275,7 +298,7 @@ fn across_replicates(mut replicate: impl FnMut(u64) -> f64) -> (f64, f64) {
 }
 
 /// One sample of `rest_of_light`'s estimate (luminance): f·|cos|/pdf at the point times the
-/// unshadowed NEE estimate f·Le·cos/pdf at the surface the sampled direction meets.
+/// NEE estimate at the surface the sampled direction meets (`nee_estimate`, with its MIS weight).
 fn bounce_estimate(
     scene: &Scene,
     pt: &PilotPoint,
@@ -291,32 +314,11 @@ fn bounce_estimate(
         return 0.0;
     }
     let weight = luminance(bs.f) as f64 * bs.wi.z as f64 / bs.pdf as f64;
-    let d = frame.to_world(bs.wi);
-    let Some(hit) = scene.intersect(pt.p, d, f32::INFINITY) else { return 0.0 };
-    let material = scene.mesh.triangles[hit.triangle as usize].material;
-    if scene.materials[material as usize].is_emissive() {
-        return 0.0;
-    }
-    let sp = scene.surface_point(&hit);
-    let n = if sp.ng.dot(d) < 0.0 { sp.ng } else { -sp.ng };
-    let bsdf2 = scene.bsdf(material, &sp);
-    if bsdf2.is_delta_only() {
-        return 0.0;
-    }
-    let p = scene.spawn_origin(sp.p, n, sp.plane_error);
-    let frame2 = Frame::from_normal(n);
-    let wo2 = frame2.to_local(-d);
-    let u_sel = b[(dims::LIGHT_SELECT % 4) as usize];
-    let u = Vec2::new(b[(dims::LIGHT_POS % 4) as usize], b[(dims::LIGHT_POS % 4 + 1) as usize]);
+    let Some(next) = shading_point(scene, pt.p, frame.to_world(bs.wi)) else { return 0.0 };
+    let next_frame = Frame::from_normal(next.n);
+    let next_wo = next_frame.to_local(next.wo);
     let (mesh, materials, textures) = (&scene.mesh, &scene.materials, &scene.textures);
-    match scene.lights.sample(mesh, materials, textures, p, Some(n), u_sel, u) {
-        Some(ls) if ls.pdf > 0.0 && ls.wi.dot(n) > 0.0 => {
-            let wi = frame2.to_local(ls.wi);
-            let (f, _) = bsdf2.eval_pdf(wo2, wi);
-            weight * luminance(f) as f64 * luminance(ls.le) as f64 * wi.z as f64 / ls.pdf as f64
-        }
-        _ => 0.0,
-    }
+    weight * nee_estimate(&scene.lights, mesh, materials, textures, &next, &next_frame, next_wo, b)
 }
 
 /// The pilot's choice for `scene` seen through `view` (camera, width, height), and the scores it

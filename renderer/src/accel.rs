@@ -72,14 +72,14 @@ const STACK: usize = 256;
 /// The most rays [`Accel::intersect_batch`] walks at once.
 pub const MAX_BATCH: usize = 16;
 
-/// How many nodes [`Accel::bundle_misses`] visits before it gives up and leaves the rays to
-/// their own walks (a bundle that passes between many boxes costs no more than this).
-const BUNDLE_VISITS: usize = 16;
-
 /// How many nodes [`Accel::intersect_bundle`] visits, and how many nodes' leaf groups it
 /// gathers, before it leaves the rays to their own walks.
 const BUNDLE_NODES: usize = 64;
 const BUNDLE_GROUPS: usize = 32;
+
+/// A node's leaf children a bundle may reach ([`Accel::intersect_bundle`]): a lower bound on any
+/// ray's entry into them, the node's first primitive slot, their primitive mask.
+type LeafGroup = (f32, u32, u32);
 
 /// The node index of the inner child in `slot` of `node`: inner children are stored from
 /// `child_base_idx` in slot order.
@@ -830,50 +830,16 @@ impl Accel {
         self.intersect_object(Vec3A::from(o), Vec3A::from(d), tmax)
     }
 
-    /// True when no ray from `origin` along `directions` can hit anything: the bundle's interval
-    /// test ([`RayBundle`]) walked down the decompressed nodes finds no leaf it may enter. False
-    /// as soon as it reaches one, after [`BUNDLE_VISITS`] nodes, or where the test does not
-    /// apply (compressed or instanced BVHs, the own BVH, non-finite values); the rays are then
-    /// traced one by one as before. A true answer is what each ray's own walk would find, so
-    /// the caller may skip their walks and nothing changes (`bundle_misses_only_when_every_ray_misses`).
-    pub fn bundle_misses(&self, origin: Vec3, directions: &[Vec3]) -> bool {
-        // The own BVH has no decompressed nodes; a two-level BVH's are its top level's.
-        if self.wide.is_empty() || self.top.is_some() {
-            return false;
-        }
-        let Some(bundle) = RayBundle::new(origin, directions) else { return false };
-        let (mut stack, mut len) = ([0u32; BUNDLE_VISITS], 1);
-        let mut visits = 0;
-        while len > 0 {
-            len -= 1;
-            let Some(node) = self.wide.get(stack[len] as usize) else { return false };
-            visits += 1;
-            if visits > BUNDLE_VISITS {
-                return false;
-            }
-            let mut mask = node.bundle_mask(&bundle);
-            while mask != 0 {
-                let slot = mask.trailing_zeros() as usize;
-                mask &= mask - 1;
-                // A leaf the bundle may enter, or more nodes than the stack holds: give up.
-                if node.imask & (1 << slot) == 0 || len == BUNDLE_VISITS {
-                    return false;
-                }
-                stack[len] = inner_child(node, slot as u32);
-                len += 1;
-            }
-        }
-        true
-    }
-
     /// Each ray's closest hit from `origin` along `directions` into `out` (what
     /// [`Self::intersect`] finds with no distance limit), found together: one walk of the
-    /// bundle's interval test ([`RayBundle`], the test `bundle_misses` walks) gathers the node
-    /// leaf groups some ray may reach, nearest first, and each ray tests those groups until the
-    /// next begins beyond its closest hit; its node tests, the largest part of a walk that ends
-    /// in a few leaves, are done once for all. False, with nothing written, where it does not
-    /// apply (as `bundle_misses`, and the scalar reference) or the bundle reaches more than
-    /// [`BUNDLE_NODES`] nodes or [`BUNDLE_GROUPS`] leaf groups: the rays are then traced one by one.
+    /// bundle's interval test ([`RayBundle`]) down the decompressed nodes gathers the leaf groups
+    /// some ray may reach, nearest first, and each ray tests those groups until the next begins
+    /// beyond its closest hit; its node tests, the largest part of a walk that ends in a few
+    /// leaves, are done once for all. A bundle that reaches no leaf (a background) is answered
+    /// "none" for every ray without more work. False, with nothing written, where the test does
+    /// not apply (compressed or instanced BVHs, the own BVH, non-finite values, the scalar
+    /// reference) or the bundle reaches more than [`BUNDLE_NODES`] nodes or [`BUNDLE_GROUPS`] leaf
+    /// groups: the rays are then traced one by one.
     ///
     /// The answers are the walks' own, bit for bit. The bundle's groups contain every triangle a
     /// ray's walk can test, and maybe more, grouped otherwise; a walk keeps the nearest hit, and
@@ -883,48 +849,14 @@ impl Accel {
     /// own walk (`bundle_answers_are_the_walks`).
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     pub fn intersect_bundle(&self, origin: Vec3, directions: &[Vec3], out: &mut [Option<Hit>]) -> bool {
-        if self.wide.is_empty() || self.top.is_some() || self.scalar_reference {
+        if self.scalar_reference {
             return false;
         }
         let n = directions.len().min(out.len());
         let Some(bundle) = RayBundle::new(origin, &directions[..n]) else { return false };
-        // (lower bound on any ray's entry, first primitive slot, primitive mask) per leaf group.
         let mut groups = [(0f32, 0u32, 0u32); BUNDLE_GROUPS];
-        let mut count = 0;
-        let (mut stack, mut len) = ([0u32; BUNDLE_NODES], 1);
-        let mut visits = 0;
-        while len > 0 {
-            len -= 1;
-            let Some(node) = self.wide.get(stack[len] as usize) else { return false };
-            visits += 1;
-            if visits > BUNDLE_NODES {
-                return false;
-            }
-            let (mut mask, enter) = node.bundle_span(&bundle);
-            let (mut prims, mut near) = (0u32, f32::INFINITY);
-            while mask != 0 {
-                let slot = mask.trailing_zeros() as usize;
-                mask &= mask - 1;
-                if node.imask & (1 << slot) == 0 {
-                    prims |= node.leaf_prims(slot);
-                    near = near.min(enter[slot]);
-                } else {
-                    if len == BUNDLE_NODES {
-                        return false;
-                    }
-                    stack[len] = inner_child(node, slot as u32);
-                    len += 1;
-                }
-            }
-            if prims != 0 {
-                if count == BUNDLE_GROUPS {
-                    return false;
-                }
-                groups[count] = (near, node.primitive_base_idx, prims);
-                count += 1;
-            }
-        }
-        // No leaf in reach (a background): no ray hits anything, as `bundle_misses` finds.
+        let Some(count) = self.bundle_groups(&bundle, &mut groups) else { return false };
+        // No leaf in reach (a background): no ray hits anything, which is each ray's walk's answer.
         if count == 0 {
             out[..n].fill(None);
             return true;
@@ -940,11 +872,51 @@ impl Accel {
         true
     }
 
+    /// The leaf groups (one a node: a lower bound on any ray's entry into its hit leaf children,
+    /// its first primitive slot, the children's primitive mask) some ray of `bundle` may reach,
+    /// into `groups`, and how many; None where the decompressed nodes are missing (compressed or instanced
+    /// BVHs, the own BVH) or the bundle reaches more than [`BUNDLE_NODES`] nodes or
+    /// [`BUNDLE_GROUPS`] groups.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    fn bundle_groups(&self, bundle: &RayBundle, groups: &mut [LeafGroup; BUNDLE_GROUPS]) -> Option<usize> {
+        // The own BVH has no decompressed nodes; a two-level BVH's are its top level's.
+        if self.wide.is_empty() || self.top.is_some() {
+            return None;
+        }
+        let mut count = 0;
+        let (mut stack, mut len) = ([0u32; BUNDLE_NODES], 1);
+        for _ in 0..BUNDLE_NODES {
+            if len == 0 {
+                return Some(count);
+            }
+            len -= 1;
+            let node = self.wide.get(stack[len] as usize)?;
+            let (mut mask, enter) = node.bundle_span(bundle);
+            let (mut prims, mut near) = (0u32, f32::INFINITY);
+            while mask != 0 {
+                let slot = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                if node.imask & (1 << slot) == 0 {
+                    prims |= node.leaf_prims(slot);
+                    near = near.min(enter[slot]);
+                } else {
+                    *stack.get_mut(len)? = inner_child(node, slot as u32);
+                    len += 1;
+                }
+            }
+            if prims != 0 {
+                *groups.get_mut(count)? = (near, node.primitive_base_idx, prims);
+                count += 1;
+            }
+        }
+        (len == 0).then_some(count)
+    }
+
     /// One ray of [`Self::intersect_bundle`]: its nearest hit among `groups` (nearest first),
     /// None where that is not unique.
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[inline(always)]
-    fn bundle_ray(&self, groups: &[(f32, u32, u32)], oa: Vec3A, da: Vec3A) -> Option<Option<Hit>> {
+    fn bundle_ray(&self, groups: &[LeafGroup], oa: Vec3A, da: Vec3A) -> Option<Option<Hit>> {
         let wray = WatertightRay::new(oa, da);
         let mut best: LeafHit = (f32::INFINITY, NO_LEAF, 0.0, 0.0);
         for &(near, base, prims) in groups {
@@ -1530,21 +1502,27 @@ mod tests {
         (o, dirs)
     }
 
-    /// `bundle_misses` says so only for bundles every ray of which misses (each ray's own walk
-    /// agrees), and it does say so for most bundles that miss: pixel-sized bundles from camera
-    /// positions around a scene of spheres and quads, some aimed at the geometry, some past it,
-    /// and wide ones. Other accelerators never cull.
+    /// A bundle is answered "none" for every ray without a ray's own test only where every ray
+    /// misses (each ray's own walk agrees), and that happens for most bundles that miss:
+    /// pixel-sized bundles from camera positions around a scene of spheres and quads, some aimed
+    /// at the geometry, some past it, and wide ones. Other accelerators never answer.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[test]
-    fn bundle_misses_only_when_every_ray_misses() {
+    fn bundles_are_culled_only_when_every_ray_misses() {
         let b = bundle_scene(1);
         let accel = Accel::build(&b.mesh);
+        // Culled: answered with no leaf group in reach (`bundle_groups` gathers none).
+        let culled_by = |a: &Accel, o: Vec3, dirs: &[Vec3]| {
+            let Some(bundle) = RayBundle::new(o, dirs) else { return false };
+            a.bundle_groups(&bundle, &mut [(0.0, 0, 0); BUNDLE_GROUPS]) == Some(0)
+        };
         let u = crate::sampler::hash_unit;
         let (mut culled, mut all_missed, mut some_hit) = (0, 0, 0);
         for i in 0..4000u64 {
             let aim = Vec3::new(u(64 * i + 3) * 12.0 - 6.0, u(64 * i + 4) * 8.0 - 3.0, u(64 * i + 5) * 6.0 - 6.0);
             let (o, dirs) = bundle_rays(i, aim, if i % 5 == 0 { 0.3 } else { 0.004 });
             let misses = dirs.iter().all(|&d| accel.intersect(o, d, f32::INFINITY).is_none());
-            let said = accel.bundle_misses(o, &dirs);
+            let said = culled_by(&accel, o, &dirs);
             assert!(!said || misses, "bundle {i} from {o:?}: culled, but a ray hits");
             culled += said as usize;
             all_missed += misses as usize;
@@ -1554,9 +1532,11 @@ mod tests {
         assert!(culled * 4 > all_missed * 3, "culled {culled} of {all_missed} bundles that miss");
         let o = Vec3::new(0.0, 10.0, 10.0);
         let away = [Vec3::new(0.0, 1.0, 0.1).normalize(); 8];
-        assert!(accel.bundle_misses(o, &away), "a bundle pointing away from everything");
+        assert!(culled_by(&accel, o, &away), "a bundle pointing away from everything");
+        let mut out = [Some(Hit { t: 1.0, triangle: 0, b1: 0.0, b2: 0.0, instance: 0 }); 8];
+        assert!(accel.intersect_bundle(o, &away, &mut out) && out.iter().all(Option::is_none));
         for kind in [AccelKind::ObvhsCompressed, AccelKind::Own] {
-            assert!(!Accel::build_with(&b.mesh, kind).bundle_misses(o, &away), "{kind:?} culled");
+            assert!(!culled_by(&Accel::build_with(&b.mesh, kind), o, &away), "{kind:?} culled");
         }
     }
 
@@ -1643,7 +1623,7 @@ mod tests {
         assert!(accel.bundle_ray(&[group(&[s0, s1])], on_edge, down).is_none(), "a ray through a shared edge");
     }
 
-    /// `inner_child` (which `bundle_misses` and the walks share) names the node obvhs' own walk
+    /// `inner_child` (which `intersect_bundle` and the walks share) names the node obvhs' own walk
     /// goes to (`child_node_index`) for every inner child of the decompressed nodes, and their
     /// used slots are the children the compressed node has.
     #[test]

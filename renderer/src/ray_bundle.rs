@@ -4,11 +4,11 @@
 //! "Geometric and arithmetic culling methods for entire ray packets"; Wald et al. 2007, "SIMD
 //! ray stream tracing").
 //!
-//! What it is for: a pixel whose camera rays all miss the scene (a background) costs one walk of
-//! the BVH's top nodes for all eight rays instead of eight walks with their setup
-//! ([`crate::accel::Accel::bundle_misses`]). The answer is only ever used as "these rays hit
-//! nothing", so the test has to be conservative, never exact: a box some ray of the bundle
-//! enters, by exact arithmetic or by the one-ray walk's rounding, must pass it.
+//! What it is for: a pixel's camera rays walk the BVH's nodes once for all eight
+//! ([`crate::accel::Accel::intersect_bundle`]): the leaves it lets through are the ones each ray
+//! tests, and a pixel whose rays all miss the scene (a background) is answered by that walk
+//! alone. So the test has to be conservative, never exact: a box some ray of the bundle enters,
+//! by exact arithmetic or by the one-ray walk's rounding, must pass it.
 
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use crate::lanes::{select, F8};

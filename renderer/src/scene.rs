@@ -419,13 +419,6 @@ impl Scene {
         }
     }
 
-    /// True when every ray from `origin` along `directions` certainly hits nothing
-    /// ([`crate::accel::Accel::bundle_misses`]): what [`Self::intersect_surface_batch`] would
-    /// answer for each, found without their walks.
-    pub fn bundle_misses(&self, origin: Vec3, directions: &[Vec3]) -> bool {
-        self.accel.bundle_misses(origin, directions)
-    }
-
     /// [`Self::intersect_surface_batch`] for rays from one `origin` whose directions lie close
     /// together (a pixel's camera rays), their node tests done once for all
     /// ([`crate::accel::Accel::intersect_bundle`]): the same hits. False, with nothing written,

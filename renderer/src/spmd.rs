@@ -333,14 +333,10 @@ pub fn radiance8(
         }
         let mut hits = [None; LANES];
         // A pixel's camera rays share their origin and nearly their direction: one walk of an
-        // interval test for all of them finds the leaves they may reach, and each ray tests
-        // those (`Scene::intersect_bundle`); where that does not apply, where the test shows
-        // that none of them can hit anything (a background), their walks are skipped, which is
-        // what they would have found (`Accel::bundle_misses`).
+        // interval test for all of them finds the leaves they may reach (none for a
+        // background), and each ray tests those (`Scene::intersect_bundle`).
         let shared = depth == 0 && count > 0 && qo[..count].iter().all(|&x| x == qo[0]);
-        let bundled = shared && scene.intersect_bundle(qo[0], &qd[..count], &mut hits[..count]);
-        let background = !bundled && shared && scene.bundle_misses(qo[0], &qd[..count]);
-        if !bundled && !background {
+        if !(shared && scene.intersect_bundle(qo[0], &qd[..count], &mut hits[..count])) {
             scene.intersect_surface_batch(&qo[..count], &qd[..count], &[0; LANES][..count], &mut hits[..count]);
         }
         // The hit triangles' vertices, gathered lane by lane; the surface points eight-wide.

@@ -101,8 +101,9 @@ impl WideNode {
     /// [`Self::bundle_mask`] with, per slot, a lower bound on the distance at which any ray of
     /// the bundle enters that child (0 at least; meaningless where the mask's bit is clear):
     /// [`RayBundle::may_enter`] on all eight children at once (written as a loop over slots,
-    /// LLVM left it scalar: `bundle_misses` took 780 instructions a pixel batch against 470,
-    /// callgrind on veach).
+    /// LLVM left it scalar: the background test, then `bundle_misses`, since folded into
+    /// `Accel::intersect_bundle`, took 780 instructions a pixel batch against 470, callgrind on
+    /// veach).
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[inline]
     pub fn bundle_span(&self, bundle: &RayBundle) -> (u32, [f32; 8]) {
@@ -114,6 +115,7 @@ impl WideNode {
             enter = enter.max(e);
             leave = leave.min(l);
         }
+        // An empty slot (lower +∞, upper −∞) is entered by nothing.
         let used = F8::from_array(self.planes[0][0]).le(F8::from_array(self.planes[0][1]));
         ((used & enter.le(leave)).bits(), enter.to_array())
     }

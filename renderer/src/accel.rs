@@ -13,6 +13,7 @@
 use crate::math::{Vec3, Vec3A};
 use crate::mesh::Mesh;
 use crate::node_ray::NodeRay;
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use crate::ray_bundle::RayBundle;
 use crate::wide_node::WideNode;
 use obvhs::cwbvh::node::CwBvhNode;
@@ -74,11 +75,14 @@ pub const MAX_BATCH: usize = 16;
 
 /// How many nodes [`Accel::intersect_bundle`] visits, and how many nodes' leaf groups it
 /// gathers, before it leaves the rays to their own walks.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 const BUNDLE_NODES: usize = 64;
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 const BUNDLE_GROUPS: usize = 32;
 
 /// A node's leaf children a bundle may reach ([`Accel::intersect_bundle`]): a lower bound on any
 /// ray's entry into them, the node's first primitive slot, their primitive mask.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 type LeafGroup = (f32, u32, u32);
 
 /// The node index of the inner child in `slot` of `node`: inner children are stored from
@@ -1476,6 +1480,7 @@ mod tests {
     }
 
     /// Six spheres over a quad (`quads` copies of it), the scene the bundle tests look at.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     fn bundle_scene(quads: usize) -> crate::testing::SceneBuilder {
         let mut b = crate::testing::SceneBuilder::default();
         let m = b.material(crate::testing::lambert(Vec3::splat(0.5)));
@@ -1490,6 +1495,7 @@ mod tests {
     }
 
     /// Bundle `i`'s camera position, and its eight directions towards `aim`, `spread` apart.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     fn bundle_rays(i: u64, aim: Vec3, spread: f32) -> (Vec3, Vec<Vec3>) {
         let u = crate::sampler::hash_unit;
         let o = Vec3::new(u(64 * i) * 16.0 - 8.0, u(64 * i + 1) * 10.0 - 3.0, 8.0 + u(64 * i + 2) * 4.0);

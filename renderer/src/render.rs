@@ -153,7 +153,7 @@ fn camera_rays8(
     let fx = F8::splat(x as f32 + 0.5) + offset(ux);
     let fy = F8::splat(y as f32 + 0.5) + offset(uy);
     let lanes = raster.directions8(fx, fy).to_lanes();
-    dirs[..n].copy_from_slice(&lanes[..n]);
+    crate::spmd::copy_lanes(dirs, &lanes, n);
 }
 
 /// Samples a filter offset from the pixel centre, in pixels (filter importance sampling).

@@ -141,9 +141,7 @@ pub(crate) fn copy_lanes<T: Copy>(dst: &mut [T], src: &[T], n: usize) {
     if n == LANES {
         dst[..LANES].copy_from_slice(&src[..LANES]);
     } else {
-        for k in 0..n {
-            dst[k] = src[k];
-        }
+        dst[..n].copy_from_slice(&src[..n]);
     }
 }
 

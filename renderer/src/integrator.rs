@@ -558,10 +558,19 @@ impl Path {
                             // An area light: aim just off its surface and stop a relative
                             // SHADOW_EPSILON short, so the emitter's own triangle (or a coplanar
                             // neighbour) is never reported as the occluder (see SHADOW_EPSILON).
+                            // Where the light is an isolated convex emitter, the ray may stop
+                            // at its box (`LightSet::shadow_tmax`): the same visibility.
                             let target = scene.offset_ray_origin(ls.p, ls.n);
                             let to = target - origin;
                             let dist = to.length();
-                            (dist > 0.0).then(|| (origin, to / dist, dist * (1.0 - SHADOW_EPSILON)))
+                            (dist > 0.0).then(|| {
+                                let d = to / dist;
+                                (
+                                    origin,
+                                    d,
+                                    scene.lights.shadow_tmax(ls.light, origin, d, dist * (1.0 - SHADOW_EPSILON)),
+                                )
+                            })
                         };
                         if let Some((o, d, tmax)) = to_light {
                             // Alone, the ray is traced first and the rest is only worked out when

@@ -33,6 +33,7 @@ pub mod budget;
 pub mod bundle;
 pub mod bvh;
 pub mod camera;
+pub mod clear_box;
 pub mod clearcoat;
 pub mod cwbvh_node;
 pub mod dielectric;

@@ -46,6 +46,9 @@ pub struct LightSample {
     /// probability alone, and `le` is the irradiance it delivers (so f·le·cos/pdf still holds).
     pub pdf: f32,
     pub delta: bool,
+    /// The area light sampled (its index in [`LightSet::lights`]), else `clear_box::NONE`: what
+    /// [`LightSet::shadow_tmax`] needs.
+    pub light: u32,
 }
 
 #[derive(Default)]
@@ -70,6 +73,10 @@ pub struct LightSet {
     tree_index: Vec<u32>,
     /// ...and the lights at infinity (directional, environment), chosen uniformly beside the tree.
     infinite: Vec<usize>,
+    /// The boxes shadow rays to isolated convex emitters may stop at (`clear_box`), and each
+    /// area light's box index (or `clear_box::NONE`).
+    clear_boxes: Vec<crate::clear_box::ClearBox>,
+    clear_of: Vec<u32>,
 }
 
 /// Light selection for next-event estimation (`--light-sampler`).
@@ -127,6 +134,7 @@ fn environment_sample(reference: Vec3, pmf: f32, (wi, le, pdf): (Vec3, Vec3, f32
         le,
         pdf,
         delta: false,
+        light: crate::clear_box::NONE,
     })
 }
 
@@ -186,7 +194,10 @@ impl LightSet {
             power.push((4.0 * PI * PI * r * r * env.mean_luminance).max(1e-12));
         }
         let selection = AliasTable::new(&power).unwrap_or_default();
+        let (clear_boxes, clear_of) = crate::clear_box::find(mesh, &lights);
         LightSet {
+            clear_boxes,
+            clear_of,
             lights,
             selection,
             triangle_light,
@@ -505,6 +516,7 @@ impl LightSet {
                 le: e,
                 pdf: pmf,
                 delta: true,
+                light: crate::clear_box::NONE,
             });
         }
         if idx == self.environment_index() {
@@ -536,7 +548,7 @@ impl LightSet {
             return None;
         }
         let n = if cos_l > 0.0 { ng } else { -ng };
-        Some(LightSample { p, n, wi, dist, le, pdf, delta: false })
+        Some(LightSample { p, n, wi, dist, le, pdf, delta: false, light: idx as u32 })
     }
 
     /// Solid-angle pdf with which `sample()` from `reference` would have produced the point `p` on
@@ -556,6 +568,20 @@ impl LightSet {
             return 0.0;
         }
         self.select_pmf(li as usize, reference, normal) * dist2 / (cos_l * light.area)
+    }
+
+    /// Where a shadow ray from `o` along unit `d` to a point of area light `light` (stopping at
+    /// `tmax`) may stop: at the box of the light's isolated convex group when the origin is in
+    /// front of the light's triangle and outside the box (`clear_box`), else at `tmax`. The
+    /// visibility is the same; the walk is shorter.
+    #[inline]
+    pub fn shadow_tmax(&self, light: u32, o: Vec3, d: Vec3, tmax: f32) -> f32 {
+        match (self.clear_of.get(light as usize), self.lights.get(light as usize)) {
+            (Some(&b), Some(l)) if b != crate::clear_box::NONE => {
+                self.clear_boxes[b as usize].shadow_tmax(l, o, d, tmax)
+            }
+            _ => tmax,
+        }
     }
 
     /// True when triangle `tri` is in the light set (NEE can sample it).

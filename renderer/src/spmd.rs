@@ -538,6 +538,8 @@ pub fn radiance8(
             let (mut lp0, mut le1, mut le2, mut lng) =
                 ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
             let (mut larea, mut lpmf) = ([1f32; LANES], [0f32; LANES]);
+            // Each lane's area light (`LightSample::light`), for `LightSet::shadow_tmax`.
+            let mut lidx = [crate::clear_box::NONE; LANES];
             let mut lle = [Vec3::ZERO; LANES];
             let mut two_sided = 0u32;
             let mut area = 0u32;
@@ -572,6 +574,7 @@ pub fn radiance8(
                 };
                 let Some(m) = scene.materials.get(light.material as usize) else { continue };
                 area |= 1 << k;
+                lidx[k] = idx as u32;
                 (lp0[k], le1[k], le2[k], lng[k]) = (light.p0, light.e1, light.e2, light.ng);
                 (larea[k], lle[k]) = (
                     light.area,
@@ -699,7 +702,9 @@ pub fn radiance8(
                 let (mut lane, mut count) = ([0u8; LANES], 0);
                 let (mut qo, mut qd, mut qt) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [0f32; LANES]);
                 for k in lanes_of(ok.bits()) {
-                    (lane[count], qo[count], qd[count], qt[count]) = (k as u8, so[k], sdl[k], tm[k]);
+                    // An area light's ray may stop at its clear box (as the scalar path's).
+                    let t = scene.lights.shadow_tmax(lidx[k], so[k], sdl[k], tm[k]);
+                    (lane[count], qo[count], qd[count], qt[count]) = (k as u8, so[k], sdl[k], t);
                     count += 1;
                 }
                 let mut seen = [0f32; LANES];

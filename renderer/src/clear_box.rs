@@ -1,0 +1,301 @@
+//! Where a shadow ray to an area light may stop: the box around a convex emitter that nothing
+//! else enters.
+//!
+//! A shadow ray aimed at a point q on a light's triangle only needs to be tested up to where it
+//! enters the light's own bounding box, when two things hold:
+//!
+//! * **Isolation**: no other triangle of the scene reaches into the box (checked once, at load,
+//!   against every triangle's bounds). Past the box's boundary the ray can then meet only the
+//!   light's own group of triangles.
+//! * **Convexity, seen from the front**: every vertex of the group lies on or behind the plane of
+//!   every one of its triangles (the group is a piece of the boundary of its convex hull: a
+//!   closed convex mesh such as a sphere bulb, a planar quad, a convex cap), and the ray's origin
+//!   lies in front of the plane of q's triangle. That plane supports the hull, so the whole
+//!   segment from the origin to just off q stays in the open half-space in front of it and meets
+//!   no triangle of the group.
+//!
+//! Nothing the walk could find beyond the box is real, so the answer is the same; what changes is
+//! the cost. A walk to a point on a sphere light descends the light's subtree down to the leaves
+//! around q and tests them, only to find nothing (the scene `veach`: about a thousand
+//! instructions a shadow ray); stopped at the box, it ends after the nodes above the light. The
+//! one difference the stop can make is on purpose: a false hit on the light's own triangles near
+//! q, from rounding, can no longer darken the sample.
+//!
+//! Groups are the lights' connected pieces: triangles sharing a vertex position (exact bits, so
+//! flat-shaded meshes whose faces do not share vertex indices still form one group).
+
+use crate::light::AreaLight;
+use crate::mesh::Mesh;
+use glam::{DVec3, Vec3};
+use std::collections::HashMap;
+
+/// No clear box (the light is not in an isolated convex group, or is not an area light).
+pub const NONE: u32 = u32::MAX;
+
+/// At most this many groups are checked for isolation (the largest first): the check visits every
+/// triangle of the scene once per candidate box.
+const MAX_GROUPS: usize = 64;
+
+/// Groups larger than this are not checked for convexity (the check is triangles × vertices).
+const MAX_GROUP_TRIANGLES: usize = 4096;
+
+/// The scan for isolation is skipped above this many scene triangles.
+const MAX_SCENE_TRIANGLES: usize = 4_000_000;
+
+/// An emitter group's box, grown a little (the margin a ray stopped at its boundary keeps from
+/// the group's triangles), with what the facing test needs.
+#[derive(Clone, Copy, Debug)]
+pub struct ClearBox {
+    lo: Vec3,
+    hi: Vec3,
+    /// +1 when the group's winding normals point out of its hull, −1 when they point in.
+    outward: f32,
+    /// How far in front of its own triangle's plane a ray's origin must be (the convexity test's
+    /// rounding allowance).
+    front: f32,
+}
+
+impl ClearBox {
+    /// Where a shadow ray from `o` along unit `d`, aimed at a point of light `light`'s triangle
+    /// and stopping at `tmax`, may stop instead: where it enters the box, when its origin is in
+    /// front of the light's triangle and outside the box; else `tmax`.
+    #[inline]
+    pub fn shadow_tmax(&self, light: &AreaLight, o: Vec3, d: Vec3, tmax: f32) -> f32 {
+        if !(self.outward * light.ng.dot(o - light.p0) > self.front) {
+            return tmax;
+        }
+        let inside = o.cmpge(self.lo).all() && o.cmple(self.hi).all();
+        if inside {
+            return tmax;
+        }
+        // The slab test (Kay and Kajiya 1986): the entry is the latest of the three axes' nearer
+        // plane crossings. An axis the ray runs parallel to gives ±∞ (or NaN for an origin on
+        // its plane, which `max` passes over); a ray that misses the box keeps its tmax.
+        let inv = d.recip();
+        let (a, b) = ((self.lo - o) * inv, (self.hi - o) * inv);
+        let near = a.min(b).max_element();
+        let far = a.max(b).min_element();
+        if near > 0.0 && near <= far && near < tmax {
+            near
+        } else {
+            tmax
+        }
+    }
+}
+
+/// The lights' clear boxes: `(boxes, per light its box index or NONE)`.
+pub fn find(mesh: &Mesh, lights: &[AreaLight]) -> (Vec<ClearBox>, Vec<u32>) {
+    let mut of_light = vec![NONE; lights.len()];
+    if lights.is_empty() || !mesh.instances.is_empty() || mesh.triangles.len() > MAX_SCENE_TRIANGLES {
+        return (Vec::new(), of_light);
+    }
+    let groups = groups(mesh, lights);
+    let mut candidates: Vec<(Vec<usize>, ClearBox)> =
+        groups.into_iter().filter_map(|g| convex_box(mesh, lights, &g).map(|b| (g, b))).collect();
+    candidates.sort_by_key(|(g, _)| std::cmp::Reverse(g.len()));
+    candidates.truncate(MAX_GROUPS);
+    // Isolation: no triangle outside the group reaches into its box.
+    let mut owner = vec![NONE; mesh.triangles.len()];
+    for (c, (g, _)) in candidates.iter().enumerate() {
+        for &l in g {
+            owner[lights[l].triangle as usize] = c as u32;
+        }
+    }
+    let mut isolated = vec![true; candidates.len()];
+    let (mut all_lo, mut all_hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for (_, b) in &candidates {
+        (all_lo, all_hi) = (all_lo.min(b.lo), all_hi.max(b.hi));
+    }
+    for (t, &own) in owner.iter().enumerate() {
+        let [a, b, c] = mesh.vertices(t as u32);
+        let (lo, hi) = (a.min(b).min(c), a.max(b).max(c));
+        if lo.cmpgt(all_hi).any() || hi.cmplt(all_lo).any() {
+            continue;
+        }
+        for (k, (_, bx)) in candidates.iter().enumerate() {
+            if own != k as u32 && isolated[k] && !(lo.cmpgt(bx.hi).any() || hi.cmplt(bx.lo).any()) {
+                isolated[k] = false;
+            }
+        }
+    }
+    let mut boxes = Vec::new();
+    for ((g, b), ok) in candidates.into_iter().zip(isolated) {
+        if ok {
+            for l in g {
+                of_light[l] = boxes.len() as u32;
+            }
+            boxes.push(b);
+        }
+    }
+    (boxes, of_light)
+}
+
+/// The lights' connected groups (union-find over shared vertex positions), as light indices.
+fn groups(mesh: &Mesh, lights: &[AreaLight]) -> Vec<Vec<usize>> {
+    let mut parent: Vec<usize> = (0..lights.len()).collect();
+    fn root(parent: &mut [usize], mut i: usize) -> usize {
+        while parent[i] != i {
+            parent[i] = parent[parent[i]];
+            i = parent[i];
+        }
+        i
+    }
+    let mut first_at: HashMap<[u32; 3], usize> = HashMap::new();
+    for (l, light) in lights.iter().enumerate() {
+        for v in mesh.vertices(light.triangle) {
+            let key = v.to_array().map(f32::to_bits);
+            let other = *first_at.entry(key).or_insert(l);
+            let (a, b) = (root(&mut parent, l), root(&mut parent, other));
+            parent[a] = b;
+        }
+    }
+    let mut by_root: HashMap<usize, Vec<usize>> = HashMap::new();
+    for l in 0..lights.len() {
+        let r = root(&mut parent, l);
+        by_root.entry(r).or_default().push(l);
+    }
+    let mut out: Vec<Vec<usize>> = by_root.into_values().collect();
+    // A fixed order (the hash map's is not), so the boxes' numbering is a function of the scene.
+    out.sort_by_key(|g| g[0]);
+    out
+}
+
+/// The group's grown box when every vertex lies on or behind every triangle's plane (winding
+/// normals outward), or on or in front of every one (inward); None otherwise.
+fn convex_box(mesh: &Mesh, lights: &[AreaLight], group: &[usize]) -> Option<ClearBox> {
+    if group.len() > MAX_GROUP_TRIANGLES {
+        return None;
+    }
+    let mut verts: Vec<Vec3> = group.iter().flat_map(|&l| mesh.vertices(lights[l].triangle)).collect();
+    verts.sort_by(|a, b| a.to_array().partial_cmp(&b.to_array()).unwrap_or(std::cmp::Ordering::Equal));
+    verts.dedup();
+    let (lo, hi) = verts
+        .iter()
+        .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(lo, hi), v| (lo.min(*v), hi.max(*v)));
+    if !(lo.is_finite() && hi.is_finite()) {
+        return None;
+    }
+    let extent = (hi - lo).length();
+    let scale = extent + lo.abs().max(hi.abs()).max_element();
+    // Rounding of the f32 vertices: a convex mesh's vertices stray this far from its planes.
+    let tol = 1e-6 * scale as f64;
+    let (mut ahead, mut behind) = (0.0f64, 0.0f64);
+    for &l in group {
+        let [a, b, c] = mesh.vertices(lights[l].triangle).map(|v| v.as_dvec3());
+        let n: DVec3 = (b - a).cross(c - a).normalize_or_zero();
+        if n == DVec3::ZERO {
+            return None;
+        }
+        for v in &verts {
+            let h = n.dot(v.as_dvec3() - a);
+            ahead = ahead.max(h);
+            behind = behind.min(h);
+        }
+        if ahead > tol && behind < -tol {
+            return None;
+        }
+    }
+    let outward = if ahead <= tol { 1.0 } else { -1.0 };
+    let grow = Vec3::splat(1e-4 * extent + 4.0 * tol as f32);
+    Some(ClearBox { lo: lo - grow, hi: hi + grow, outward, front: 4.0 * tol as f32 })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::Triangle;
+
+    fn mesh_of(tris: &[[Vec3; 3]]) -> Mesh {
+        let mut m = Mesh::default();
+        for t in tris {
+            let base = m.positions.len() as u32;
+            m.positions.extend_from_slice(t);
+            m.triangles.push(Triangle { v: [base, base + 1, base + 2], material: 0, flags: 0 });
+        }
+        m
+    }
+
+    fn lights_of(m: &Mesh, tris: std::ops::Range<u32>) -> Vec<AreaLight> {
+        tris.map(|i| {
+            let [p0, p1, p2] = m.vertices(i);
+            let (e1, e2) = (p1 - p0, p2 - p0);
+            let ng = e1.cross(e2).normalize();
+            AreaLight { p0, e1, e2, ng, triangle: i, area: 0.5 * e1.cross(e2).length(), two_sided: false, material: 0 }
+        })
+        .collect()
+    }
+
+    /// A tetrahedron with outward winding, its four faces as separate vertex triples.
+    fn tetrahedron(c: Vec3, r: f32) -> Vec<[Vec3; 3]> {
+        let p = [
+            Vec3::new(1.0, 1.0, 1.0),
+            Vec3::new(1.0, -1.0, -1.0),
+            Vec3::new(-1.0, 1.0, -1.0),
+            Vec3::new(-1.0, -1.0, 1.0),
+        ]
+        .map(|v| c + v * r);
+        let mut faces = vec![[p[0], p[1], p[2]], [p[0], p[3], p[1]], [p[0], p[2], p[3]], [p[1], p[3], p[2]]];
+        for f in &mut faces {
+            // Outward: the normal points away from the centre.
+            let n = (f[1] - f[0]).cross(f[2] - f[0]);
+            if n.dot(f[0] - c) < 0.0 {
+                f.swap(1, 2);
+            }
+        }
+        faces
+    }
+
+    #[test]
+    fn an_isolated_convex_light_gets_a_box_that_stops_rays_from_the_front() {
+        let mut tris = tetrahedron(Vec3::new(0.0, 3.0, 0.0), 0.5);
+        // A floor far below.
+        tris.push([Vec3::new(-5.0, 0.0, -5.0), Vec3::new(5.0, 0.0, -5.0), Vec3::new(0.0, 0.0, 5.0)]);
+        let m = mesh_of(&tris);
+        let lights = lights_of(&m, 0..4);
+        let (boxes, of) = find(&m, &lights);
+        assert_eq!(boxes.len(), 1);
+        assert!(of.iter().all(|&b| b == 0), "{of:?}");
+        // From the floor to a point of a face that looks down.
+        let down = (0..4).find(|&l| lights[l].ng.y < -0.1).unwrap();
+        let l = &lights[down];
+        let q = l.p0 + l.e1 * 0.3 + l.e2 * 0.3;
+        let o = Vec3::new(0.2, 0.01, 0.1);
+        let d = (q - o).normalize();
+        let tmax = (q - o).length();
+        let t = boxes[0].shadow_tmax(l, o, d, tmax);
+        assert!(t < tmax && t > 0.0);
+        // It stops at the box: below every vertex of the light.
+        let stop = o + d * t;
+        assert!(stop.y < 3.0 - 0.5 && stop.y > 3.0 - 0.5 - 0.01, "{stop}");
+        // A face that looks away from the origin is behind the hull: no stop.
+        let up = (0..4).find(|&l| lights[l].ng.y > 0.1).unwrap();
+        let l = &lights[up];
+        let q = l.p0 + l.e1 * 0.3 + l.e2 * 0.3;
+        let d = (q - o).normalize();
+        assert_eq!(boxes[0].shadow_tmax(l, o, d, (q - o).length()), (q - o).length());
+    }
+
+    #[test]
+    fn a_light_with_something_in_its_box_or_a_dent_gets_none() {
+        // A triangle reaching into the tetrahedron's box.
+        let mut tris = tetrahedron(Vec3::new(0.0, 3.0, 0.0), 0.5);
+        tris.push([Vec3::new(0.4, 2.6, 0.4), Vec3::new(2.0, 2.6, 0.4), Vec3::new(2.0, 2.6, 2.0)]);
+        let m = mesh_of(&tris);
+        let (boxes, of) = find(&m, &lights_of(&m, 0..4));
+        assert!(boxes.is_empty() && of.iter().all(|&b| b == NONE));
+        // A valley and then a ridge (a valley alone is convex, seen from below).
+        let zigzag = [
+            [Vec3::new(0.0, 0.0, 0.0), Vec3::new(0.0, 0.0, 1.0), Vec3::new(1.0, 1.0, 0.0)],
+            [Vec3::new(0.0, 0.0, 0.0), Vec3::new(-1.0, 1.0, 0.0), Vec3::new(0.0, 0.0, 1.0)],
+            [Vec3::new(-1.0, 1.0, 0.0), Vec3::new(-1.0, 1.0, 1.0), Vec3::new(-2.0, 0.0, 0.0)],
+        ];
+        let m = mesh_of(&zigzag);
+        let lights = lights_of(&m, 0..3);
+        assert_eq!(groups(&m, &lights).len(), 1);
+        let valley = mesh_of(&zigzag[..2]);
+        let (boxes, _) = find(&valley, &lights_of(&valley, 0..2));
+        assert_eq!(boxes.len(), 1, "the valley alone");
+        let (boxes, _) = find(&m, &lights);
+        assert!(boxes.is_empty(), "{boxes:?}");
+    }
+}

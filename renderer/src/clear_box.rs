@@ -70,7 +70,10 @@ impl ClearBox {
     /// front of the light's triangle and outside the box; else `tmax`.
     #[inline]
     pub fn shadow_tmax(&self, light: &AreaLight, o: Vec3, d: Vec3, tmax: f32) -> f32 {
-        if !(self.outward * light.ng.dot(o - light.p0) > self.front) {
+        // In front by more than the convexity test's allowance plus the rounding of this f32 dot
+        // product itself, which grows with the distance (a few units in the last place of it).
+        let to = o - light.p0;
+        if !(self.outward * light.ng.dot(to) > self.front + 2e-6 * to.abs().max_element()) {
             return tmax;
         }
         let inside = o.cmpge(self.lo).all() && o.cmple(self.hi).all();

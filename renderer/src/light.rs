@@ -584,11 +584,6 @@ impl LightSet {
         }
     }
 
-    /// Whether some area light has a clear box (else [`Self::shadow_tmax`] always answers tmax).
-    pub fn has_clear_boxes(&self) -> bool {
-        !self.clear_boxes.is_empty()
-    }
-
     /// True when triangle `tri` is in the light set (NEE can sample it).
     pub fn is_light(&self, tri: u32) -> bool {
         self.triangle_light.get(tri as usize).is_some_and(|&l| l != u32::MAX)

@@ -701,10 +701,9 @@ pub fn radiance8(
                 let (so, sdl, tm) = (origin.to_lanes(), sd.to_lanes(), tmax.to_array());
                 let (mut lane, mut count) = ([0u8; LANES], 0);
                 let (mut qo, mut qd, mut qt) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [0f32; LANES]);
-                let boxes = scene.lights.has_clear_boxes();
                 for k in lanes_of(ok.bits()) {
                     // An area light's ray may stop at its clear box (as the scalar path's).
-                    let t = if boxes { scene.lights.shadow_tmax(lidx[k], so[k], sdl[k], tm[k]) } else { tm[k] };
+                    let t = scene.lights.shadow_tmax(lidx[k], so[k], sdl[k], tm[k]);
                     (lane[count], qo[count], qd[count], qt[count]) = (k as u8, so[k], sdl[k], t);
                     count += 1;
                 }

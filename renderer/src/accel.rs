@@ -488,10 +488,11 @@ fn with_stack<R>(len: usize, f: impl FnOnce(&mut [MaybeUninit<Deferred>]) -> R) 
 }
 
 /// A batch's rays (at most [`MAX_BATCH`]) for the node tests and the leaf tests, ray k ending at
-/// `tmax(k)`.
+/// `tmax(k)`, its node tests starting at `tmin(k)` ([`NodeRay::tmin`]).
 fn batch_rays(
     o: &[Vec3],
     d: &[Vec3],
+    tmin: impl Fn(usize) -> f32,
     tmax: impl Fn(usize) -> f32,
 ) -> ([NodeRay; MAX_BATCH], [WatertightRay; MAX_BATCH]) {
     let mut rays = [NodeRay::new(Vec3A::ZERO, Vec3A::X, 0.0); MAX_BATCH];
@@ -499,6 +500,7 @@ fn batch_rays(
     for k in 0..o.len().min(d.len()).min(MAX_BATCH) {
         let (oa, da) = (Vec3A::from(o[k]), Vec3A::from(d[k]));
         rays[k] = NodeRay::new(oa, da, tmax(k));
+        rays[k].tmin = rays[k].tmin.max(tmin(k));
         wrays[k] = WatertightRay::new(oa, da);
     }
     (rays, wrays)
@@ -825,13 +827,21 @@ impl Accel {
     /// registers made this 54 instructions a query; without, 37, its finiteness test and choice
     /// of node form included (callgrind, `bench rays --scene S --accel obvhs --no-batches`).
     pub fn intersect(&self, o: Vec3, d: Vec3, tmax: f32) -> Option<Hit> {
+        self.intersect_from(o, d, 0.0, tmax)
+    }
+
+    /// [`Self::intersect`] for a ray known to meet nothing before `tmin`: the one-level walk
+    /// skips every box the ray leaves before then ([`NodeRay::tmin`]; the bound comes from
+    /// `convex_solid`). The same hit as without it when nothing lies on the ray before `tmin`;
+    /// the two-level and own-BVH queries ignore it.
+    pub fn intersect_from(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<Hit> {
         if let Some(top) = &self.top {
             return self.intersect_two_level(top, Vec3A::from(o), Vec3A::from(d), tmax);
         }
         if let Some(own) = &self.own {
             return Self::intersect_own(own, o, d, tmax);
         }
-        self.intersect_object(Vec3A::from(o), Vec3A::from(d), tmax)
+        self.intersect_object(Vec3A::from(o), Vec3A::from(d), tmin, tmax)
     }
 
     /// Each ray's closest hit from `origin` along `directions` into `out` (what
@@ -982,7 +992,7 @@ impl Accel {
                     }
                     TopPrim::Instance { index, prototype, to_object } => {
                         let (oo, dd) = (to_object.transform_point3a(oa), to_object.transform_vector3a(da));
-                        if let Some(mut h) = top.blas[*prototype as usize].intersect_object(oo, dd, bound) {
+                        if let Some(mut h) = top.blas[*prototype as usize].intersect_object(oo, dd, 0.0, bound) {
                             h.instance = *index;
                             best = Some(h);
                             bound = h.t;
@@ -998,14 +1008,14 @@ impl Accel {
     /// Closest hit in a one-level BVH (the scene's, or a prototype's with the ray already in object
     /// space, direction unnormalised).
     #[inline(always)]
-    fn intersect_object(&self, oa: Vec3A, da: Vec3A, tmax: f32) -> Option<Hit> {
+    fn intersect_object(&self, oa: Vec3A, da: Vec3A, tmin: f32, tmax: f32) -> Option<Hit> {
         if self.tris.is_empty() || !finite(oa, da) {
             return None;
         }
         if self.wide.is_empty() {
-            self.intersect_nodes(&self.bvh.nodes, oa, da, tmax)
+            self.intersect_nodes(&self.bvh.nodes, oa, da, tmin, tmax)
         } else {
-            self.intersect_nodes(&self.wide, oa, da, tmax)
+            self.intersect_nodes(&self.wide, oa, da, tmin, tmax)
         }
     }
 
@@ -1017,8 +1027,17 @@ impl Accel {
     /// `intersect_object`'s registers and it spilled more than the call cost (635 instructions
     /// a glass query against 623).
     #[inline(never)]
-    fn intersect_nodes<N: TraversalNode>(&self, nodes: &[N], oa: Vec3A, da: Vec3A, tmax: f32) -> Option<Hit> {
-        let ray = NodeRay::new(oa, da, tmax);
+    fn intersect_nodes<N: TraversalNode>(
+        &self,
+        nodes: &[N],
+        oa: Vec3A,
+        da: Vec3A,
+        tmin: f32,
+        tmax: f32,
+    ) -> Option<Hit> {
+        let mut ray = NodeRay::new(oa, da, tmax);
+        // NaN-safe: a NaN bound leaves the default.
+        ray.tmin = ray.tmin.max(tmin);
         let wray = WatertightRay::new(oa, da);
         let mut best = (tmax, NO_LEAF, 0.0, 0.0);
         with_stack(self.stack_len, |stack| {
@@ -1085,21 +1104,28 @@ impl Accel {
     /// [`Self::intersect`] for `o.len()` rays at once (at most [`MAX_BATCH`]; more are traced a
     /// batch at a time) into `out`: their walks interleaved node by node, the same hits.
     pub fn intersect_batch(&self, o: &[Vec3], d: &[Vec3], tmax: f32, out: &mut [Option<Hit>]) {
+        self.intersect_batch_from(o, d, &[], tmax, out);
+    }
+
+    /// [`Self::intersect_batch`] with ray k's node tests starting at `tmin[k]` (0 where `tmin`
+    /// is shorter), as [`Self::intersect_from`].
+    pub fn intersect_batch_from(&self, o: &[Vec3], d: &[Vec3], tmin: &[f32], tmax: f32, out: &mut [Option<Hit>]) {
         let n = o.len().min(d.len()).min(out.len());
         if n > MAX_BATCH {
             for s in (0..n).step_by(MAX_BATCH) {
                 let e = (s + MAX_BATCH).min(n);
-                self.intersect_batch(&o[s..e], &d[s..e], tmax, &mut out[s..e]);
+                let t = &tmin[s.min(tmin.len())..e.min(tmin.len())];
+                self.intersect_batch_from(&o[s..e], &d[s..e], t, tmax, &mut out[s..e]);
             }
             return;
         }
         if !self.walks_batch(&o[..n], &d[..n]) {
             for k in 0..n {
-                out[k] = self.intersect(o[k], d[k], tmax);
+                out[k] = self.intersect_from(o[k], d[k], tmin.get(k).copied().unwrap_or(0.0), tmax);
             }
             return;
         }
-        let (rays, wrays) = batch_rays(&o[..n], &d[..n], |_| tmax);
+        let (rays, wrays) = batch_rays(&o[..n], &d[..n], |k| tmin.get(k).copied().unwrap_or(0.0), |_| tmax);
         let mut best = [(tmax, NO_LEAF, 0.0, 0.0); MAX_BATCH];
         if self.wide.is_empty() {
             self.intersect_batch_nodes(&self.bvh.nodes, &rays[..n], &wrays[..n], &mut best[..n]);
@@ -1166,7 +1192,7 @@ impl Accel {
             }
             return;
         }
-        let (rays, wrays) = batch_rays(&o[..n], &d[..n], |k| tmax[k]);
+        let (rays, wrays) = batch_rays(&o[..n], &d[..n], |_| 0.0, |k| tmax[k]);
         out[..n].fill(false);
         if self.wide.is_empty() {
             self.occluded_batch_nodes(&self.bvh.nodes, &rays[..n], &wrays[..n], &tmax[..n], &mut out[..n]);

@@ -26,8 +26,7 @@
 
 use crate::light::AreaLight;
 use crate::mesh::Mesh;
-use glam::{DVec3, Vec3};
-use std::collections::HashMap;
+use glam::Vec3;
 
 /// No clear box (the light is not in an isolated convex group, or is not an area light).
 pub const NONE: u32 = u32::MAX;
@@ -158,74 +157,26 @@ pub fn find(mesh: &Mesh, lights: &[AreaLight]) -> (Vec<ClearBox>, Vec<u32>) {
     (boxes, of_light)
 }
 
-/// The lights' connected groups (union-find over shared vertex positions), as light indices.
+/// The lights' connected groups (triangles sharing a vertex position), as light indices.
 fn groups(mesh: &Mesh, lights: &[AreaLight]) -> Vec<Vec<usize>> {
-    let mut parent: Vec<usize> = (0..lights.len()).collect();
-    fn root(parent: &mut [usize], mut i: usize) -> usize {
-        while parent[i] != i {
-            parent[i] = parent[parent[i]];
-            i = parent[i];
-        }
-        i
-    }
-    let mut first_at: HashMap<[u32; 3], usize> = HashMap::new();
-    for (l, light) in lights.iter().enumerate() {
-        for v in mesh.vertices(light.triangle) {
-            let key = v.to_array().map(f32::to_bits);
-            let other = *first_at.entry(key).or_insert(l);
-            let (a, b) = (root(&mut parent, l), root(&mut parent, other));
-            parent[a] = b;
-        }
-    }
-    let mut by_root: HashMap<usize, Vec<usize>> = HashMap::new();
-    for l in 0..lights.len() {
-        let r = root(&mut parent, l);
-        by_root.entry(r).or_default().push(l);
-    }
-    let mut out: Vec<Vec<usize>> = by_root.into_values().collect();
-    // A fixed order (the hash map's is not), so the boxes' numbering is a function of the scene.
-    out.sort_by_key(|g| g[0]);
-    out
+    let tris: Vec<u32> = lights.iter().map(|l| l.triangle).collect();
+    crate::convex_solid::connected_groups(mesh, &tris)
 }
 
 /// The group's grown box when every vertex lies on or behind every triangle's plane (winding
-/// normals outward), or on or in front of every one (inward); None otherwise.
+/// normals outward), or on or in front of every one (inward); None otherwise
+/// ([`crate::convex_solid::convex_hull`]).
 fn convex_box(mesh: &Mesh, lights: &[AreaLight], group: &[usize]) -> Option<ClearBox> {
-    let mut verts: Vec<Vec3> = group.iter().flat_map(|&l| mesh.vertices(lights[l].triangle)).collect();
-    verts.sort_by(|a, b| a.to_array().partial_cmp(&b.to_array()).unwrap_or(std::cmp::Ordering::Equal));
-    verts.dedup();
-    let (lo, hi) = verts
-        .iter()
-        .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(lo, hi), v| (lo.min(*v), hi.max(*v)));
-    if !(lo.is_finite() && hi.is_finite()) {
-        return None;
-    }
-    let extent = (hi - lo).length();
-    let scale = extent + lo.abs().max(hi.abs()).max_element();
-    // Rounding of the f32 vertices: a convex mesh's vertices stray this far from its planes.
-    let tol = 1e-6 * scale as f64;
-    // The coordinates apart, so the test's loop runs in vector registers.
-    let [xs, ys, zs] = [0, 1, 2].map(|k| verts.iter().map(|v| v[k] as f64).collect::<Vec<f64>>());
-    let (mut ahead, mut behind) = (0.0f64, 0.0f64);
-    for &l in group {
-        let [a, b, c] = mesh.vertices(lights[l].triangle).map(|v| v.as_dvec3());
-        let n: DVec3 = (b - a).cross(c - a).normalize_or_zero();
-        if n == DVec3::ZERO {
-            return None;
-        }
-        let d = n.dot(a);
-        for ((x, y), z) in xs.iter().zip(&ys).zip(&zs) {
-            let h = n.x * x + n.y * y + n.z * z - d;
-            ahead = if h > ahead { h } else { ahead };
-            behind = if h < behind { h } else { behind };
-        }
-        if ahead > tol && behind < -tol {
-            return None;
-        }
-    }
-    let outward = if ahead <= tol { 1.0 } else { -1.0 };
-    let grow = Vec3::splat(1e-4 * extent + 4.0 * tol as f32);
-    Some(ClearBox { lo: lo - grow, hi: hi + grow, outward, front: 4.0 * tol as f32 })
+    let tris: Vec<u32> = group.iter().map(|&l| lights[l].triangle).collect();
+    let hull = crate::convex_solid::convex_hull(mesh, &tris)?;
+    let extent = (hull.hi - hull.lo).length();
+    let grow = Vec3::splat(1e-4 * extent + 4.0 * hull.tol as f32);
+    Some(ClearBox {
+        lo: hull.lo - grow,
+        hi: hull.hi + grow,
+        outward: hull.outward as f32,
+        front: 4.0 * hull.tol as f32,
+    })
 }
 
 #[cfg(test)]

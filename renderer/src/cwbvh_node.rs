@@ -12,7 +12,8 @@
 //! multiply-add; the same max/min operand order, which decides what a NaN does), but for the
 //! lower bound on a child's entry distance: obvhs clamps it to 10⁻⁴ (its `EPSILON`), which
 //! drops every child the ray leaves before t = 10⁻⁴, an absolute distance in scene units; here
-//! it is 0 ([`NODE_TMIN`]); and the near plane on an axis is chosen by the sign of the inverse
+//! it is the ray's [`NodeRay::tmin`], 0 ([`NODE_TMIN`]) but where `convex_solid` raises it;
+//! and the near plane on an axis is chosen by the sign of the inverse
 //! direction, not by obvhs' `d < 0`, which for a component of −0.0 (safe inverse −1/ε) swapped
 //! the planes and missed every box. So the hit masks are obvhs' (`CwBvhNode::intersect_ray`)
 //! plus the children that end within 10⁻⁴ of the origin (and, for −0.0, the boxes it missed); a
@@ -22,7 +23,8 @@
 use crate::node_ray::NodeRay;
 use obvhs::cwbvh::node::CwBvhNode;
 
-/// The lower bound on a child's entry distance: 0, the ray's own start (the renderer offsets
+/// The default lower bound on a child's entry distance ([`NodeRay::tmin`], which a ray inside a
+/// closed convex glass solid raises: `convex_solid`): 0, the ray's own start (the renderer offsets
 /// origins off surfaces, `math::offset_ray_origin`, so a surface behind the origin is never
 /// hit). obvhs uses 10⁻⁴ (`cwbvh::node::EPSILON`); with it a ray leaving a wall within 10⁻⁴ of
 /// a corner missed the neighbouring wall and escaped the room (9 of 300 000 rays off the Cornell
@@ -103,7 +105,7 @@ fn slot_intervals(node: &CwBvhNode, ray: &NodeRay) -> [(f32, f32); 8] {
             q * adj_dir[axis] + adj_org[axis]
         };
         // The SIMD operand order, which decides what a NaN does.
-        let tmin = simd_max(simd_max(t(0, false), simd_max(t(1, false), t(2, false))), NODE_TMIN);
+        let tmin = simd_max(simd_max(t(0, false), simd_max(t(1, false), t(2, false))), ray.tmin);
         let tmax = simd_min(simd_min(t(0, true), simd_min(t(1, true), t(2, true))), ray.tmax);
         (tmin, tmax)
     })
@@ -152,7 +154,7 @@ unsafe fn intersect_avx2(node: &CwBvhNode, ray: &NodeRay) -> (u32, [f32; 8]) {
     let (tmin_z, tmax_z) = slab(&node.child_min_z, &node.child_max_z, ray.enters_upper(2), adj_dir.z, adj_org.z);
     let tmin = _mm256_max_ps(tmin_x, _mm256_max_ps(tmin_y, tmin_z));
     let tmax = _mm256_min_ps(tmax_x, _mm256_min_ps(tmax_y, tmax_z));
-    let tmin = _mm256_max_ps(tmin, _mm256_set1_ps(NODE_TMIN));
+    let tmin = _mm256_max_ps(tmin, _mm256_set1_ps(ray.tmin));
     let tmax = _mm256_min_ps(tmax, _mm256_set1_ps(ray.tmax));
     let hit = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LE_OQ>(tmin, tmax));
 

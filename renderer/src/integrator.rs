@@ -82,6 +82,7 @@ pub fn radiance_batch(
     }
     let mut count = n;
     let (mut ro, mut rd, mut seeds) = ([Vec3::ZERO; MAX_BATCH], [Vec3::ZERO; MAX_BATCH], [0u32; MAX_BATCH]);
+    let mut from = [crate::convex_solid::NONE; MAX_BATCH];
     let mut hits = [None; MAX_BATCH];
     let (mut tmax, mut visible) = ([0f32; MAX_BATCH], [0f32; MAX_BATCH]);
     // The shadow rays' paths and light samples.
@@ -94,9 +95,9 @@ pub fn radiance_batch(
         for j in 0..count {
             let k = live[j] as usize;
             seeds[j] = paths[k].begin_bounce(scene, &samplers[k], rays);
-            (ro[j], rd[j]) = (paths[k].o, paths[k].d);
+            (ro[j], rd[j], from[j]) = (paths[k].o, paths[k].d, paths[k].from);
         }
-        scene.intersect_surface_batch(&ro[..count], &rd[..count], &seeds[..count], &mut hits[..count]);
+        scene.intersect_surface_batch(&ro[..count], &rd[..count], &seeds[..count], &from[..count], &mut hits[..count]);
         // The hits' triangles, then their vertices, asked of the cache for all before any is
         // shaded: on a mesh that misses cache, the shading's first loads otherwise wait one
         // after another.
@@ -182,6 +183,9 @@ struct Path {
     /// The next ray.
     o: Vec3,
     d: Vec3,
+    /// The triangle the next ray starts on (`convex_solid::NONE` for a camera ray): a glass
+    /// solid's inward rays skip its boxes ([`Scene::intersect_surface`]).
+    from: u32,
     /// Whether a bounce draws its light-sampling set (NEE; the stochastic-transparency bits share it).
     draws_light_set: bool,
     /// The current bounce's two 4D sample sets ([`Path::begin_bounce`]).
@@ -238,6 +242,8 @@ struct Vertex {
     absorption: Vec3,
     /// Whether next-event estimation samples a light here.
     nee: bool,
+    /// The hit triangle (where the next ray starts: [`Path::from`]).
+    triangle: u32,
 }
 
 impl Path {
@@ -254,6 +260,7 @@ impl Path {
             eta_scale: 1.0,
             o,
             d,
+            from: crate::convex_solid::NONE,
             draws_light_set,
             u_bsdf: [0.0; 4],
             u_light: [0.0; 4],
@@ -265,7 +272,7 @@ impl Path {
     fn run(&mut self, scene: &Scene, settings: &RenderSettings, sampler: &PixelSample, rays: &mut u64) {
         loop {
             let seed = self.begin_bounce(scene, sampler, rays);
-            let hit = scene.intersect_surface(self.o, self.d, seed);
+            let hit = scene.intersect_surface(self.o, self.d, seed, self.from);
             self.draw_held_sets(scene, sampler, &hit);
             if !self.after_hit(scene, settings, hit, rays) {
                 break;
@@ -495,6 +502,7 @@ impl Path {
             next,
             absorption: material.absorption,
             nee,
+            triangle: hit.triangle,
         })
     }
 
@@ -523,7 +531,7 @@ impl Path {
         rays: &mut u64,
     ) -> bool {
         let (mesh, materials, textures) = (&scene.mesh, &scene.materials, &scene.textures);
-        let Vertex { p, plane_error, ng_winding, ng, ns, frame, wo, bsdf, origin, next, absorption, nee } = v;
+        let Vertex { p, plane_error, ng_winding, ng, ns, frame, wo, bsdf, origin, next, absorption, nee, triangle } = v;
         let wo_world = -self.d;
 
         // Next-event estimation.
@@ -625,6 +633,7 @@ impl Path {
         self.prev = if bs.delta { None } else { Some((p, ns, bs.pdf)) };
         self.o = if transmitted { scene.spawn_origin(p, -ng, plane_error) } else { origin };
         self.d = wi_world;
+        self.from = triangle;
         self.depth += 1;
 
         if self.depth >= settings.rr_depth {

@@ -35,6 +35,7 @@ pub mod bvh;
 pub mod camera;
 pub mod clear_box;
 pub mod clearcoat;
+pub mod convex_solid;
 pub mod cwbvh_node;
 pub mod dielectric;
 pub mod distribution;

@@ -20,6 +20,10 @@ pub struct NodeRay {
     pub inv_far: Vec3A,
     /// Where the ray ends; the closest-hit walk shortens it.
     pub tmax: f32,
+    /// Where the node tests start: a box the ray leaves before this distance is not entered.
+    /// [`crate::cwbvh_node::NODE_TMIN`] (0) but for a ray known to meet nothing sooner (one
+    /// inside a closed convex glass solid: `crate::convex_solid`).
+    pub tmin: f32,
     /// Bit a set when `inv[a]` is negative: the ray enters a box through its upper plane on that
     /// axis. The inverse's sign, which a direction of −0.0 (inverse −1/ε) shares; a test of
     /// `d < 0` is false there, swapped the planes and missed every box.
@@ -36,7 +40,15 @@ impl NodeRay {
     pub fn new(origin: Vec3A, direction: Vec3A, tmax: f32) -> Self {
         let inv = safe_inverse(direction);
         let negative = inv.is_negative_bitmask() & 7;
-        NodeRay { origin, inv, inv_far: far_inverse(inv), tmax, negative, oct_inv4: OCTANT[negative as usize] }
+        NodeRay {
+            origin,
+            inv,
+            inv_far: far_inverse(inv),
+            tmax,
+            tmin: crate::cwbvh_node::NODE_TMIN,
+            negative,
+            oct_inv4: OCTANT[negative as usize],
+        }
     }
 
     /// Whether the ray enters boxes through their upper plane on `axis`.

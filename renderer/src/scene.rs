@@ -20,6 +20,9 @@ pub struct Scene {
     pub textures: Vec<Texture>,
     pub cameras: Vec<Camera>,
     pub accel: Accel,
+    /// The closed convex glass objects whose inward rays may skip their boxes
+    /// ([`crate::convex_solid`]).
+    solids: crate::convex_solid::ConvexSolids,
     pub lights: LightSet,
     pub bounds: (Vec3, Vec3),
     /// The ray-origin offset's scale for these bounds ([`crate::math::offset_scale`]).
@@ -49,6 +52,14 @@ pub struct Scene {
     lanes: bool,
 }
 
+/// The closed convex solids among the triangles whose material transmits light (only those send
+/// rays inward: refraction and internal reflection).
+fn find_solids(mesh: &Mesh, materials: &[Material]) -> crate::convex_solid::ConvexSolids {
+    crate::convex_solid::ConvexSolids::find(mesh, |m| {
+        materials.get(m as usize).is_some_and(|m| m.transmission > 0.0 || m.transmission_texture.is_some())
+    })
+}
+
 /// [`crate::math::offset_scale`] of the largest coordinate within `bounds`.
 fn offset_scale_of((min, max): (Vec3, Vec3)) -> f32 {
     crate::math::offset_scale(min.abs().max(max.abs()).max_element())
@@ -67,12 +78,14 @@ impl Scene {
         let transparent = materials.iter().any(|m| m.alpha_mode != AlphaMode::Opaque);
         let uniform_bsdfs: Vec<Option<Bsdf>> = materials.iter().map(Material::uniform_bsdf).collect();
         let lane_materials = crate::spmd::LaneMaterial::table(&mesh, &materials, &uniform_bsdfs);
+        let solids = find_solids(&mesh, &materials);
         Scene {
             mesh,
             materials,
             textures,
             cameras,
             accel,
+            solids,
             lights,
             bounds: (min, max),
             offset_scale: offset_scale_of((min, max)),
@@ -228,6 +241,7 @@ impl Scene {
         self.time = t;
         self.pose_key = Some((frame, settings.fps.to_bits(), settings.animation.clone()));
         self.accel.rebuild_top(&self.mesh);
+        self.solids = find_solids(&self.mesh, &self.materials);
         if let Some(b) = self.mesh.world_bounds() {
             self.bounds = b;
             self.offset_scale = offset_scale_of(b);
@@ -315,6 +329,23 @@ impl Scene {
         Ok(())
     }
 
+    /// Where the closest-hit walk of a ray from `o` along `d` starting on triangle `from` may
+    /// begin its node tests ([`crate::convex_solid::ConvexSolids::tmin`]; 0: from the start).
+    pub fn solid_tmin(&self, from: u32, o: Vec3, d: Vec3) -> f32 {
+        self.solids.tmin(from, o, d)
+    }
+
+    /// How many closed convex glass solids the scene has ([`crate::convex_solid`]).
+    pub fn convex_solids(&self) -> usize {
+        self.solids.len()
+    }
+
+    /// Turns the solids' bound off (false: every walk starts at 0) or finds them again (tests
+    /// and `bench` compare both; the hits are the same).
+    pub fn set_convex_solids(&mut self, on: bool) {
+        self.solids = if on { find_solids(&self.mesh, &self.materials) } else { Default::default() };
+    }
+
     /// Rebuilds the ray-query structure with another BVH (benchmarks compare them).
     pub fn use_accel(&mut self, kind: crate::accel::AccelKind) {
         self.accel = Accel::build_with(&self.mesh, kind);
@@ -371,8 +402,8 @@ impl Scene {
     /// The first surface along the ray that stops it: MASK cut-outs are skipped, BLEND surfaces stop
     /// the ray with probability alpha, decided by `seed` (a pure function of the sample, so the
     /// determinism rule holds).
-    pub fn intersect_surface(&self, o: Vec3, d: Vec3, seed: u32) -> Option<Hit> {
-        let first = self.accel.intersect(o, d, f32::INFINITY);
+    pub fn intersect_surface(&self, o: Vec3, d: Vec3, seed: u32, from: u32) -> Option<Hit> {
+        let first = self.accel.intersect_from(o, d, self.solids.tmin(from, o, d), f32::INFINITY);
         if !self.has_transparency() {
             return first;
         }
@@ -404,14 +435,28 @@ impl Scene {
     /// [`Self::intersect_surface`] for up to [`crate::accel::MAX_BATCH`] rays into `out`: traced
     /// together ([`Accel::intersect_batch`]); a ray that meets a transparent layer goes on through
     /// the others alone. The same hits either way.
-    pub fn intersect_surface_batch(&self, o: &[Vec3], d: &[Vec3], seed: &[u32], out: &mut [Option<Hit>]) {
+    pub fn intersect_surface_batch(&self, o: &[Vec3], d: &[Vec3], seed: &[u32], from: &[u32], out: &mut [Option<Hit>]) {
+        let n = o.len().min(d.len()).min(seed.len()).min(from.len()).min(out.len());
         if !self.batches_rays() {
-            for (k, h) in out.iter_mut().enumerate().take(o.len().min(d.len()).min(seed.len())) {
-                *h = self.intersect_surface(o[k], d[k], seed[k]);
+            for k in 0..n {
+                out[k] = self.intersect_surface(o[k], d[k], seed[k], from[k]);
             }
             return;
         }
-        self.accel.intersect_batch(o, d, f32::INFINITY, out);
+        let mut tmin = [0f32; crate::accel::MAX_BATCH];
+        let bounded = !self.solids.is_empty() && n <= crate::accel::MAX_BATCH;
+        if bounded {
+            for k in 0..n {
+                tmin[k] = self.solids.tmin(from[k], o[k], d[k]);
+            }
+        }
+        self.accel.intersect_batch_from(
+            &o[..n],
+            &d[..n],
+            if bounded { &tmin[..n] } else { &[] },
+            f32::INFINITY,
+            &mut out[..n],
+        );
         if self.has_transparency() {
             for (k, h) in out.iter_mut().enumerate().take(o.len().min(d.len()).min(seed.len())) {
                 *h = self.through_layers(d[k], seed[k], *h);

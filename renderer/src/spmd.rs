@@ -308,6 +308,8 @@ pub fn radiance8(
     let mut rd = V8::from_lanes(&rd);
     let mut alive: u32 = (1u32 << n) - 1;
     let mut depth = 0u32;
+    // The triangle each lane's next ray starts on (`Path::from`).
+    let mut from = [crate::convex_solid::NONE; LANES];
     let scale = scene.offset_scale();
     while alive != 0 {
         // One lane at a time: the sample sets, then the rays (together where the BVH batches
@@ -343,13 +345,13 @@ pub fn radiance8(
         let drawn = depth > 0 && draw_all(alive.count_ones() as usize, &mut u_bsdf, &mut u_light);
         // The live lanes, in lane order, and their rays.
         let (mut lane, mut count) = ([0u8; LANES], 0);
-        let (mut qo, mut qd) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
+        let (mut qo, mut qd, mut qf) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [0u32; LANES]);
         for k in lanes_of(alive) {
             *rays += 1;
             if depth > 0 && !drawn {
                 draw(k, &mut u_bsdf, &mut u_light);
             }
-            (lane[count], qo[count], qd[count]) = (k as u8, ro[k], dirs[k]);
+            (lane[count], qo[count], qd[count], qf[count]) = (k as u8, ro[k], dirs[k], from[k]);
             count += 1;
         }
         let mut hits = [None; LANES];
@@ -358,7 +360,13 @@ pub fn radiance8(
         // background), and each ray tests those (`Scene::intersect_bundle`).
         let shared = depth == 0 && count > 0 && qo[..count].iter().all(|&x| x == qo[0]);
         if !(shared && scene.intersect_bundle(qo[0], &qd[..count], &mut hits[..count])) {
-            scene.intersect_surface_batch(&qo[..count], &qd[..count], &[0; LANES][..count], &mut hits[..count]);
+            scene.intersect_surface_batch(
+                &qo[..count],
+                &qd[..count],
+                &[0; LANES][..count],
+                &qf[..count],
+                &mut hits[..count],
+            );
         }
         // The hit triangles' vertices, gathered lane by lane; the surface points eight-wide.
         let (mut v0, mut v1, mut v2) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
@@ -389,7 +397,7 @@ pub fn radiance8(
                 smooth |= 1 << k;
                 (n0[k], n1[k], n2[k]) = (mesh.normals[i0], mesh.normals[i1], mesh.normals[i2]);
             }
-            (hb1[k], hb2[k], tri[k]) = (hit.b1, hit.b2, hit.triangle);
+            (hb1[k], hb2[k], tri[k], from[k]) = (hit.b1, hit.b2, hit.triangle, hit.triangle);
         }
         // The environment, seen by BSDF sampling (`Path::shade`'s escape): the escaped lanes'
         // lookups in a loop of their own, so their cache misses (the map and its rows are

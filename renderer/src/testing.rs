@@ -310,7 +310,13 @@ pub fn trace_in_batches(
     let (mut hits, mut seen) = (vec![None; o.len()], vec![0f32; o.len()]);
     for s in (0..o.len()).step_by(MAX_BATCH) {
         let e = (s + MAX_BATCH).min(o.len());
-        scene.intersect_surface_batch(&o[s..e], &d[s..e], &[0; MAX_BATCH][..e - s], &mut hits[s..e]);
+        scene.intersect_surface_batch(
+            &o[s..e],
+            &d[s..e],
+            &[0; MAX_BATCH][..e - s],
+            &[crate::convex_solid::NONE; MAX_BATCH][..e - s],
+            &mut hits[s..e],
+        );
         scene.visibility_batch(&o[s..e], &d[s..e], &[tmax; MAX_BATCH][..e - s], &mut seen[s..e]);
     }
     (hits, seen)

@@ -27,7 +27,7 @@ use obvhs::cwbvh::node::CwBvhNode;
 
 // The lower bound on a child's entry distance (0, not obvhs' 10⁻⁴), the scalar lane operations
 // and the scalar mask: shared with the compressed node's test.
-use crate::cwbvh_node::{mask_and_entry, simd_max, simd_min, NODE_TMIN};
+use crate::cwbvh_node::{mask_and_entry, simd_max, simd_min};
 
 #[derive(Clone, Copy, Debug)]
 #[repr(C, align(64))]
@@ -177,7 +177,7 @@ impl WideNode {
         let (nx, fx) = slab(0);
         let (ny, fy) = slab(1);
         let (nz, fz) = slab(2);
-        let tmin = _mm256_max_ps(_mm256_max_ps(nx, ny), _mm256_max_ps(nz, _mm256_set1_ps(NODE_TMIN)));
+        let tmin = _mm256_max_ps(_mm256_max_ps(nx, ny), _mm256_max_ps(nz, _mm256_set1_ps(ray.tmin)));
         let tmax = _mm256_min_ps(_mm256_min_ps(fx, fy), _mm256_min_ps(fz, _mm256_set1_ps(ray.tmax)));
         let hit = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LE_OQ>(tmin, tmax));
         // Each hit child's bits shifted to its place in the mask, ORed across the lanes. Every
@@ -217,7 +217,7 @@ impl WideNode {
             (self.planes[axis][side as usize][slot] - ray.origin[axis]) * inv
         };
         // The SIMD operand order, which decides what a NaN does.
-        let tmin = simd_max(simd_max(t(0, false), t(1, false)), simd_max(t(2, false), NODE_TMIN));
+        let tmin = simd_max(simd_max(t(0, false), t(1, false)), simd_max(t(2, false), ray.tmin));
         let tmax = simd_min(simd_min(t(0, true), t(1, true)), simd_min(t(2, true), ray.tmax));
         (tmin, tmax)
     }
@@ -359,7 +359,7 @@ mod tests {
                 continue; // keep clear of obvhs' capped inverse (safe_inverse)
             }
             let ray = NodeRay::new(target - d * (2.0 + 10.0 * u(4 * i + 8)), d, f32::INFINITY);
-            let (mut lo_t, mut hi_t) = (NODE_TMIN as f64, f64::INFINITY);
+            let (mut lo_t, mut hi_t) = (crate::cwbvh_node::NODE_TMIN as f64, f64::INFINITY);
             for a in 0..3 {
                 let (p0, p1) = (w.planes[a][0][slot] as f64, w.planes[a][1][slot] as f64);
                 let (o, dd) = (ray.origin[a] as f64, d[a] as f64);

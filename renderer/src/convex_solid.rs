@@ -152,13 +152,22 @@ fn closed(mesh: &Mesh, tris: &[u32]) -> bool {
     edges.values().all(|&n| n == 2)
 }
 
-/// One solid: the ball inside it.
+/// One solid: the ball inside it and the ball around it.
 #[derive(Clone, Copy, Debug)]
 struct Solid {
     center: DVec3,
     /// The ball's radius, a little under the least distance from the centre to a facet plane.
     radius: f64,
+    /// The same in f32 for the occlusion test: the inner radius squared (rounded down) and the
+    /// outer radius squared (a little over the farthest vertex's distance, rounded up).
+    center32: Vec3,
+    inner_sq: f32,
+    outer_sq: f32,
 }
+
+/// At most this many solids are tried as occluders by a shadow ray ([`ConvexSolids::blocks`]):
+/// each costs a ray–ball test, and a shadow ray that no solid blocks pays them all.
+const MAX_OCCLUDERS: usize = 8;
 
 /// The scene's solids and which triangle belongs to which.
 #[derive(Default)]
@@ -215,6 +224,20 @@ impl ConvexSolids {
         out
     }
 
+    /// Whether the segment from `o` to `o + tmax·d` certainly meets a solid's surface: it passes
+    /// through the solid's inner ball (its point nearest the centre, on the segment, lies inside
+    /// it) and ends outside the ball around the solid. Between the two it crosses the closed
+    /// surface, so a walk would find a hit: a shadow ray may stop here. (Which triangle does
+    /// not matter to a shadow ray; solids are opaque to them, as every surface is.) Tries the
+    /// [`MAX_OCCLUDERS`] largest solids.
+    #[inline]
+    pub fn blocks(&self, o: Vec3, d: Vec3, tmax: f32) -> bool {
+        if !(tmax.is_finite() || tmax == f32::INFINITY) {
+            return false;
+        }
+        self.solids.iter().take(MAX_OCCLUDERS).any(|s| s.blocks(o, d, tmax))
+    }
+
     /// How many solids the scene has.
     pub fn len(&self) -> usize {
         self.solids.len()
@@ -237,6 +260,28 @@ impl ConvexSolids {
 }
 
 impl Solid {
+    /// See [`ConvexSolids::blocks`]. In f32 with margins: the inner ball was shrunk by a part in
+    /// 10⁴ and the outer grown by one, far above these few operations' rounding.
+    #[inline]
+    fn blocks(&self, o: Vec3, d: Vec3, tmax: f32) -> bool {
+        let oc = self.center32 - o;
+        let dd = d.length_squared();
+        if !(dd > 0.0) {
+            return false;
+        }
+        // The segment's point nearest the centre.
+        let t = oc.dot(d) / dd;
+        if !(t > 0.0 && t < tmax) {
+            return false;
+        }
+        let near = oc - d * t;
+        if !(near.length_squared() < self.inner_sq) {
+            return false;
+        }
+        // The far end outside the outer ball (an infinite ray always leaves it).
+        tmax == f32::INFINITY || (o + d * tmax - self.center32).length_squared() > self.outer_sq
+    }
+
     /// The far root of |o + t d − c|² = r², rounded down, when positive; else 0. In f64: the
     /// quadratic's cancellation for grazing rays would otherwise cost more than the ball's margin.
     #[inline]
@@ -272,7 +317,19 @@ fn inner_ball(mesh: &Mesh, tris: &[u32], hull: &Hull) -> Option<Solid> {
     // Smaller by a part in 10⁴ and by the plane tests' allowance: a ray inside this ball is
     // well inside the hull.
     let radius = least * (1.0 - 1e-4) - 8.0 * hull.tol;
-    (radius.is_finite() && radius > 0.0).then_some(Solid { center, radius })
+    let farthest = hull.verts.iter().map(|v| (v.as_dvec3() - center).length()).fold(0.0, f64::max);
+    let outer = farthest * (1.0 + 1e-4) + 8.0 * hull.tol;
+    let center32 = center.as_vec3();
+    // The f32 centre is off by half an ulp of its coordinates: the radii allow for it.
+    let slack = center32.as_dvec3().distance(center);
+    let (inner, outer) = (radius * (1.0 - 1e-4) - slack, outer * (1.0 + 1e-4) + slack);
+    (radius.is_finite() && inner > 0.0 && outer.is_finite()).then_some(Solid {
+        center,
+        radius,
+        center32,
+        inner_sq: ((inner * inner) as f32).next_down(),
+        outer_sq: ((outer * outer) as f32).next_up(),
+    })
 }
 
 /// Whether no triangle outside `tris` reaches into the hull: each whose bounds meet the hull's

@@ -53,10 +53,13 @@ pub struct Scene {
 }
 
 /// The closed convex solids among the triangles whose material transmits light (only those send
-/// rays inward: refraction and internal reflection).
+/// rays inward: refraction and internal reflection) and is opaque to shadow rays (no alpha
+/// blending or masking: a shadow ray through a solid is blocked, `ConvexSolids::blocks`).
 fn find_solids(mesh: &Mesh, materials: &[Material]) -> crate::convex_solid::ConvexSolids {
     crate::convex_solid::ConvexSolids::find(mesh, |m| {
-        materials.get(m as usize).is_some_and(|m| m.transmission > 0.0 || m.transmission_texture.is_some())
+        materials.get(m as usize).is_some_and(|m| {
+            (m.transmission > 0.0 || m.transmission_texture.is_some()) && m.alpha_mode == AlphaMode::Opaque
+        })
     })
 }
 
@@ -335,6 +338,12 @@ impl Scene {
         self.solids.tmin(from, o, d)
     }
 
+    /// Whether a closed convex glass solid certainly blocks the segment from `o` to `o + tmax·d`
+    /// ([`crate::convex_solid::ConvexSolids::blocks`]; shadow rays stop there without a walk).
+    pub fn solid_blocks(&self, o: Vec3, d: Vec3, tmax: f32) -> bool {
+        self.solids.blocks(o, d, tmax)
+    }
+
     /// How many closed convex glass solids the scene has ([`crate::convex_solid`]).
     pub fn convex_solids(&self) -> usize {
         self.solids.len()
@@ -483,12 +492,24 @@ impl Scene {
             }
             return;
         }
-        let mut blocked = [false; crate::accel::MAX_BATCH];
-        for s in (0..n).step_by(crate::accel::MAX_BATCH) {
-            let e = (s + crate::accel::MAX_BATCH).min(n);
-            self.accel.occluded_batch(&o[s..e], &d[s..e], &tmax[s..e], &mut blocked[..e - s]);
+        const B: usize = crate::accel::MAX_BATCH;
+        let mut blocked = [false; B];
+        for s in (0..n).step_by(B) {
+            let e = (s + B).min(n);
+            // The rays a solid blocks need no walk; the others are walked together.
+            let (mut qo, mut qd, mut qt, mut at) = ([Vec3::ZERO; B], [Vec3::ZERO; B], [0f32; B], [0usize; B]);
+            let mut m = 0;
             for k in s..e {
-                out[k] = if blocked[k - s] { 0.0 } else { 1.0 };
+                if self.solids.blocks(o[k], d[k], tmax[k]) {
+                    out[k] = 0.0;
+                } else {
+                    (qo[m], qd[m], qt[m], at[m]) = (o[k], d[k], tmax[k], k);
+                    m += 1;
+                }
+            }
+            self.accel.occluded_batch(&qo[..m], &qd[..m], &qt[..m], &mut blocked[..m]);
+            for j in 0..m {
+                out[at[j]] = if blocked[j] { 0.0 } else { 1.0 };
             }
         }
     }
@@ -519,6 +540,9 @@ impl Scene {
     /// Fraction of light that gets from `o` along `d` to distance `tmax`: 0 behind an opaque (or
     /// uncut) surface, Π(1 − alpha) through BLEND surfaces.
     pub fn visibility(&self, mut o: Vec3, d: Vec3, mut tmax: f32) -> f32 {
+        if self.solids.blocks(o, d, tmax) {
+            return 0.0;
+        }
         if !self.has_transparency() {
             return if self.accel.occluded(o, d, tmax) { 0.0 } else { 1.0 };
         }

@@ -83,6 +83,34 @@ fn inward_rays_bounded_by_a_solids_ball_find_what_the_full_walks_find() {
     assert!(tighter_differs > bounded / 2, "{tighter_differs} of {bounded}: a bound past the exit must show");
 }
 
+#[test]
+fn segments_a_solid_blocks_are_blocked_by_its_triangles() {
+    let s = scene();
+    let (mut blocked_by_solid, mut occluded) = (0u32, 0u32);
+    let n = 40_000u64;
+    for i in 0..n {
+        // From a point above the floor to a point in the room: through the spheres, ending
+        // inside them, beside them, or short of them.
+        let a = Vec3::new(-2.0 + 4.0 * u(6 * i), 0.01 + 1.5 * u(6 * i + 1), -2.0 + 4.0 * u(6 * i + 2));
+        let b = Vec3::new(-2.0 + 4.0 * u(6 * i + 3), 0.01 + 3.0 * u(6 * i + 4), -2.0 + 4.0 * u(6 * i + 5));
+        let (d, len) = ((b - a).normalize(), (b - a).length());
+        let walk = s.accel.occluded(a, d, len);
+        let solid = s.solid_blocks(a, d, len);
+        assert!(!solid || walk, "segment {i}: a solid blocks it, the walk finds nothing");
+        blocked_by_solid += solid as u32;
+        occluded += walk as u32;
+        // Infinite rays too (a light at infinity).
+        assert!(!s.solid_blocks(a, d, f32::INFINITY) || s.accel.occluded(a, d, f32::INFINITY));
+    }
+    eprintln!("{blocked_by_solid} of {n} segments blocked by a solid, {occluded} by the walk");
+    assert!(blocked_by_solid > n as u32 / 20, "{blocked_by_solid} of {n}: the test must exercise the shortcut");
+    // A segment ending inside a solid, or passing beside it, is not the solid's to block.
+    let c = Vec3::new(-1.0, 0.5, 0.0);
+    assert!(!s.solid_blocks(c + Vec3::X * 2.0, -Vec3::X, 1.9));
+    assert!(s.solid_blocks(c + Vec3::X * 2.0, -Vec3::X, 3.0));
+    assert!(!s.solid_blocks(c + Vec3::new(2.0, 0.0, 0.6), -Vec3::X, 4.0));
+}
+
 /// The same image bits with the bound and without, with the eight-lane kernel and without.
 #[test]
 fn renders_are_the_same_bits_with_the_solids_bound_or_without() {

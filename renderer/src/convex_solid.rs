@@ -1,12 +1,12 @@
-//! Where a ray inside a closed convex glass object can first hit anything: not before it leaves
-//! the largest ball the object holds.
+//! Closed convex glass objects: where a ray inside one can first hit anything, and which shadow
+//! rays one certainly blocks.
 //!
 //! A ray refracted into a glass sphere, or reflected inside it, starts on the sphere's surface
 //! and heads inward. Its closest-hit walk goes down the sphere's subtree and visits every box
 //! around the entry point first (their entry distance is 0), only to find nothing there: the exit
 //! is across the sphere. On the suite's `glass` scene such rays were 30 % of the closest-hit
-//! queries and cost 3.6 leaf-group visits each against 0.8 for the others (a counting build,
-//! 128×96, 64 spp).
+//! queries and cost 10.1 node visits each against 2.8 for the others (a counting build, 128×96,
+//! 64 spp, one thread).
 //!
 //! When the object is a **solid** — a connected group of triangles that is
 //!
@@ -16,17 +16,26 @@
 //! * **isolated**: no other triangle of the scene reaches into its hull (one whose bounds meet
 //!   the hull's box must be separated from it by its own plane or by one of the hull's),
 //!
-//! — a ray that starts on one of its triangles and passes through the ball of radius `r` about
-//! the centre `c` that lies inside every facet plane stays inside the hull from its origin to
-//! where it leaves the ball (both ends lie in the convex hull, so the segment does), and inside
-//! the hull there is nothing to hit. So the walk may skip every box the ray leaves before then:
-//! its node tests start at that distance ([`crate::node_ray::NodeRay::tmin`]). A ray heading
-//! outward never reaches the ball (the hull lies behind its origin's facet), so no side test is
-//! needed. The hit is the same triangle at the same distance as without the bound; only the
-//! boxes around the origin go unvisited.
+//! — two things follow, both exact:
 //!
-//! Scenes with instances, more than [`MAX_SCENE_TRIANGLES`] triangles, or no transmissive
-//! material get no solids.
+//! * **Inward rays** ([`ConvexSolids::tmin`]): a ray that starts on one of its triangles and
+//!   passes through the ball of radius `r` about the centre `c` that lies inside every facet plane
+//!   stays inside the hull from its origin to where it leaves the ball (both ends lie in the
+//!   convex hull, so the segment does), and inside the hull there is nothing to hit. So the walk
+//!   may skip every box the ray leaves before then: its node tests start at that distance
+//!   ([`crate::node_ray::NodeRay::tmin`]). A ray heading outward never reaches the ball (the hull
+//!   lies behind its origin's facet), so no side test is needed. The hit is the same triangle at
+//!   the same distance as without the bound; on `glass` an inward ray's walk fell from 10.1 to
+//!   5.3 node visits.
+//! * **Shadow rays** ([`ConvexSolids::blocks`]): a segment with a point inside the inner ball
+//!   and its end outside the ball around the solid crosses the closed surface between the two,
+//!   so a walk would find a hit; the shadow ray is blocked without one (surfaces are opaque to
+//!   shadow rays, glass included, so solids are made only of alpha-OPAQUE triangles). On `glass`
+//!   15 % of the shadow rays were inward rays through a sphere, and the spheres' shadows on the
+//!   floor add more.
+//!
+//! Solids are looked for among transmissive triangles only (`Scene`'s `find_solids` says why).
+//! Scenes with instances or more than `MAX_SCENE_TRIANGLES` triangles get none.
 
 use crate::mesh::Mesh;
 use glam::{DVec3, Vec3};
@@ -165,6 +174,10 @@ struct Solid {
     outer_sq: f32,
 }
 
+/// At most this many groups are tested for isolation (the largest first): the test passes over
+/// every triangle of the scene.
+const MAX_SOLIDS: usize = 64;
+
 /// At most this many solids are tried as occluders by a shadow ray ([`ConvexSolids::blocks`]):
 /// each costs a ray–ball test, and a shadow ray that no solid blocks pays them all.
 const MAX_OCCLUDERS: usize = 8;
@@ -178,30 +191,31 @@ pub struct ConvexSolids {
 }
 
 impl ConvexSolids {
-    /// The solids among the triangles whose material `transmits` (only glass sends rays inward).
-    pub fn find(mesh: &Mesh, transmits: impl Fn(u32) -> bool) -> Self {
+    /// The solids among the triangles `eligible` admits (by material index): the largest
+    /// `MAX_SOLIDS` groups that are closed, convex and isolated.
+    pub fn find(mesh: &Mesh, eligible: impl Fn(u32) -> bool) -> Self {
         let none = ConvexSolids::default();
         if !mesh.instances.is_empty() || mesh.triangles.len() > MAX_SCENE_TRIANGLES {
             return none;
         }
-        let glass: Vec<u32> =
-            (0..mesh.triangles.len() as u32).filter(|&t| transmits(mesh.triangles[t as usize].material)).collect();
-        if glass.len() < MIN_GROUP_TRIANGLES {
+        let tris: Vec<u32> =
+            (0..mesh.triangles.len() as u32).filter(|&t| eligible(mesh.triangles[t as usize].material)).collect();
+        if tris.len() < MIN_GROUP_TRIANGLES {
             return none;
         }
-        let mut groups: Vec<Vec<u32>> = connected_groups(mesh, &glass)
+        let mut groups: Vec<Vec<u32>> = connected_groups(mesh, &tris)
             .into_iter()
             .filter(|g| (MIN_GROUP_TRIANGLES..=MAX_GROUP_TRIANGLES).contains(&g.len()))
-            .map(|g| g.into_iter().map(|i| glass[i]).collect())
+            .map(|g| g.into_iter().map(|i| tris[i]).collect())
             .collect();
         // The largest first: a solid saves most where its subtree is deep.
         groups.sort_by_key(|g| std::cmp::Reverse(g.len()));
         let mut budget = TEST_BUDGET;
-        let mut out = none;
+        let mut candidates: Vec<(Vec<u32>, Hull, Solid)> = Vec::new();
         for g in groups {
             // Triangles × vertices, a closed mesh having about half as many vertices as triangles.
             let cost = g.len() * (g.len() / 2 + 3);
-            if cost > budget {
+            if candidates.len() == MAX_SOLIDS || cost > budget {
                 break;
             }
             budget -= cost;
@@ -210,7 +224,15 @@ impl ConvexSolids {
             }
             let Some(hull) = convex_hull(mesh, &g) else { continue };
             let Some(solid) = inner_ball(mesh, &g, &hull) else { continue };
-            if !isolated(mesh, &g, &hull, &mut budget) {
+            candidates.push((g, hull, solid));
+        }
+        if candidates.is_empty() {
+            return none;
+        }
+        let isolated = isolated(mesh, &candidates, budget);
+        let mut out = none;
+        for ((g, _, solid), ok) in candidates.into_iter().zip(isolated) {
+            if !ok {
                 continue;
             }
             if out.of_triangle.is_empty() {
@@ -229,13 +251,13 @@ impl ConvexSolids {
     /// it) and ends outside the ball around the solid. Between the two it crosses the closed
     /// surface, so a walk would find a hit: a shadow ray may stop here. (Which triangle does
     /// not matter to a shadow ray; solids are opaque to them, as every surface is.) Tries the
-    /// [`MAX_OCCLUDERS`] largest solids.
+    /// `MAX_OCCLUDERS` largest solids.
     #[inline]
     pub fn blocks(&self, o: Vec3, d: Vec3, tmax: f32) -> bool {
-        if !(tmax.is_finite() || tmax == f32::INFINITY) {
-            return false;
-        }
-        self.solids.iter().take(MAX_OCCLUDERS).any(|s| s.blocks(o, d, tmax))
+        !self.solids.is_empty()
+            && !tmax.is_nan()
+            && tmax > 0.0
+            && self.solids.iter().take(MAX_OCCLUDERS).any(|s| s.blocks(o, d, tmax))
     }
 
     /// How many solids the scene has.
@@ -332,46 +354,68 @@ fn inner_ball(mesh: &Mesh, tris: &[u32], hull: &Hull) -> Option<Solid> {
     })
 }
 
-/// Whether no triangle outside `tris` reaches into the hull: each whose bounds meet the hull's
-/// box (grown by the allowance) must have the hull wholly on one side of its own plane, or lie
-/// wholly in front of one of the hull's facet planes. False when `budget` runs out.
-fn isolated(mesh: &Mesh, tris: &[u32], hull: &Hull, budget: &mut usize) -> bool {
-    let grow = Vec3::splat(4.0 * hull.tol as f32);
-    let (lo, hi) = (hull.lo - grow, hull.hi + grow);
-    let mut mine = tris.to_vec();
-    mine.sort_unstable();
-    let facets: Vec<(DVec3, f64)> = tris.iter().filter_map(|&t| plane(mesh, t)).collect();
-    for t in 0..mesh.triangles.len() as u32 {
-        let v = mesh.vertices(t);
-        let (tlo, thi) = (v[0].min(v[1]).min(v[2]), v[0].max(v[1]).max(v[2]));
-        if tlo.cmpgt(hi).any() || thi.cmplt(lo).any() || mine.binary_search(&t).is_ok() {
-            continue;
-        }
-        let cost = hull.verts.len() + 3 * facets.len();
-        if cost > *budget {
-            return false;
-        }
-        *budget -= cost;
-        let v = v.map(|p| p.as_dvec3());
-        // Its own plane: the hull on one side of it (within the allowance).
-        let own = {
-            let n = (v[1] - v[0]).cross(v[2] - v[0]).normalize_or_zero();
-            n != DVec3::ZERO && {
-                let (mut ahead, mut behind) = (0.0f64, 0.0f64);
-                for p in &hull.verts {
-                    let h = n.dot(p.as_dvec3() - v[0]);
-                    (ahead, behind) = (ahead.max(h), behind.min(h));
-                }
-                ahead <= hull.tol || behind >= -hull.tol
-            }
-        };
-        // Or a facet plane with the whole triangle in front of it.
-        let apart = own || facets.iter().any(|&(n, d)| v.iter().all(|p| hull.outward * (n.dot(*p) - d) >= -hull.tol));
-        if !apart {
-            return false;
+/// Per candidate, whether no triangle outside it reaches into its hull: each whose bounds meet
+/// the hull's box (grown by the allowance) must have the hull wholly on one side of its own
+/// plane, or lie wholly in front of one of the hull's facet planes. One pass over the scene's
+/// triangles for all candidates; a candidate whose tests would overrun `budget` is not isolated.
+fn isolated(mesh: &Mesh, candidates: &[(Vec<u32>, Hull, Solid)], mut budget: usize) -> Vec<bool> {
+    let mut owner = vec![NONE; mesh.triangles.len()];
+    for (c, (g, _, _)) in candidates.iter().enumerate() {
+        for &t in g {
+            owner[t as usize] = c as u32;
         }
     }
-    true
+    let boxes: Vec<(Vec3, Vec3)> = candidates
+        .iter()
+        .map(|(_, h, _)| {
+            let grow = Vec3::splat(4.0 * h.tol as f32);
+            (h.lo - grow, h.hi + grow)
+        })
+        .collect();
+    let (all_lo, all_hi) =
+        boxes.iter().fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(a, b), (lo, hi)| {
+            (a.min(*lo), b.max(*hi))
+        });
+    let facets: Vec<Vec<(DVec3, f64)>> =
+        candidates.iter().map(|(g, _, _)| g.iter().filter_map(|&t| plane(mesh, t)).collect()).collect();
+    let mut ok = vec![true; candidates.len()];
+    for (t, &own) in owner.iter().enumerate() {
+        let v = mesh.vertices(t as u32);
+        let (tlo, thi) = (v[0].min(v[1]).min(v[2]), v[0].max(v[1]).max(v[2]));
+        if tlo.cmpgt(all_hi).any() || thi.cmplt(all_lo).any() {
+            continue;
+        }
+        for (k, (lo, hi)) in boxes.iter().enumerate() {
+            if own == k as u32 || !ok[k] || tlo.cmpgt(*hi).any() || thi.cmplt(*lo).any() {
+                continue;
+            }
+            let hull = &candidates[k].1;
+            let cost = hull.verts.len() + 3 * facets[k].len();
+            if cost > budget {
+                ok[k] = false;
+                continue;
+            }
+            budget -= cost;
+            ok[k] = apart(v.map(|p| p.as_dvec3()), hull, &facets[k]);
+        }
+    }
+    ok
+}
+
+/// Whether triangle `v` cannot reach into `hull`'s interior: the hull lies on one side of the
+/// triangle's plane, or the triangle in front of one of the hull's `facets` (within the
+/// allowance).
+fn apart(v: [DVec3; 3], hull: &Hull, facets: &[(DVec3, f64)]) -> bool {
+    let n = (v[1] - v[0]).cross(v[2] - v[0]).normalize_or_zero();
+    let own = n != DVec3::ZERO && {
+        let (mut ahead, mut behind) = (0.0f64, 0.0f64);
+        for p in &hull.verts {
+            let h = n.dot(p.as_dvec3() - v[0]);
+            (ahead, behind) = (ahead.max(h), behind.min(h));
+        }
+        ahead <= hull.tol || behind >= -hull.tol
+    };
+    own || facets.iter().any(|&(n, d)| v.iter().all(|p| hull.outward * (n.dot(*p) - d) >= -hull.tol))
 }
 
 #[cfg(test)]

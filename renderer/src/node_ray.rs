@@ -21,7 +21,7 @@ pub struct NodeRay {
     /// Where the ray ends; the closest-hit walk shortens it.
     pub tmax: f32,
     /// Where the node tests start: a box the ray leaves before this distance is not entered.
-    /// [`crate::cwbvh_node::NODE_TMIN`] (0) but for a ray known to meet nothing sooner (one
+    /// `cwbvh_node::NODE_TMIN` (0) but for a ray known to meet nothing sooner (one
     /// inside a closed convex glass solid: `crate::convex_solid`).
     pub tmin: f32,
     /// Bit a set when `inv[a]` is negative: the ray enters a box through its upper plane on that

@@ -52,9 +52,12 @@ pub struct Scene {
     lanes: bool,
 }
 
-/// The closed convex solids among the triangles whose material transmits light (only those send
-/// rays inward: refraction and internal reflection) and is opaque to shadow rays (no alpha
-/// blending or masking: a shadow ray through a solid is blocked, `ConvexSolids::blocks`).
+/// The closed convex solids ([`crate::convex_solid`]) among the triangles whose material
+/// transmits light (only those send rays inward: refraction and internal reflection) and is
+/// opaque to shadow rays (alpha OPAQUE: a shadow ray through a solid is blocked,
+/// `ConvexSolids::blocks`). Opaque solids are left out: their rays never go inward, and the
+/// occlusion shortcut alone did not pay for its ray–ball tests (envlit's two spheres: the same
+/// time; veach's four sphere lights: 1.07× the time, every shadow ray testing four balls).
 fn find_solids(mesh: &Mesh, materials: &[Material]) -> crate::convex_solid::ConvexSolids {
     crate::convex_solid::ConvexSolids::find(mesh, |m| {
         materials.get(m as usize).is_some_and(|m| {

@@ -827,7 +827,13 @@ impl Accel {
     /// registers made this 54 instructions a query; without, 37, its finiteness test and choice
     /// of node form included (callgrind, `bench rays --scene S --accel obvhs --no-batches`).
     pub fn intersect(&self, o: Vec3, d: Vec3, tmax: f32) -> Option<Hit> {
-        self.intersect_from(o, d, 0.0, tmax)
+        if let Some(top) = &self.top {
+            return self.intersect_two_level(top, Vec3A::from(o), Vec3A::from(d), tmax);
+        }
+        if let Some(own) = &self.own {
+            return Self::intersect_own(own, o, d, tmax);
+        }
+        self.intersect_object::<false>(Vec3A::from(o), Vec3A::from(d), 0.0, tmax)
     }
 
     /// [`Self::intersect`] for a ray known to meet nothing before `tmin`: the one-level walk
@@ -841,7 +847,7 @@ impl Accel {
         if let Some(own) = &self.own {
             return Self::intersect_own(own, o, d, tmax);
         }
-        self.intersect_object(Vec3A::from(o), Vec3A::from(d), tmin, tmax)
+        self.intersect_object::<true>(Vec3A::from(o), Vec3A::from(d), tmin, tmax)
     }
 
     /// Each ray's closest hit from `origin` along `directions` into `out` (what
@@ -992,7 +998,8 @@ impl Accel {
                     }
                     TopPrim::Instance { index, prototype, to_object } => {
                         let (oo, dd) = (to_object.transform_point3a(oa), to_object.transform_vector3a(da));
-                        if let Some(mut h) = top.blas[*prototype as usize].intersect_object(oo, dd, 0.0, bound) {
+                        if let Some(mut h) = top.blas[*prototype as usize].intersect_object::<false>(oo, dd, 0.0, bound)
+                        {
                             h.instance = *index;
                             best = Some(h);
                             bound = h.t;
@@ -1008,14 +1015,16 @@ impl Accel {
     /// Closest hit in a one-level BVH (the scene's, or a prototype's with the ray already in object
     /// space, direction unnormalised).
     #[inline(always)]
-    fn intersect_object(&self, oa: Vec3A, da: Vec3A, tmin: f32, tmax: f32) -> Option<Hit> {
+    /// `BOUNDED`: the node tests start at `tmin` (else at 0, a constant the walk is compiled
+    /// with: scenes without glass solids pay nothing for the bound).
+    fn intersect_object<const BOUNDED: bool>(&self, oa: Vec3A, da: Vec3A, tmin: f32, tmax: f32) -> Option<Hit> {
         if self.tris.is_empty() || !finite(oa, da) {
             return None;
         }
         if self.wide.is_empty() {
-            self.intersect_nodes(&self.bvh.nodes, oa, da, tmin, tmax)
+            self.intersect_nodes::<_, BOUNDED>(&self.bvh.nodes, oa, da, tmin, tmax)
         } else {
-            self.intersect_nodes(&self.wide, oa, da, tmin, tmax)
+            self.intersect_nodes::<_, BOUNDED>(&self.wide, oa, da, tmin, tmax)
         }
     }
 
@@ -1027,7 +1036,7 @@ impl Accel {
     /// `intersect_object`'s registers and it spilled more than the call cost (635 instructions
     /// a glass query against 623).
     #[inline(never)]
-    fn intersect_nodes<N: TraversalNode>(
+    fn intersect_nodes<N: TraversalNode, const BOUNDED: bool>(
         &self,
         nodes: &[N],
         oa: Vec3A,
@@ -1036,8 +1045,10 @@ impl Accel {
         tmax: f32,
     ) -> Option<Hit> {
         let mut ray = NodeRay::new(oa, da, tmax);
-        // NaN-safe: a NaN bound leaves the default.
-        ray.tmin = ray.tmin.max(tmin);
+        if BOUNDED {
+            // NaN-safe: a NaN bound leaves the default.
+            ray.tmin = ray.tmin.max(tmin);
+        }
         let wray = WatertightRay::new(oa, da);
         let mut best = (tmax, NO_LEAF, 0.0, 0.0);
         with_stack(self.stack_len, |stack| {

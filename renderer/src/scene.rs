@@ -343,6 +343,7 @@ impl Scene {
 
     /// Whether a closed convex glass solid certainly blocks the segment from `o` to `o + tmax·d`
     /// ([`crate::convex_solid::ConvexSolids::blocks`]; shadow rays stop there without a walk).
+    #[inline]
     pub fn solid_blocks(&self, o: Vec3, d: Vec3, tmax: f32) -> bool {
         self.solids.blocks(o, d, tmax)
     }
@@ -414,8 +415,14 @@ impl Scene {
     /// The first surface along the ray that stops it: MASK cut-outs are skipped, BLEND surfaces stop
     /// the ray with probability alpha, decided by `seed` (a pure function of the sample, so the
     /// determinism rule holds).
+    #[inline]
     pub fn intersect_surface(&self, o: Vec3, d: Vec3, seed: u32, from: u32) -> Option<Hit> {
-        let first = self.accel.intersect_from(o, d, self.solids.tmin(from, o, d), f32::INFINITY);
+        // Without solids, the plain walk (its node tests start at 0, a constant).
+        let first = if self.solids.is_empty() {
+            self.accel.intersect(o, d, f32::INFINITY)
+        } else {
+            self.accel.intersect_from(o, d, self.solids.tmin(from, o, d), f32::INFINITY)
+        };
         if !self.has_transparency() {
             return first;
         }
@@ -503,7 +510,7 @@ impl Scene {
             let (mut qo, mut qd, mut qt, mut at) = ([Vec3::ZERO; B], [Vec3::ZERO; B], [0f32; B], [0usize; B]);
             let mut m = 0;
             for k in s..e {
-                if self.solids.blocks(o[k], d[k], tmax[k]) {
+                if !self.solids.is_empty() && self.solid_blocks(o[k], d[k], tmax[k]) {
                     out[k] = 0.0;
                 } else {
                     (qo[m], qd[m], qt[m], at[m]) = (o[k], d[k], tmax[k], k);
@@ -543,7 +550,7 @@ impl Scene {
     /// Fraction of light that gets from `o` along `d` to distance `tmax`: 0 behind an opaque (or
     /// uncut) surface, Π(1 − alpha) through BLEND surfaces.
     pub fn visibility(&self, mut o: Vec3, d: Vec3, mut tmax: f32) -> f32 {
-        if self.solids.blocks(o, d, tmax) {
+        if !self.solids.is_empty() && self.solid_blocks(o, d, tmax) {
             return 0.0;
         }
         if !self.has_transparency() {

@@ -182,17 +182,8 @@ fn convex_box(mesh: &Mesh, lights: &[AreaLight], group: &[usize]) -> Option<Clea
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mesh::Triangle;
 
-    fn mesh_of(tris: &[[Vec3; 3]]) -> Mesh {
-        let mut m = Mesh::default();
-        for t in tris {
-            let base = m.positions.len() as u32;
-            m.positions.extend_from_slice(t);
-            m.triangles.push(Triangle { v: [base, base + 1, base + 2], material: 0, flags: 0 });
-        }
-        m
-    }
+    use crate::testing::mesh_of;
 
     fn lights_of(m: &Mesh, tris: std::ops::Range<u32>) -> Vec<AreaLight> {
         tris.map(|i| {

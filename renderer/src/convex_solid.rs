@@ -421,17 +421,8 @@ fn apart(v: [DVec3; 3], hull: &Hull, facets: &[(DVec3, f64)]) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mesh::Triangle;
 
-    fn mesh_of(tris: &[[Vec3; 3]]) -> Mesh {
-        let mut m = Mesh::default();
-        for t in tris {
-            let base = m.positions.len() as u32;
-            m.positions.extend_from_slice(t);
-            m.triangles.push(Triangle { v: [base, base + 1, base + 2], material: 0, flags: 0 });
-        }
-        m
-    }
+    use crate::testing::mesh_of;
 
     /// An icosphere of 320 faces (outward winding), each face its own vertex triple.
     fn ball(c: Vec3, r: f32) -> Vec<[Vec3; 3]> {

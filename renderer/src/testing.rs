@@ -164,6 +164,18 @@ impl SceneBuilder {
     }
 }
 
+/// A mesh of separate triangles (each its own vertex triple, as a flat-shaded export has them),
+/// material 0.
+pub fn mesh_of(tris: &[[Vec3; 3]]) -> crate::mesh::Mesh {
+    let mut m = crate::mesh::Mesh::default();
+    for t in tris {
+        let base = m.positions.len() as u32;
+        m.positions.extend_from_slice(t);
+        m.triangles.push(crate::mesh::Triangle { v: [base, base + 1, base + 2], material: 0, flags: 0 });
+    }
+    m
+}
+
 /// A Lambert material (KHR_materials_specular specularFactor 0).
 pub fn lambert(albedo: Vec3) -> Material {
     Material {

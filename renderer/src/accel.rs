@@ -691,6 +691,11 @@ impl Accel {
     }
 
     /// A one-level BVH over the triangles `ids` of `mesh` (as they are stored).
+    /// The BVH of triangles `ids` of `mesh` alone (a glass solid's: `convex_solid`).
+    pub(crate) fn build_subset(mesh: &Mesh, ids: Vec<u32>) -> Self {
+        Self::build_triangles(mesh, ids, AccelKind::Obvhs)
+    }
+
     fn build_triangles(mesh: &Mesh, ids: Vec<u32>, kind: AccelKind) -> Self {
         if kind == AccelKind::Own {
             let tris = ids.iter().map(|&i| RtTriangle::new(mesh.vertices(i), i)).collect();

@@ -420,8 +420,10 @@ impl Scene {
         // Without solids, the plain walk (its node tests start at 0, a constant).
         let first = if self.solids.is_empty() {
             self.accel.intersect(o, d, f32::INFINITY)
+        } else if let Some((tmin, own)) = self.solids.bound(from, o, d) {
+            own.intersect_from(o, d, tmin, f32::INFINITY)
         } else {
-            self.accel.intersect_from(o, d, self.solids.tmin(from, o, d), f32::INFINITY)
+            self.accel.intersect(o, d, f32::INFINITY)
         };
         if !self.has_transparency() {
             return first;

@@ -38,7 +38,8 @@
 //!   floor add more.
 //!
 //! Solids are looked for among transmissive triangles only (`Scene`'s `find_solids` says why).
-//! Scenes with instances or more than `MAX_SCENE_TRIANGLES` triangles get none.
+//! Scenes with instances, more than `MAX_SCENE_TRIANGLES` triangles or more than
+//! `MAX_CANDIDATE_TRIANGLES` glass triangles get none.
 
 use crate::mesh::Mesh;
 use glam::{DVec3, Vec3};
@@ -56,6 +57,10 @@ const MAX_GROUP_TRIANGLES: usize = 8192;
 /// At most this many vertex-plane tests (convexity, and the separation of the triangles near a
 /// solid) in all: scene preparation stays within milliseconds.
 const TEST_BUDGET: usize = 64_000_000;
+
+/// Above this many eligible (glass) triangles no solid is looked for: grouping them hashes every
+/// vertex, and a scene with this much glass is not made of small convex pieces.
+const MAX_CANDIDATE_TRIANGLES: usize = 1_000_000;
 
 /// Above this many scene triangles no solid is looked for.
 const MAX_SCENE_TRIANGLES: usize = 4_000_000;
@@ -205,7 +210,7 @@ impl ConvexSolids {
         }
         let tris: Vec<u32> =
             (0..mesh.triangles.len() as u32).filter(|&t| eligible(mesh.triangles[t as usize].material)).collect();
-        if tris.len() < MIN_GROUP_TRIANGLES {
+        if tris.len() < MIN_GROUP_TRIANGLES || tris.len() > MAX_CANDIDATE_TRIANGLES {
             return none;
         }
         let mut groups: Vec<Vec<u32>> = connected_groups(mesh, &tris)

@@ -488,11 +488,10 @@ fn with_stack<R>(len: usize, f: impl FnOnce(&mut [MaybeUninit<Deferred>]) -> R) 
 }
 
 /// A batch's rays (at most [`MAX_BATCH`]) for the node tests and the leaf tests, ray k ending at
-/// `tmax(k)`, its node tests starting at `tmin(k)` ([`NodeRay::tmin`]).
+/// `tmax(k)`.
 fn batch_rays(
     o: &[Vec3],
     d: &[Vec3],
-    tmin: impl Fn(usize) -> f32,
     tmax: impl Fn(usize) -> f32,
 ) -> ([NodeRay; MAX_BATCH], [WatertightRay; MAX_BATCH]) {
     let mut rays = [NodeRay::new(Vec3A::ZERO, Vec3A::X, 0.0); MAX_BATCH];
@@ -500,7 +499,6 @@ fn batch_rays(
     for k in 0..o.len().min(d.len()).min(MAX_BATCH) {
         let (oa, da) = (Vec3A::from(o[k]), Vec3A::from(d[k]));
         rays[k] = NodeRay::new(oa, da, tmax(k));
-        rays[k].tmin = rays[k].tmin.max(tmin(k));
         wrays[k] = WatertightRay::new(oa, da);
     }
     (rays, wrays)
@@ -690,12 +688,12 @@ impl Accel {
         Self::build_triangles(mesh, (0..mesh.triangles.len() as u32).collect(), kind)
     }
 
-    /// A one-level BVH over the triangles `ids` of `mesh` (as they are stored).
     /// The BVH of triangles `ids` of `mesh` alone (a glass solid's: `convex_solid`).
     pub(crate) fn build_subset(mesh: &Mesh, ids: Vec<u32>) -> Self {
         Self::build_triangles(mesh, ids, AccelKind::Obvhs)
     }
 
+    /// A one-level BVH over the triangles `ids` of `mesh` (as they are stored).
     fn build_triangles(mesh: &Mesh, ids: Vec<u32>, kind: AccelKind) -> Self {
         if kind == AccelKind::Own {
             let tris = ids.iter().map(|&i| RtTriangle::new(mesh.vertices(i), i)).collect();
@@ -832,13 +830,7 @@ impl Accel {
     /// registers made this 54 instructions a query; without, 37, its finiteness test and choice
     /// of node form included (callgrind, `bench rays --scene S --accel obvhs --no-batches`).
     pub fn intersect(&self, o: Vec3, d: Vec3, tmax: f32) -> Option<Hit> {
-        if let Some(top) = &self.top {
-            return self.intersect_two_level(top, Vec3A::from(o), Vec3A::from(d), tmax);
-        }
-        if let Some(own) = &self.own {
-            return Self::intersect_own(own, o, d, tmax);
-        }
-        self.intersect_object::<false>(Vec3A::from(o), Vec3A::from(d), 0.0, tmax)
+        self.closest_hit::<false>(o, d, 0.0, tmax)
     }
 
     /// [`Self::intersect`] for a ray known to meet nothing before `tmin`: the one-level walk
@@ -846,13 +838,19 @@ impl Accel {
     /// `convex_solid`). The same hit as without it when nothing lies on the ray before `tmin`;
     /// the two-level and own-BVH queries ignore it.
     pub fn intersect_from(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<Hit> {
+        self.closest_hit::<true>(o, d, tmin, tmax)
+    }
+
+    /// [`Self::intersect`] (`BOUNDED` false: `tmin` is not read) or [`Self::intersect_from`].
+    #[inline(always)]
+    fn closest_hit<const BOUNDED: bool>(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<Hit> {
         if let Some(top) = &self.top {
             return self.intersect_two_level(top, Vec3A::from(o), Vec3A::from(d), tmax);
         }
         if let Some(own) = &self.own {
             return Self::intersect_own(own, o, d, tmax);
         }
-        self.intersect_object::<true>(Vec3A::from(o), Vec3A::from(d), tmin, tmax)
+        self.intersect_object::<BOUNDED>(Vec3A::from(o), Vec3A::from(d), tmin, tmax)
     }
 
     /// Each ray's closest hit from `origin` along `directions` into `out` (what
@@ -1018,10 +1016,9 @@ impl Accel {
     }
 
     /// Closest hit in a one-level BVH (the scene's, or a prototype's with the ray already in object
-    /// space, direction unnormalised).
+    /// space, direction unnormalised). `BOUNDED`: the node tests start at `tmin` (else at 0, a
+    /// constant the walk is compiled with: scenes without glass solids pay nothing for the bound).
     #[inline(always)]
-    /// `BOUNDED`: the node tests start at `tmin` (else at 0, a constant the walk is compiled
-    /// with: scenes without glass solids pay nothing for the bound).
     fn intersect_object<const BOUNDED: bool>(&self, oa: Vec3A, da: Vec3A, tmin: f32, tmax: f32) -> Option<Hit> {
         if self.tris.is_empty() || !finite(oa, da) {
             return None;
@@ -1120,28 +1117,21 @@ impl Accel {
     /// [`Self::intersect`] for `o.len()` rays at once (at most [`MAX_BATCH`]; more are traced a
     /// batch at a time) into `out`: their walks interleaved node by node, the same hits.
     pub fn intersect_batch(&self, o: &[Vec3], d: &[Vec3], tmax: f32, out: &mut [Option<Hit>]) {
-        self.intersect_batch_from(o, d, &[], tmax, out);
-    }
-
-    /// [`Self::intersect_batch`] with ray k's node tests starting at `tmin[k]` (0 where `tmin`
-    /// is shorter), as [`Self::intersect_from`].
-    pub fn intersect_batch_from(&self, o: &[Vec3], d: &[Vec3], tmin: &[f32], tmax: f32, out: &mut [Option<Hit>]) {
         let n = o.len().min(d.len()).min(out.len());
         if n > MAX_BATCH {
             for s in (0..n).step_by(MAX_BATCH) {
                 let e = (s + MAX_BATCH).min(n);
-                let t = &tmin[s.min(tmin.len())..e.min(tmin.len())];
-                self.intersect_batch_from(&o[s..e], &d[s..e], t, tmax, &mut out[s..e]);
+                self.intersect_batch(&o[s..e], &d[s..e], tmax, &mut out[s..e]);
             }
             return;
         }
         if !self.walks_batch(&o[..n], &d[..n]) {
             for k in 0..n {
-                out[k] = self.intersect_from(o[k], d[k], tmin.get(k).copied().unwrap_or(0.0), tmax);
+                out[k] = self.intersect(o[k], d[k], tmax);
             }
             return;
         }
-        let (rays, wrays) = batch_rays(&o[..n], &d[..n], |k| tmin.get(k).copied().unwrap_or(0.0), |_| tmax);
+        let (rays, wrays) = batch_rays(&o[..n], &d[..n], |_| tmax);
         let mut best = [(tmax, NO_LEAF, 0.0, 0.0); MAX_BATCH];
         if self.wide.is_empty() {
             self.intersect_batch_nodes(&self.bvh.nodes, &rays[..n], &wrays[..n], &mut best[..n]);
@@ -1208,7 +1198,7 @@ impl Accel {
             }
             return;
         }
-        let (rays, wrays) = batch_rays(&o[..n], &d[..n], |_| 0.0, |k| tmax[k]);
+        let (rays, wrays) = batch_rays(&o[..n], &d[..n], |k| tmax[k]);
         out[..n].fill(false);
         if self.wide.is_empty() {
             self.occluded_batch_nodes(&self.bvh.nodes, &rays[..n], &wrays[..n], &tmax[..n], &mut out[..n]);

@@ -24,6 +24,7 @@
 //! Groups are the lights' connected pieces: triangles sharing a vertex position (exact bits, so
 //! flat-shaded meshes whose faces do not share vertex indices still form one group).
 
+use crate::convex_solid;
 use crate::light::AreaLight;
 use crate::mesh::Mesh;
 use glam::Vec3;
@@ -31,24 +32,14 @@ use glam::Vec3;
 /// No clear box (the light is not in an isolated convex group, or is not an area light).
 pub const NONE: u32 = u32::MAX;
 
-/// At most this many groups are checked for isolation (the largest first): the check visits every
-/// triangle of the scene once per candidate box.
-const MAX_GROUPS: usize = 64;
-
-/// Groups smaller than this get no box: they lie in a leaf or two, whose test is all a stop could
-/// save, and computing the stop costs about as much (the Cornell box's two-triangle light: 2.9 %
-/// more instructions, the walks' count unchanged).
-const MIN_GROUP_TRIANGLES: usize = 16;
-
-/// Groups larger than this are not checked for convexity (the check is triangles × vertices).
-const MAX_GROUP_TRIANGLES: usize = 4096;
-
-/// At most this many vertex-plane tests for convexity in all (a closed 4096-triangle mesh has
-/// about 2050 vertices, so about 8 × 10⁶ tests): scene preparation stays within milliseconds.
-const CONVEXITY_BUDGET: usize = 64_000_000;
-
-/// The scan for isolation is skipped above this many scene triangles.
-const MAX_SCENE_TRIANGLES: usize = 4_000_000;
+/// Which groups get a box ([`crate::convex_solid::convex_groups`]): 16 triangles or more
+/// (smaller ones lie in a leaf or two, whose test is all a stop could save, and computing the stop
+/// costs about as much: the Cornell box's two-triangle light, 2.9 % more instructions, the walks'
+/// count unchanged) up to 4096 (the convexity test is triangles × vertices), at most 64 of them,
+/// within 6.4·10⁷ vertex-plane tests (a closed 4096-triangle mesh has about 2050 vertices, so
+/// about 8·10⁶ tests): scene preparation stays within milliseconds.
+const SEARCH: crate::convex_solid::Search =
+    crate::convex_solid::Search { sizes: 16..=4096, max_groups: 64, budget: 64_000_000 };
 
 /// An emitter group's box, grown a little (the margin a ray stopped at its boundary keeps from
 /// the group's triangles), with what the facing test needs.
@@ -97,86 +88,34 @@ impl ClearBox {
 /// The lights' clear boxes: `(boxes, per light its box index or NONE)`.
 pub fn find(mesh: &Mesh, lights: &[AreaLight]) -> (Vec<ClearBox>, Vec<u32>) {
     let mut of_light = vec![NONE; lights.len()];
-    if lights.is_empty() || !mesh.instances.is_empty() || mesh.triangles.len() > MAX_SCENE_TRIANGLES {
+    if lights.is_empty() || !mesh.instances.is_empty() || mesh.triangles.len() > convex_solid::MAX_SCENE_TRIANGLES {
         return (Vec::new(), of_light);
     }
-    // The largest groups first (a box saves most where the light's subtree is deep), each tested
-    // for convexity (triangles × vertices) while the budget lasts.
-    let mut groups = groups(mesh, lights);
-    groups.retain(|g| (MIN_GROUP_TRIANGLES..=MAX_GROUP_TRIANGLES).contains(&g.len()));
-    groups.sort_by_key(|g| std::cmp::Reverse(g.len()));
-    let mut budget = CONVEXITY_BUDGET;
-    let mut candidates: Vec<(Vec<usize>, ClearBox)> = Vec::new();
-    for g in groups {
-        // Triangles × vertices, a closed mesh having about half as many vertices as triangles.
-        let cost = g.len() * (g.len() / 2 + 3);
-        if candidates.len() == MAX_GROUPS || cost > budget {
-            break;
-        }
-        budget -= cost;
-        if let Some(b) = convex_box(mesh, lights, &g) {
-            candidates.push((g, b));
-        }
-    }
+    let tris: Vec<u32> = lights.iter().map(|l| l.triangle).collect();
+    let (candidates, _) = convex_solid::convex_groups(mesh, &tris, &SEARCH, |_, hull| Some(clear_box(hull)));
     if candidates.is_empty() {
         return (Vec::new(), of_light);
     }
     // Isolation: no triangle outside the group reaches into its box.
-    let mut owner = vec![NONE; mesh.triangles.len()];
-    for (c, (g, _)) in candidates.iter().enumerate() {
-        for &l in g {
-            owner[lights[l].triangle as usize] = c as u32;
-        }
-    }
-    let mut isolated = vec![true; candidates.len()];
-    let (mut all_lo, mut all_hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-    for (_, b) in &candidates {
-        (all_lo, all_hi) = (all_lo.min(b.lo), all_hi.max(b.hi));
-    }
-    for (t, &own) in owner.iter().enumerate() {
-        let [a, b, c] = mesh.vertices(t as u32);
-        let (lo, hi) = (a.min(b).min(c), a.max(b).max(c));
-        if lo.cmpgt(all_hi).any() || hi.cmplt(all_lo).any() {
-            continue;
-        }
-        for (k, (_, bx)) in candidates.iter().enumerate() {
-            if own != k as u32 && isolated[k] && !(lo.cmpgt(bx.hi).any() || hi.cmplt(bx.lo).any()) {
-                isolated[k] = false;
-            }
-        }
-    }
+    let isolated = convex_solid::isolated(mesh, &candidates, |c| (c.value.lo, c.value.hi), |_, _| false);
     let mut boxes = Vec::new();
-    for ((g, b), ok) in candidates.into_iter().zip(isolated) {
+    for (c, ok) in candidates.into_iter().zip(isolated) {
         if ok {
-            for l in g {
+            for l in c.members {
                 of_light[l] = boxes.len() as u32;
             }
-            boxes.push(b);
+            boxes.push(c.value);
         }
     }
     (boxes, of_light)
 }
 
-/// The lights' connected groups (triangles sharing a vertex position), as light indices.
-fn groups(mesh: &Mesh, lights: &[AreaLight]) -> Vec<Vec<usize>> {
-    let tris: Vec<u32> = lights.iter().map(|l| l.triangle).collect();
-    crate::convex_solid::connected_groups(mesh, &tris)
-}
-
-/// The group's grown box when every vertex lies on or behind every triangle's plane (winding
-/// normals outward), or on or in front of every one (inward); None otherwise
-/// ([`crate::convex_solid::convex_hull`]).
-fn convex_box(mesh: &Mesh, lights: &[AreaLight], group: &[usize]) -> Option<ClearBox> {
-    let tris: Vec<u32> = group.iter().map(|&l| lights[l].triangle).collect();
-    let hull = crate::convex_solid::convex_hull(mesh, &tris)?;
+/// The grown box of a group whose `hull` is convex: grown by 10⁻⁴ of its size and the hull
+/// test's allowance, the margin a ray stopped at its boundary keeps from the group's triangles.
+fn clear_box(hull: &convex_solid::Hull) -> ClearBox {
     let extent = (hull.hi - hull.lo).length();
     let grow = Vec3::splat(1e-4 * extent + 4.0 * hull.tol as f32);
-    Some(ClearBox {
-        lo: hull.lo - grow,
-        hi: hull.hi + grow,
-        outward: hull.outward as f32,
-        front: 4.0 * hull.tol as f32,
-    })
+    ClearBox { lo: hull.lo - grow, hi: hull.hi + grow, outward: hull.outward as f32, front: 4.0 * hull.tol as f32 }
 }
 
 #[cfg(test)]
@@ -275,6 +214,7 @@ mod tests {
             [Vec3::new(5.0, 0.0, 0.0), Vec3::new(6.0, 0.0, 0.0), Vec3::new(5.0, 1.0, 0.0)],
         ];
         let m = mesh_of(&tris);
-        assert_eq!(groups(&m, &lights_of(&m, 0..4)), vec![vec![0, 1, 2], vec![3]]);
+        let tris: Vec<u32> = lights_of(&m, 0..4).iter().map(|l| l.triangle).collect();
+        assert_eq!(convex_solid::connected_groups(&m, &tris), vec![vec![0, 1, 2], vec![3]]);
     }
 }

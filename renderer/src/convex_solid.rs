@@ -48,22 +48,103 @@ use std::collections::HashMap;
 /// No solid (the triangle is not part of one).
 pub const NONE: u32 = u32::MAX;
 
-/// Groups smaller than this get no solid: their walks are a leaf or two, nothing to skip.
-const MIN_GROUP_TRIANGLES: usize = 16;
-
-/// Groups larger than this are not checked for convexity (the check is triangles × vertices).
-const MAX_GROUP_TRIANGLES: usize = 8192;
-
-/// At most this many vertex-plane tests (convexity, and the separation of the triangles near a
-/// solid) in all: scene preparation stays within milliseconds.
-const TEST_BUDGET: usize = 64_000_000;
+/// How solids are looked for: groups of 16 triangles or more (smaller ones are a leaf or two
+/// of a walk, nothing to skip) up to 8192 (the convexity test is triangles × vertices), at most
+/// 64 of them (the isolation test passes over the scene once for all), within 6.4·10⁷
+/// vertex-plane tests for convexity and the separation of the triangles near a solid.
+const SEARCH: Search = Search { sizes: 16..=8192, max_groups: 64, budget: 64_000_000 };
 
 /// Above this many eligible (glass) triangles no solid is looked for: grouping them hashes every
 /// vertex, and a scene with this much glass is not made of small convex pieces.
 const MAX_CANDIDATE_TRIANGLES: usize = 1_000_000;
 
-/// Above this many scene triangles no solid is looked for.
-const MAX_SCENE_TRIANGLES: usize = 4_000_000;
+/// Above this many scene triangles no isolated group is looked for (here or in `clear_box`):
+/// the isolation test passes over every triangle.
+pub(crate) const MAX_SCENE_TRIANGLES: usize = 4_000_000;
+
+/// What a search for isolated convex groups ([`convex_groups`]) takes and may spend.
+pub(crate) struct Search {
+    /// Group sizes, in triangles.
+    pub sizes: std::ops::RangeInclusive<usize>,
+    /// At most this many groups are kept, the largest first.
+    pub max_groups: usize,
+    /// Vertex-plane tests in all: the convexity tests' and whatever the caller's tests spend.
+    pub budget: usize,
+}
+
+/// A group [`convex_groups`] kept: its triangles, its hull and what the caller made of it.
+pub(crate) struct Candidate<T> {
+    /// Indices into the searched triangle list.
+    pub members: Vec<usize>,
+    pub tris: Vec<u32>,
+    pub hull: Hull,
+    pub value: T,
+}
+
+/// The connected groups of `tris` whose size `search` takes, the largest first (a group saves
+/// most where its subtree is deep), that are convex and that `make` accepts, while the budget
+/// lasts; and the budget left.
+pub(crate) fn convex_groups<T>(
+    mesh: &Mesh,
+    tris: &[u32],
+    search: &Search,
+    mut make: impl FnMut(&[u32], &Hull) -> Option<T>,
+) -> (Vec<Candidate<T>>, usize) {
+    let mut groups = connected_groups(mesh, tris);
+    groups.retain(|g| search.sizes.contains(&g.len()));
+    groups.sort_by_key(|g| std::cmp::Reverse(g.len()));
+    let mut budget = search.budget;
+    let mut out = Vec::new();
+    for members in groups {
+        // Triangles × vertices, a closed mesh having about half as many vertices as triangles.
+        let cost = members.len() * (members.len() / 2 + 3);
+        if out.len() == search.max_groups || cost > budget {
+            break;
+        }
+        budget -= cost;
+        let group: Vec<u32> = members.iter().map(|&i| tris[i]).collect();
+        let Some(hull) = convex_hull(mesh, &group) else { continue };
+        let Some(value) = make(&group, &hull) else { continue };
+        out.push(Candidate { members, tris: group, hull, value });
+    }
+    (out, budget)
+}
+
+/// Per candidate, whether every triangle of the scene outside it whose bounds meet its box
+/// (`bounds`) is one `foreign(candidate, vertices)` accepts. One pass over the scene's triangles
+/// for all candidates.
+pub(crate) fn isolated<T>(
+    mesh: &Mesh,
+    candidates: &[Candidate<T>],
+    bounds: impl Fn(&Candidate<T>) -> (Vec3, Vec3),
+    mut foreign: impl FnMut(usize, [Vec3; 3]) -> bool,
+) -> Vec<bool> {
+    let mut owner = vec![NONE; mesh.triangles.len()];
+    for (c, cand) in candidates.iter().enumerate() {
+        for &t in &cand.tris {
+            owner[t as usize] = c as u32;
+        }
+    }
+    let boxes: Vec<(Vec3, Vec3)> = candidates.iter().map(bounds).collect();
+    let (all_lo, all_hi) =
+        boxes.iter().fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(a, b), (lo, hi)| {
+            (a.min(*lo), b.max(*hi))
+        });
+    let mut ok = vec![true; candidates.len()];
+    for (t, &own) in owner.iter().enumerate() {
+        let v = mesh.vertices(t as u32);
+        let (tlo, thi) = (v[0].min(v[1]).min(v[2]), v[0].max(v[1]).max(v[2]));
+        if tlo.cmpgt(all_hi).any() || thi.cmplt(all_lo).any() {
+            continue;
+        }
+        for (k, (lo, hi)) in boxes.iter().enumerate() {
+            if own != k as u32 && ok[k] && !(tlo.cmpgt(*hi).any() || thi.cmplt(*lo).any()) {
+                ok[k] = foreign(k, v);
+            }
+        }
+    }
+    ok
+}
 
 /// A convex hull's description: its box, which way its triangles' winding normals point, the
 /// rounding allowance of its plane tests, and its distinct vertices.
@@ -182,10 +263,6 @@ struct Solid {
     outer_sq: f32,
 }
 
-/// At most this many groups are tested for isolation (the largest first): the test passes over
-/// every triangle of the scene.
-const MAX_SOLIDS: usize = 64;
-
 /// At most this many solids are tried as occluders by a shadow ray ([`ConvexSolids::blocks`]):
 /// each costs a ray–ball test, and a shadow ray that no solid blocks pays them all.
 const MAX_OCCLUDERS: usize = 8;
@@ -201,8 +278,8 @@ pub struct ConvexSolids {
 }
 
 impl ConvexSolids {
-    /// The solids among the triangles `eligible` admits (by material index): the largest
-    /// `MAX_SOLIDS` groups that are closed, convex and isolated.
+    /// The solids among the triangles `eligible` admits (by material index): the largest groups
+    /// (`SEARCH`) that are closed, convex and isolated.
     pub fn find(mesh: &Mesh, eligible: impl Fn(u32) -> bool) -> Self {
         let none = ConvexSolids::default();
         if !mesh.instances.is_empty() || mesh.triangles.len() > MAX_SCENE_TRIANGLES {
@@ -210,49 +287,53 @@ impl ConvexSolids {
         }
         let tris: Vec<u32> =
             (0..mesh.triangles.len() as u32).filter(|&t| eligible(mesh.triangles[t as usize].material)).collect();
-        if tris.len() < MIN_GROUP_TRIANGLES || tris.len() > MAX_CANDIDATE_TRIANGLES {
+        if tris.len() > MAX_CANDIDATE_TRIANGLES {
             return none;
         }
-        let mut groups: Vec<Vec<u32>> = connected_groups(mesh, &tris)
-            .into_iter()
-            .filter(|g| (MIN_GROUP_TRIANGLES..=MAX_GROUP_TRIANGLES).contains(&g.len()))
-            .map(|g| g.into_iter().map(|i| tris[i]).collect())
-            .collect();
-        // The largest first: a solid saves most where its subtree is deep.
-        groups.sort_by_key(|g| std::cmp::Reverse(g.len()));
-        let mut budget = TEST_BUDGET;
-        let mut candidates: Vec<(Vec<u32>, Hull, Solid)> = Vec::new();
-        for g in groups {
-            // Triangles × vertices, a closed mesh having about half as many vertices as triangles.
-            let cost = g.len() * (g.len() / 2 + 3);
-            if candidates.len() == MAX_SOLIDS || cost > budget {
-                break;
-            }
-            budget -= cost;
-            if !closed(mesh, &g) {
-                continue;
-            }
-            let Some(hull) = convex_hull(mesh, &g) else { continue };
-            let Some(solid) = inner_ball(mesh, &g, &hull) else { continue };
-            candidates.push((g, hull, solid));
-        }
+        let (candidates, mut budget) =
+            convex_groups(
+                mesh,
+                &tris,
+                &SEARCH,
+                |g, hull| {
+                    if closed(mesh, g) {
+                        inner_ball(mesh, g, hull)
+                    } else {
+                        None
+                    }
+                },
+            );
         if candidates.is_empty() {
             return none;
         }
-        let isolated = isolated(mesh, &candidates, budget);
+        // Isolation: a triangle near a solid must be separated from its hull, within the budget.
+        let facets: Vec<Vec<(DVec3, f64)>> =
+            candidates.iter().map(|c| c.tris.iter().filter_map(|&t| plane(mesh, t)).collect()).collect();
+        let bounds = |c: &Candidate<Solid>| {
+            let grow = Vec3::splat(4.0 * c.hull.tol as f32);
+            (c.hull.lo - grow, c.hull.hi + grow)
+        };
+        let isolated = isolated(mesh, &candidates, bounds, |k, v| {
+            let cost = candidates[k].hull.verts.len() + 3 * facets[k].len();
+            if cost > budget {
+                return false;
+            }
+            budget -= cost;
+            apart(v.map(|p| p.as_dvec3()), &candidates[k].hull, &facets[k])
+        });
         let mut out = none;
-        for ((g, _, solid), ok) in candidates.into_iter().zip(isolated) {
+        for (c, ok) in candidates.into_iter().zip(isolated) {
             if !ok {
                 continue;
             }
             if out.of_triangle.is_empty() {
                 out.of_triangle = vec![NONE; mesh.triangles.len()];
             }
-            for &t in &g {
+            for &t in &c.tris {
                 out.of_triangle[t as usize] = out.solids.len() as u32;
             }
-            out.solids.push(solid);
-            out.accels.push(crate::accel::Accel::build_subset(mesh, g));
+            out.solids.push(c.value);
+            out.accels.push(crate::accel::Accel::build_subset(mesh, c.tris));
         }
         out
     }
@@ -265,10 +346,7 @@ impl ConvexSolids {
     /// `MAX_OCCLUDERS` largest solids.
     #[inline]
     pub fn blocks(&self, o: Vec3, d: Vec3, tmax: f32) -> bool {
-        !self.solids.is_empty()
-            && !tmax.is_nan()
-            && tmax > 0.0
-            && self.solids.iter().take(MAX_OCCLUDERS).any(|s| s.blocks(o, d, tmax))
+        !tmax.is_nan() && tmax > 0.0 && self.solids.iter().take(MAX_OCCLUDERS).any(|s| s.blocks(o, d, tmax))
     }
 
     /// How many solids the scene has.
@@ -280,10 +358,10 @@ impl ConvexSolids {
         self.solids.is_empty()
     }
 
-    /// Where the closest-hit walk of a ray from `o` along `d` that starts on triangle `from` may
-    /// begin its node tests: where the ray leaves the ball inside `from`'s solid, when it passes
-    /// through it; else 0 (no bound: not a solid's triangle, an outward ray, or a grazing one).
-    /// [`Self::tmin`] and the BVH of `from`'s solid, when the bound applies.
+    /// For a ray from `o` along `d` that starts on triangle `from`: where its closest-hit walk
+    /// may begin its node tests (where the ray leaves the ball inside `from`'s solid), and the
+    /// solid's own BVH to walk, when the ray passes through that ball; None otherwise (not a
+    /// solid's triangle, an outward ray, or a grazing one).
     #[inline]
     pub(crate) fn bound(&self, from: u32, o: Vec3, d: Vec3) -> Option<(f32, &crate::accel::Accel)> {
         match self.of_triangle.get(from as usize) {
@@ -295,12 +373,9 @@ impl ConvexSolids {
         }
     }
 
-    #[inline]
+    /// [`Self::bound`]'s distance, 0 where there is none.
     pub fn tmin(&self, from: u32, o: Vec3, d: Vec3) -> f32 {
-        match self.of_triangle.get(from as usize) {
-            Some(&s) if s != NONE => self.solids[s as usize].exit(o, d),
-            _ => 0.0,
-        }
+        self.bound(from, o, d).map_or(0.0, |(t, _)| t)
     }
 }
 
@@ -375,54 +450,6 @@ fn inner_ball(mesh: &Mesh, tris: &[u32], hull: &Hull) -> Option<Solid> {
         inner_sq: ((inner * inner) as f32).next_down(),
         outer_sq: ((outer * outer) as f32).next_up(),
     })
-}
-
-/// Per candidate, whether no triangle outside it reaches into its hull: each whose bounds meet
-/// the hull's box (grown by the allowance) must have the hull wholly on one side of its own
-/// plane, or lie wholly in front of one of the hull's facet planes. One pass over the scene's
-/// triangles for all candidates; a candidate whose tests would overrun `budget` is not isolated.
-fn isolated(mesh: &Mesh, candidates: &[(Vec<u32>, Hull, Solid)], mut budget: usize) -> Vec<bool> {
-    let mut owner = vec![NONE; mesh.triangles.len()];
-    for (c, (g, _, _)) in candidates.iter().enumerate() {
-        for &t in g {
-            owner[t as usize] = c as u32;
-        }
-    }
-    let boxes: Vec<(Vec3, Vec3)> = candidates
-        .iter()
-        .map(|(_, h, _)| {
-            let grow = Vec3::splat(4.0 * h.tol as f32);
-            (h.lo - grow, h.hi + grow)
-        })
-        .collect();
-    let (all_lo, all_hi) =
-        boxes.iter().fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(a, b), (lo, hi)| {
-            (a.min(*lo), b.max(*hi))
-        });
-    let facets: Vec<Vec<(DVec3, f64)>> =
-        candidates.iter().map(|(g, _, _)| g.iter().filter_map(|&t| plane(mesh, t)).collect()).collect();
-    let mut ok = vec![true; candidates.len()];
-    for (t, &own) in owner.iter().enumerate() {
-        let v = mesh.vertices(t as u32);
-        let (tlo, thi) = (v[0].min(v[1]).min(v[2]), v[0].max(v[1]).max(v[2]));
-        if tlo.cmpgt(all_hi).any() || thi.cmplt(all_lo).any() {
-            continue;
-        }
-        for (k, (lo, hi)) in boxes.iter().enumerate() {
-            if own == k as u32 || !ok[k] || tlo.cmpgt(*hi).any() || thi.cmplt(*lo).any() {
-                continue;
-            }
-            let hull = &candidates[k].1;
-            let cost = hull.verts.len() + 3 * facets[k].len();
-            if cost > budget {
-                ok[k] = false;
-                continue;
-            }
-            budget -= cost;
-            ok[k] = apart(v.map(|p| p.as_dvec3()), hull, &facets[k]);
-        }
-    }
-    ok
 }
 
 /// Whether triangle `v` cannot reach into `hull`'s interior: the hull lies on one side of the

@@ -343,9 +343,10 @@ impl Scene {
 
     /// Whether a closed convex glass solid certainly blocks the segment from `o` to `o + tmax·d`
     /// ([`crate::convex_solid::ConvexSolids::blocks`]; shadow rays stop there without a walk).
+    /// (Inlined as a length test: scenes without solids keep their shadow-ray path as it was.)
     #[inline]
     pub fn solid_blocks(&self, o: Vec3, d: Vec3, tmax: f32) -> bool {
-        self.solids.blocks(o, d, tmax)
+        !self.solids.is_empty() && self.solids.blocks(o, d, tmax)
     }
 
     /// How many closed convex glass solids the scene has ([`crate::convex_solid`]).
@@ -464,20 +465,31 @@ impl Scene {
             }
             return;
         }
-        let mut tmin = [0f32; crate::accel::MAX_BATCH];
-        let bounded = !self.solids.is_empty() && n <= crate::accel::MAX_BATCH;
-        if bounded {
-            for k in 0..n {
-                tmin[k] = self.solids.tmin(from[k], o[k], d[k]);
+        if self.solids.is_empty() {
+            self.accel.intersect_batch(&o[..n], &d[..n], f32::INFINITY, &mut out[..n]);
+        } else {
+            // A ray inside a glass solid walks the solid's own BVH (as `intersect_surface`); the
+            // others are walked together.
+            const B: usize = crate::accel::MAX_BATCH;
+            for s in (0..n).step_by(B) {
+                let e = (s + B).min(n);
+                let (mut qo, mut qd, mut at) = ([Vec3::ZERO; B], [Vec3::ZERO; B], [0usize; B]);
+                let mut m = 0;
+                for k in s..e {
+                    if let Some((tmin, own)) = self.solids.bound(from[k], o[k], d[k]) {
+                        out[k] = own.intersect_from(o[k], d[k], tmin, f32::INFINITY);
+                    } else {
+                        (qo[m], qd[m], at[m]) = (o[k], d[k], k);
+                        m += 1;
+                    }
+                }
+                let mut hits = [None; B];
+                self.accel.intersect_batch(&qo[..m], &qd[..m], f32::INFINITY, &mut hits[..m]);
+                for j in 0..m {
+                    out[at[j]] = hits[j];
+                }
             }
         }
-        self.accel.intersect_batch_from(
-            &o[..n],
-            &d[..n],
-            if bounded { &tmin[..n] } else { &[] },
-            f32::INFINITY,
-            &mut out[..n],
-        );
         if self.has_transparency() {
             for (k, h) in out.iter_mut().enumerate().take(o.len().min(d.len()).min(seed.len())) {
                 *h = self.through_layers(d[k], seed[k], *h);
@@ -512,7 +524,7 @@ impl Scene {
             let (mut qo, mut qd, mut qt, mut at) = ([Vec3::ZERO; B], [Vec3::ZERO; B], [0f32; B], [0usize; B]);
             let mut m = 0;
             for k in s..e {
-                if !self.solids.is_empty() && self.solid_blocks(o[k], d[k], tmax[k]) {
+                if self.solid_blocks(o[k], d[k], tmax[k]) {
                     out[k] = 0.0;
                 } else {
                     (qo[m], qd[m], qt[m], at[m]) = (o[k], d[k], tmax[k], k);
@@ -552,7 +564,7 @@ impl Scene {
     /// Fraction of light that gets from `o` along `d` to distance `tmax`: 0 behind an opaque (or
     /// uncut) surface, Π(1 − alpha) through BLEND surfaces.
     pub fn visibility(&self, mut o: Vec3, d: Vec3, mut tmax: f32) -> f32 {
-        if !self.solids.is_empty() && self.solid_blocks(o, d, tmax) {
+        if self.solid_blocks(o, d, tmax) {
             return 0.0;
         }
         if !self.has_transparency() {

@@ -111,7 +111,9 @@ fn segments_a_solid_blocks_are_blocked_by_its_triangles() {
     assert!(!s.solid_blocks(c + Vec3::new(2.0, 0.0, 0.6), -Vec3::X, 4.0));
 }
 
-/// The same image bits with the bound and without, with the eight-lane kernel and without.
+/// The same image bits with the bound and without, with the eight-lane kernel and without, with
+/// rays walked one at a time and in batches (`Scene::intersect_surface_batch`'s batched path,
+/// which this small scene only takes when told to).
 #[test]
 fn renders_are_the_same_bits_with_the_solids_bound_or_without() {
     let mut s = scene();
@@ -120,8 +122,10 @@ fn renders_are_the_same_bits_with_the_solids_bound_or_without() {
     let bits = |p: &renderer::film::PartialSums| {
         p.sum_rgb.iter().flatten().chain(&p.sum_lum_sq).map(|v| v.to_bits()).collect::<Vec<_>>()
     };
-    for lanes in [true, false] {
+    for (lanes, batched) in [(true, false), (false, false), (true, true), (false, true)] {
         s.set_lanes(lanes);
+        s.set_batch_rays(batched);
+        assert_eq!(s.batches_rays(), batched);
         s.set_convex_solids(true);
         assert_eq!(s.convex_solids(), 2);
         let with = render_tile_counted(&s, &settings, rect, 0..settings.spp, &Counters::default());
@@ -129,7 +133,10 @@ fn renders_are_the_same_bits_with_the_solids_bound_or_without() {
         assert_eq!(s.convex_solids(), 0);
         let without = render_tile_counted(&s, &settings, rect, 0..settings.spp, &Counters::default());
         let total: f64 = with.sum_rgb.iter().flatten().sum();
-        assert!(total > 0.0 && total.is_finite(), "lanes {lanes}: a black or broken image tests nothing");
-        assert!(bits(&with) == bits(&without), "lanes {lanes}: the bound changed the image");
+        assert!(
+            total > 0.0 && total.is_finite(),
+            "lanes {lanes}, batched {batched}: a black or broken image tests nothing"
+        );
+        assert!(bits(&with) == bits(&without), "lanes {lanes}, batched {batched}: the bound changed the image");
     }
 }

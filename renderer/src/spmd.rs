@@ -308,8 +308,8 @@ pub fn radiance8(
     let mut rd = V8::from_lanes(&rd);
     let mut alive: u32 = (1u32 << n) - 1;
     let mut depth = 0u32;
-    // The triangle each lane's next ray starts on (`Path::from`).
-    let mut from = [crate::convex_solid::NONE; LANES];
+    // Each lane's hit triangle, where its next ray starts (`Path::from`; none for the camera's).
+    let mut tri = [crate::convex_solid::NONE; LANES];
     let scale = scene.offset_scale();
     while alive != 0 {
         // One lane at a time: the sample sets, then the rays (together where the BVH batches
@@ -351,7 +351,7 @@ pub fn radiance8(
             if depth > 0 && !drawn {
                 draw(k, &mut u_bsdf, &mut u_light);
             }
-            (lane[count], qo[count], qd[count], qf[count]) = (k as u8, ro[k], dirs[k], from[k]);
+            (lane[count], qo[count], qd[count], qf[count]) = (k as u8, ro[k], dirs[k], tri[k]);
             count += 1;
         }
         let mut hits = [None; LANES];
@@ -371,7 +371,7 @@ pub fn radiance8(
         // The hit triangles' vertices, gathered lane by lane; the surface points eight-wide.
         let (mut v0, mut v1, mut v2) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
         let (mut n0, mut n1, mut n2) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
-        let (mut hb1, mut hb2, mut tri) = ([0f32; LANES], [0f32; LANES], [0u32; LANES]);
+        let (mut hb1, mut hb2) = ([0f32; LANES], [0f32; LANES]);
         let (mut hit_bits, mut smooth) = (0u32, 0u32);
         let mut escaped = 0u32;
         // The camera ray's lanes draw once they hit (an escaping one needs nothing); later
@@ -397,7 +397,7 @@ pub fn radiance8(
                 smooth |= 1 << k;
                 (n0[k], n1[k], n2[k]) = (mesh.normals[i0], mesh.normals[i1], mesh.normals[i2]);
             }
-            (hb1[k], hb2[k], tri[k], from[k]) = (hit.b1, hit.b2, hit.triangle, hit.triangle);
+            (hb1[k], hb2[k], tri[k]) = (hit.b1, hit.b2, hit.triangle);
         }
         // The environment, seen by BSDF sampling (`Path::shade`'s escape): the escaped lanes'
         // lookups in a loop of their own, so their cache misses (the map and its rows are

@@ -693,6 +693,11 @@ impl Accel {
         Self::build_triangles(mesh, ids, AccelKind::Obvhs)
     }
 
+    /// The triangles a one-level obvhs BVH tests, in its slots (empty for the other kinds).
+    pub(crate) fn triangle_blocks(&self) -> &TriangleBlocks {
+        &self.tris
+    }
+
     /// A one-level BVH over the triangles `ids` of `mesh` (as they are stored).
     fn build_triangles(mesh: &Mesh, ids: Vec<u32>, kind: AccelKind) -> Self {
         if kind == AccelKind::Own {

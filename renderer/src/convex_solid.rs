@@ -41,7 +41,9 @@
 //! Scenes with instances, more than `MAX_SCENE_TRIANGLES` triangles or more than
 //! `MAX_CANDIDATE_TRIANGLES` glass triangles get none.
 
+use crate::accel::Hit;
 use crate::mesh::Mesh;
+use crate::solid_surface::SolidSurface;
 use glam::{DVec3, Vec3};
 use std::collections::HashMap;
 
@@ -275,6 +277,11 @@ pub struct ConvexSolids {
     solids: Vec<Solid>,
     /// Each solid's own BVH: an inward ray's exit is among its triangles.
     pub(crate) accels: Vec<crate::accel::Accel>,
+    /// Each solid's surface, walked to an inward ray's exit before its BVH is
+    /// ([`crate::solid_surface`]; None where it could not be built).
+    surfaces: Vec<Option<SolidSurface>>,
+    /// Whether inward rays try the surface walk (tests turn it off to compare).
+    walk_surfaces: bool,
 }
 
 impl ConvexSolids {
@@ -332,8 +339,11 @@ impl ConvexSolids {
             for &t in &c.tris {
                 out.of_triangle[t as usize] = out.solids.len() as u32;
             }
+            let own = crate::accel::Accel::build_subset(mesh, c.tris.clone());
+            out.surfaces.push(SolidSurface::new(mesh, &c.tris, c.value.center32, &own));
             out.solids.push(c.value);
-            out.accels.push(crate::accel::Accel::build_subset(mesh, c.tris));
+            out.accels.push(own);
+            out.walk_surfaces = true;
         }
         out
     }
@@ -359,15 +369,15 @@ impl ConvexSolids {
     }
 
     /// For a ray from `o` along `d` that starts on triangle `from`: where its closest-hit walk
-    /// may begin its node tests (where the ray leaves the ball inside `from`'s solid), and the
-    /// solid's own BVH to walk, when the ray passes through that ball; None otherwise (not a
-    /// solid's triangle, an outward ray, or a grazing one).
+    /// may begin its node tests (where the ray leaves the ball inside `from`'s solid), and that
+    /// solid, when the ray passes through that ball; None otherwise (not a solid's triangle, an
+    /// outward ray, or a grazing one).
     #[inline]
-    pub(crate) fn bound(&self, from: u32, o: Vec3, d: Vec3) -> Option<(f32, &crate::accel::Accel)> {
+    pub(crate) fn bound(&self, from: u32, o: Vec3, d: Vec3) -> Option<(f32, usize)> {
         match self.of_triangle.get(from as usize) {
             Some(&s) if s != NONE => {
                 let t = self.solids[s as usize].exit(o, d);
-                (t > 0.0).then(|| (t, &self.accels[s as usize]))
+                (t > 0.0).then_some((t, s as usize))
             }
             _ => None,
         }
@@ -376,6 +386,31 @@ impl ConvexSolids {
     /// [`Self::bound`]'s distance, 0 where there is none.
     pub fn tmin(&self, from: u32, o: Vec3, d: Vec3) -> f32 {
         self.bound(from, o, d).map_or(0.0, |(t, _)| t)
+    }
+
+    /// The closest hit of a ray that [`Self::bound`] bounded by `tmin` inside solid `s`: its exit,
+    /// found by walking the solid's surface where the walk is sure of it, else by walking the
+    /// solid's own BVH from `tmin` on. Both give the hit the scene's walk gives.
+    #[inline]
+    pub(crate) fn closest(&self, s: usize, o: Vec3, d: Vec3, tmin: f32) -> Option<Hit> {
+        let own = &self.accels[s];
+        if let (true, Some(surface)) = (self.walk_surfaces, &self.surfaces[s]) {
+            if let Some(hit) = surface.exit(own, o, d, o + d * tmin) {
+                return Some(hit);
+            }
+        }
+        own.intersect_from(o, d, tmin, f32::INFINITY)
+    }
+
+    /// [`Self::closest`]'s surface walk alone (None where it is not sure, or off): for tests.
+    pub fn surface_exit(&self, from: u32, o: Vec3, d: Vec3) -> Option<Hit> {
+        let (tmin, s) = self.bound(from, o, d)?;
+        self.surfaces[s].as_ref()?.exit(&self.accels[s], o, d, o + d * tmin)
+    }
+
+    /// Turns the surface walk on or off (on by default; tests compare).
+    pub fn set_surface_walk(&mut self, on: bool) {
+        self.walk_surfaces = on;
     }
 }
 

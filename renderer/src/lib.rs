@@ -65,6 +65,7 @@ pub mod scene;
 pub mod settings;
 pub mod settings_request;
 pub mod sheen;
+pub mod solid_surface;
 pub mod spmd;
 pub mod stats;
 pub mod testing;

@@ -349,6 +349,18 @@ impl Scene {
         !self.solids.is_empty() && self.solids.blocks(o, d, tmax)
     }
 
+    /// The exit of an inward ray from triangle `from` found by walking its solid's surface
+    /// ([`crate::solid_surface`]): None where the ray is not bounded or the walk is not sure.
+    pub fn solid_surface_exit(&self, from: u32, o: Vec3, d: Vec3) -> Option<crate::accel::Hit> {
+        self.solids.surface_exit(from, o, d)
+    }
+
+    /// Turns the solids' surface walk off (inward rays then walk the solid's BVH) or on again
+    /// (tests and `bench` compare both; the hits are the same).
+    pub fn set_solid_surface_walk(&mut self, on: bool) {
+        self.solids.set_surface_walk(on);
+    }
+
     /// How many closed convex glass solids the scene has ([`crate::convex_solid`]).
     pub fn convex_solids(&self) -> usize {
         self.solids.len()
@@ -421,8 +433,8 @@ impl Scene {
         // Without solids, the plain walk (its node tests start at 0, a constant).
         let first = if self.solids.is_empty() {
             self.accel.intersect(o, d, f32::INFINITY)
-        } else if let Some((tmin, own)) = self.solids.bound(from, o, d) {
-            own.intersect_from(o, d, tmin, f32::INFINITY)
+        } else if let Some((tmin, solid)) = self.solids.bound(from, o, d) {
+            self.solids.closest(solid, o, d, tmin)
         } else {
             self.accel.intersect(o, d, f32::INFINITY)
         };
@@ -476,8 +488,8 @@ impl Scene {
                 let (mut qo, mut qd, mut at) = ([Vec3::ZERO; B], [Vec3::ZERO; B], [0usize; B]);
                 let mut m = 0;
                 for k in s..e {
-                    if let Some((tmin, own)) = self.solids.bound(from[k], o[k], d[k]) {
-                        out[k] = own.intersect_from(o[k], d[k], tmin, f32::INFINITY);
+                    if let Some((tmin, solid)) = self.solids.bound(from[k], o[k], d[k]) {
+                        out[k] = self.solids.closest(solid, o[k], d[k], tmin);
                     } else {
                         (qo[m], qd[m], at[m]) = (o[k], d[k], k);
                         m += 1;

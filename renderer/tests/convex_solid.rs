@@ -1,6 +1,7 @@
-//! Inward rays in closed convex glass start their node tests where they leave the solid's inner
-//! ball (`renderer::convex_solid`, `Scene::intersect_surface`): the hits are the full walks' own,
-//! and renders are the same bits with the bound and without.
+//! Inward rays in closed convex glass find their exit by walking the solid's surface
+//! (`renderer::solid_surface`) or start their node tests where they leave the solid's inner ball
+//! (`renderer::convex_solid`, `Scene::intersect_surface`): the hits are the full walks' own, and
+//! renders are the same bits with the bound and the walk and without.
 
 use glam::Vec3;
 use renderer::film::Rect;
@@ -39,7 +40,7 @@ fn inward_rays_bounded_by_a_solids_ball_find_what_the_full_walks_find() {
     assert_eq!(s.convex_solids(), 2, "the two isolated spheres; the third holds a plate");
     let glass: Vec<u32> =
         (0..s.mesh.triangles.len() as u32).filter(|&t| s.mesh.triangles[t as usize].material != 0).collect();
-    let (mut bounded, mut hits, mut tighter_differs) = (0u32, 0u32, 0u32);
+    let (mut bounded, mut hits, mut tighter_differs, mut walked) = (0u32, 0u32, 0u32, 0u32);
     let n = 40_000u64;
     for i in 0..n {
         // A random point of a random glass triangle, a direction into the inside (refraction
@@ -70,13 +71,22 @@ fn inward_rays_bounded_by_a_solids_ball_find_what_the_full_walks_find() {
             if key(s.accel.intersect_from(o, d, h.t * 1.1, f32::INFINITY)) != key(full) {
                 tighter_differs += 1;
             }
+            // The surface walk (`renderer::solid_surface`), where it answers, answers the same.
+            if let Some(exit) = s.solid_surface_exit(tri, o, d) {
+                assert_eq!(key(Some(exit)), key(full), "ray {i}: the surface walk's exit");
+                walked += 1;
+            }
         }
         hits += full.is_some() as u32;
         // The other way, outward from the same point: never bounded.
         let out = s.offset_ray_origin(p, ng);
         assert_eq!(s.solid_tmin(tri, out, -d), 0.0, "ray {i}: an outward ray got a bound");
     }
-    eprintln!("{bounded} of {n} inward rays bounded, {hits} hit, {tighter_differs} differ with a bound past the exit");
+    eprintln!(
+        "{bounded} of {n} inward rays bounded ({walked} answered by the surface walk), {hits} hit, \
+         {tighter_differs} differ with a bound past the exit"
+    );
+    assert!(walked * 100 > bounded * 95, "the surface walk answered {walked} of {bounded}");
     // Two thirds of the glass triangles are in solids, and nearly every inward ray but a
     // grazing one crosses the inner ball.
     assert!(bounded as u64 > n / 2, "{bounded} of {n} rays bounded");
@@ -129,6 +139,10 @@ fn renders_are_the_same_bits_with_the_solids_bound_or_without() {
         s.set_convex_solids(true);
         assert_eq!(s.convex_solids(), 2);
         let with = render_tile_counted(&s, &settings, rect, 0..settings.spp, &Counters::default());
+        // The solids' BVHs alone, without the surface walk.
+        s.set_solid_surface_walk(false);
+        let bvh_only = render_tile_counted(&s, &settings, rect, 0..settings.spp, &Counters::default());
+        assert!(bits(&with) == bits(&bvh_only), "lanes {lanes}, batched {batched}: the surface walk changed the image");
         s.set_convex_solids(false);
         assert_eq!(s.convex_solids(), 0);
         let without = render_tile_counted(&s, &settings, rect, 0..settings.spp, &Counters::default());

@@ -1,0 +1,314 @@
+//! The surface of a closed convex solid (`convex_solid`), walked facet to facet to where a ray from
+//! inside leaves it: the closest hit of an inward ray without a BVH walk.
+//!
+//! A line meets a convex solid's surface at most twice, so a ray that starts inside leaves
+//! through exactly one facet, and no other facet lies on the ray before that exit. The walk finds
+//! that facet the way point location walks a triangulation (Devillers, Pion and Teillaud 2002,
+//! "Walking in a triangulation"): starting from a facet near the exit, it tests on which side of
+//! each of the facet's edges the ray's line passes (Plücker coordinates: the sign of
+//! `d · ((a − o) × (b − o))` for the edge from a to b, positive on the inner side when the
+//! corners run counter-clockwise seen from outside) and steps across an edge the line passes
+//! outside of, until the line passes inside all three.
+//!
+//! What a walk answers must be what the BVH walk answers, bit for bit (`renderer/tests/
+//! convex_solid.rs`): so the facet it finds is tested with the BVH's own triangle test, on the
+//! BVH's own copy of the triangle, and the answer is taken only where no rounding could have let
+//! another facet report a hit first: the exit point well inside its facet (every barycentric
+//! coordinate at least [`MARGIN`]) and the ray not grazing it (the cosine with its normal at least
+//! [`MIN_COS`]). Elsewhere, or where the walk does not settle within [`MAX_STEPS`], the caller
+//! walks the solid's BVH as before. The solid's convexity is only tested to 10⁻⁶ of its size
+//! (`convex_solid::convex_hull`); the margins are far above that on any facet that is not
+//! itself that small.
+
+use crate::accel::{Accel, Hit, NO_INSTANCE};
+use crate::mesh::Mesh;
+use crate::triangle::WatertightRay;
+use glam::{Vec3, Vec3A};
+use std::collections::HashMap;
+
+/// A walk gives up after this many steps (a walk between two nearby facets usually takes one or
+/// two; a walk that circles would not end).
+const MAX_STEPS: usize = 16;
+/// The least barycentric coordinate of an exit point the walk's answer is taken at.
+const MARGIN: f32 = 1e-3;
+/// The least cosine between the ray and the exit facet's outward normal the answer is taken at.
+const MIN_COS: f32 = 0.02;
+
+/// One solid's facets for the walk: their edges (outward counter-clockwise), outward normals,
+/// neighbours across each edge and slots in the solid's own BVH, and where walks start.
+#[derive(Clone, Debug, Default)]
+pub struct SolidSurface {
+    /// Per facet, each edge from corner i to corner i + 1 in Plücker coordinates relative to
+    /// `center`: its direction b − a and its moment a × b (corners outward counter-clockwise).
+    edges: Vec<[[Vec3; 2]; 3]>,
+    normals: Vec<Vec3>,
+    /// The facet across the edge from corner i to corner i + 1 (mod 3).
+    across: Vec<[u32; 3]>,
+    /// The facet's slot in its solid's BVH's triangle blocks (`Accel::triangle_blocks`).
+    slot: Vec<u32>,
+    /// The start of a walk per direction from `center`: a cube map of `n` × `n` cells a face,
+    /// each holding a facet whose centroid lies in its direction (or a neighbouring cell's).
+    center: Vec3,
+    n: usize,
+    start: Vec<u32>,
+}
+
+impl SolidSurface {
+    /// The surface of the closed solid made of triangles `tris` of `mesh` (every edge, by vertex
+    /// positions, shared by exactly two of them), around `center` (a point inside), whose BVH is
+    /// `own`. None where that does not hold.
+    pub fn new(mesh: &Mesh, tris: &[u32], center: Vec3, own: &Accel) -> Option<SolidSurface> {
+        let blocks = own.triangle_blocks();
+        let slot_of: HashMap<u32, u32> = blocks.ids.iter().enumerate().map(|(s, &id)| (id, s as u32)).collect();
+        let mut s = SolidSurface { center, ..SolidSurface::default() };
+        let mut corners = Vec::with_capacity(tris.len());
+        for &t in tris {
+            let [a, b, c] = mesh.vertices(t);
+            let n = (b - a).cross(c - a);
+            let centroid = (a + b + c) / 3.0;
+            let outward = n.dot(centroid - center) >= 0.0;
+            let v = if outward { [a, b, c] } else { [a, c, b] };
+            corners.push(v);
+            let r = v.map(|p| p - center);
+            s.edges.push([0, 1, 2].map(|i| {
+                let (a, b) = (r[i], r[(i + 1) % 3]);
+                [b - a, a.cross(b)]
+            }));
+            s.normals.push(if outward { n } else { -n }.normalize_or_zero());
+            s.slot.push(*slot_of.get(&t)?);
+        }
+        // Each edge's two facets: the edges sorted by their corners' exact bits (lower first),
+        // so an edge's two sides are neighbours in the list.
+        let key = |v: Vec3| v.to_array().map(f32::to_bits);
+        let mut sides: Vec<_> = corners
+            .iter()
+            .enumerate()
+            .flat_map(|(f, c)| {
+                (0..3).map(move |i| {
+                    let (a, b) = (key(c[i]), key(c[(i + 1) % 3]));
+                    (a.min(b), a.max(b), f as u32, i)
+                })
+            })
+            .collect();
+        sides.sort_unstable();
+        s.across = vec![[u32::MAX; 3]; tris.len()];
+        for pair in sides.chunks(2) {
+            let &[(a, b, f, i), (a2, b2, g, j)] = pair else { return None };
+            if (a, b) != (a2, b2) {
+                return None;
+            }
+            s.across[f as usize][i] = g;
+            s.across[g as usize][j] = f;
+        }
+        if s.across.iter().flatten().any(|&g| g == u32::MAX) {
+            return None;
+        }
+        // About two facets a cell.
+        s.n = ((tris.len() as f64 / 12.0).sqrt().ceil() as usize).max(1);
+        s.start = vec![u32::MAX; 6 * s.n * s.n];
+        for (f, c) in corners.iter().enumerate() {
+            let cell = s.cell((c[0] + c[1] + c[2]) / 3.0 - center);
+            if s.start[cell] == u32::MAX {
+                s.start[cell] = f as u32;
+            }
+        }
+        // Empty cells take a filled neighbour's facet along their face's rows, then columns.
+        let n = s.n;
+        for _ in 0..2 * n {
+            let mut changed = false;
+            for face in 0..6 {
+                for i in 0..n {
+                    for j in 0..n {
+                        let at = (face * n + i) * n + j;
+                        if s.start[at] != u32::MAX {
+                            continue;
+                        }
+                        let near = [(i.wrapping_sub(1), j), (i + 1, j), (i, j.wrapping_sub(1)), (i, j + 1)];
+                        if let Some(f) = near
+                            .iter()
+                            .filter(|&&(a, b)| a < n && b < n)
+                            .map(|&(a, b)| s.start[(face * n + a) * n + b])
+                            .find(|&f| f != u32::MAX)
+                        {
+                            s.start[at] = f;
+                            changed = true;
+                        }
+                    }
+                }
+            }
+            if !changed {
+                break;
+            }
+        }
+        for f in s.start.iter_mut().filter(|f| **f == u32::MAX) {
+            *f = 0;
+        }
+        Some(s)
+    }
+
+    /// The cube-map cell of direction `q` (any length; the zero vector has cell 0).
+    #[inline(always)]
+    fn cell(&self, q: Vec3) -> usize {
+        let a = q.abs();
+        let (face, u, v, m) = if a.x >= a.y && a.x >= a.z {
+            (usize::from(q.x < 0.0), q.y, q.z, a.x)
+        } else if a.y >= a.z {
+            (2 + usize::from(q.y < 0.0), q.x, q.z, a.y)
+        } else {
+            (4 + usize::from(q.z < 0.0), q.x, q.y, a.z)
+        };
+        if !(m > 0.0) {
+            return 0;
+        }
+        let n = self.n;
+        let scale = 0.5 * n as f32 / m;
+        let index = |x: f32| (((x + m) * scale) as usize).min(n - 1);
+        (face * n + index(u)) * n + index(v)
+    }
+
+    /// The closest hit of the ray from `o` along `d`, which starts inside the solid and passes
+    /// the point `inside` (inside the solid, nearer the exit than `o`: the inner ball's exit), as
+    /// the BVH `own` would answer it; None where the walk cannot be sure (then walk `own`).
+    #[inline]
+    pub fn exit(&self, own: &Accel, o: Vec3, d: Vec3, inside: Vec3) -> Option<Hit> {
+        let mut f = *self.start.get(self.cell(inside - self.center))? as usize;
+        let mut came_from = usize::MAX;
+        // The side of edge (u, v) the line passes: d · ((a − o) × (b − o)) = d·v + u·(o × d).
+        let m = (o - self.center).cross(d);
+        for _ in 0..MAX_STEPS {
+            let e = self.edges.get(f)?;
+            let side = e.map(|[u, v]| d.dot(v) + u.dot(m));
+            // The edge the line passes farthest outside of, if any.
+            let (k, least) =
+                side.iter().enumerate().fold((0, f32::INFINITY), |(k, m), (i, &s)| if s < m { (i, s) } else { (k, m) });
+            if least > 0.0 {
+                return self.confirm(own, f, o, d);
+            }
+            if !(least <= 0.0) {
+                return None;
+            }
+            let next = self.across[f][k] as usize;
+            // Back where it came from: the line passes by their shared edge.
+            if next == came_from {
+                return None;
+            }
+            (came_from, f) = (f, next);
+        }
+        None
+    }
+
+    /// Facet `f`'s hit by the BVH's own test, where the margins make it the only one.
+    #[inline(always)]
+    fn confirm(&self, own: &Accel, f: usize, o: Vec3, d: Vec3) -> Option<Hit> {
+        let cos = self.normals[f].dot(d);
+        if !(cos >= MIN_COS * d.length()) {
+            return None;
+        }
+        let slot = self.slot[f] as usize;
+        let blocks = own.triangle_blocks();
+        let ray = WatertightRay::new(Vec3A::from(o), Vec3A::from(d));
+        // The slot's triangle by the one-at-a-time test, the eight-lane walk's reference: the
+        // same numbers (`triangle.rs`' tests).
+        let tri = blocks.get(slot);
+        let (t, b1, b2) = tri.intersect(&ray, f32::INFINITY)?;
+        let b0 = 1.0 - b1 - b2;
+        (b0.min(b1).min(b2) >= MARGIN).then_some(Hit { t, triangle: tri.id, b1, b2, instance: NO_INSTANCE })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sampler::hash_unit as u;
+    use crate::testing::mesh_of;
+
+    /// An icosphere of `20·4^level` faces around `c`, each face its own vertex triple; `inward`
+    /// reverses the winding (the walk orients facets itself).
+    fn ball(c: Vec3, r: f32, level: u32, inward: bool) -> Vec<[Vec3; 3]> {
+        let (v, f) = crate::testing::icosphere(level);
+        let order = if inward { [0, 2, 1] } else { [0, 1, 2] };
+        f.iter().map(|t| order.map(|k| c + v[t[k] as usize] * r)).collect()
+    }
+
+    fn surface(tris: &[[Vec3; 3]], c: Vec3) -> (Mesh, Accel, SolidSurface) {
+        let mesh = mesh_of(tris);
+        let ids: Vec<u32> = (0..tris.len() as u32).collect();
+        let own = Accel::build_subset(&mesh, ids.clone());
+        let s = SolidSurface::new(&mesh, &ids, c, &own).expect("a closed solid");
+        (mesh, own, s)
+    }
+
+    fn key(h: Option<Hit>) -> Option<(u32, u32, u32, u32)> {
+        h.map(|h| (h.triangle, h.t.to_bits(), h.b1.to_bits(), h.b2.to_bits()))
+    }
+
+    /// From points inside, in every direction: every answer is the BVH's, and nearly every ray
+    /// gets one, whichever way the facets are wound.
+    #[test]
+    fn exits_are_the_bvhs_hits() {
+        for (level, inward) in [(1, false), (3, false), (3, true)] {
+            let c = Vec3::new(0.3, -1.2, 2.0);
+            let tris = ball(c, 0.7, level, inward);
+            let (_, own, s) = surface(&tris, c);
+            // The walk starts where the ray leaves the ball inside the facets' planes, as
+            // `ConvexSolids::closest` starts it.
+            let r_in = tris.iter().map(|t| (t[1] - t[0]).cross(t[2] - t[0]).normalize().dot(t[0] - c).abs());
+            let r_in = r_in.fold(f32::INFINITY, f32::min) * 0.999;
+            let (n, mut answered) = (4000u64, 0);
+            for i in 0..n {
+                let o = c + Vec3::new(u(6 * i) - 0.5, u(6 * i + 1) - 0.5, u(6 * i + 2) - 0.5) * 0.6;
+                assert!((o - c).length() < 0.52);
+                let (z, phi) = (2.0 * u(6 * i + 3) - 1.0, std::f32::consts::TAU * u(6 * i + 4));
+                let r = (1.0 - z * z).max(0.0).sqrt();
+                let d = Vec3::new(r * phi.cos(), r * phi.sin(), z);
+                let bvh = own.intersect(o, d, f32::INFINITY);
+                assert!(bvh.is_some(), "level {level}: a ray from inside leaves");
+                let oc = o - c;
+                let b = oc.dot(d);
+                let leave = -b + (b * b - oc.length_squared() + r_in * r_in).sqrt();
+                if let Some(hit) = s.exit(&own, o, d, o + d * leave) {
+                    assert_eq!(key(Some(hit)), key(bvh), "level {level} inward {inward}, ray {i}");
+                    answered += 1;
+                }
+            }
+            assert!(answered * 100 > n * 97, "level {level}: the walk answered {answered} of {n}");
+        }
+    }
+
+    /// A ray through a shared edge or a vertex is left to the BVH (no facet is sure there), as
+    /// is one that leaves a facet at a grazing angle; neither is answered wrongly.
+    #[test]
+    fn edges_vertices_and_grazing_exits_are_left_to_the_bvh() {
+        let c = Vec3::ZERO;
+        let tris = ball(c, 1.0, 2, false);
+        let (_, own, s) = surface(&tris, c);
+        for t in &tris {
+            for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
+                for target in [a, (a + b) * 0.5] {
+                    let d = target.normalize();
+                    assert!(s.exit(&own, c, d, c).is_none(), "towards {target}");
+                }
+            }
+        }
+        // From just inside one facet, almost along it.
+        let t = tris[7];
+        let n = (t[1] - t[0]).cross(t[2] - t[0]).normalize();
+        let centroid = (t[0] + t[1] + t[2]) / 3.0;
+        let along = (t[1] - t[0]).normalize();
+        let o = centroid - n * 1e-3 - along * 0.05;
+        let d = (along + n * 0.01).normalize();
+        assert!(s.exit(&own, o, d, o).is_none(), "a grazing exit");
+        assert!(own.intersect(o, d, f32::INFINITY).is_some());
+    }
+
+    /// An open group has no surface to walk.
+    #[test]
+    fn an_open_group_has_no_surface() {
+        let mut tris = ball(Vec3::ZERO, 1.0, 1, false);
+        tris.pop();
+        let mesh = mesh_of(&tris);
+        let ids: Vec<u32> = (0..tris.len() as u32).collect();
+        let own = Accel::build_subset(&mesh, ids.clone());
+        assert!(SolidSurface::new(&mesh, &ids, Vec3::ZERO, &own).is_none());
+    }
+}

@@ -235,7 +235,7 @@ pub(crate) fn connected_groups(mesh: &Mesh, tris: &[u32]) -> Vec<Vec<usize>> {
     out
 }
 
-fn key(v: Vec3) -> [u32; 3] {
+pub(crate) fn key(v: Vec3) -> [u32; 3] {
     v.to_array().map(f32::to_bits)
 }
 
@@ -282,8 +282,8 @@ pub struct ConvexSolids {
     /// Each solid's surface, walked to an inward ray's exit before its BVH is
     /// ([`crate::solid_surface`]; None where it could not be built).
     surfaces: Vec<Option<SolidSurface>>,
-    /// Whether inward rays try the surface walk (tests turn it off to compare).
-    walk_surfaces: bool,
+    /// Inward rays skip the surface walk and walk the BVH alone (tests compare the two).
+    bvh_only: bool,
 }
 
 impl ConvexSolids {
@@ -341,11 +341,10 @@ impl ConvexSolids {
             for &t in &c.tris {
                 out.of_triangle[t as usize] = out.solids.len() as u32;
             }
-            let own = crate::accel::Accel::build_subset(mesh, c.tris.clone());
-            out.surfaces.push(SolidSurface::new(mesh, &c.tris, c.value.center32, &own));
+            let own = crate::accel::Accel::build_subset(mesh, c.tris);
+            out.surfaces.push(SolidSurface::new(&own, c.value.center32));
             out.solids.push(c.value);
             out.accels.push(own);
-            out.walk_surfaces = true;
         }
         out
     }
@@ -396,7 +395,7 @@ impl ConvexSolids {
     #[inline]
     pub(crate) fn closest(&self, s: usize, o: Vec3, d: Vec3, tmin: f32) -> Option<Hit> {
         let own = &self.accels[s];
-        if let (true, Some(surface)) = (self.walk_surfaces, &self.surfaces[s]) {
+        if let (false, Some(surface)) = (self.bvh_only, &self.surfaces[s]) {
             if let Some(hit) = surface.exit(own, o, d, o + d * tmin) {
                 return Some(hit);
             }
@@ -412,7 +411,7 @@ impl ConvexSolids {
 
     /// Turns the surface walk on or off (on by default; tests compare).
     pub fn set_surface_walk(&mut self, on: bool) {
-        self.walk_surfaces = on;
+        self.bvh_only = !on;
     }
 }
 
@@ -513,8 +512,7 @@ mod tests {
 
     /// An icosphere of 320 faces (outward winding), each face its own vertex triple.
     fn ball(c: Vec3, r: f32) -> Vec<[Vec3; 3]> {
-        let (v, f) = crate::testing::icosphere(2);
-        f.iter().map(|t| [0, 1, 2].map(|k| c + v[t[k] as usize] * r)).collect()
+        crate::testing::icosphere_faces(c, r, 2)
     }
 
     fn solids(tris: &[[Vec3; 3]]) -> ConvexSolids {

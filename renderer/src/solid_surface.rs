@@ -21,10 +21,9 @@
 //! itself that small.
 
 use crate::accel::{Accel, Hit, NO_INSTANCE};
-use crate::mesh::Mesh;
+use crate::convex_solid::key;
 use crate::triangle::WatertightRay;
 use glam::{Vec3, Vec3A};
-use std::collections::HashMap;
 
 /// A walk gives up after this many steps (a walk between two nearby facets usually takes one or
 /// two; a walk that circles would not end).
@@ -34,8 +33,9 @@ const MARGIN: f32 = 1e-3;
 /// The least cosine between the ray and the exit facet's outward normal the answer is taken at.
 const MIN_COS: f32 = 0.02;
 
-/// One solid's facets for the walk: their edges (outward counter-clockwise), outward normals,
-/// neighbours across each edge and slots in the solid's own BVH, and where walks start.
+/// One solid's facets for the walk, indexed by their slots in the solid's own BVH (so the facet
+/// a walk ends on is the slot the BVH's triangle test reads): their edges (outward
+/// counter-clockwise), outward normals, neighbours across each edge, and where walks start.
 #[derive(Clone, Debug, Default)]
 pub struct SolidSurface {
     /// Per facet, each edge from corner i to corner i + 1 in Plücker coordinates relative to
@@ -44,8 +44,6 @@ pub struct SolidSurface {
     normals: Vec<Vec3>,
     /// The facet across the edge from corner i to corner i + 1 (mod 3).
     across: Vec<[u32; 3]>,
-    /// The facet's slot in its solid's BVH's triangle blocks (`Accel::triangle_blocks`).
-    slot: Vec<u32>,
     /// The start of a walk per direction from `center`: a cube map of `n` × `n` cells a face,
     /// each holding a facet whose centroid lies in its direction (or a neighbouring cell's).
     center: Vec3,
@@ -54,19 +52,17 @@ pub struct SolidSurface {
 }
 
 impl SolidSurface {
-    /// The surface of the closed solid made of triangles `tris` of `mesh` (every edge, by vertex
-    /// positions, shared by exactly two of them), around `center` (a point inside), whose BVH is
-    /// `own`. None where that does not hold.
-    pub fn new(mesh: &Mesh, tris: &[u32], center: Vec3, own: &Accel) -> Option<SolidSurface> {
+    /// The surface of the closed solid whose BVH is `own` (a BVH of that solid's triangles
+    /// alone: every edge, by vertex positions, shared by exactly two of them), around `center` (a
+    /// point inside). None where its triangles do not pair up so.
+    pub fn new(own: &Accel, center: Vec3) -> Option<SolidSurface> {
         let blocks = own.triangle_blocks();
-        let slot_of: HashMap<u32, u32> = blocks.ids.iter().enumerate().map(|(s, &id)| (id, s as u32)).collect();
         let mut s = SolidSurface { center, ..SolidSurface::default() };
-        let mut corners = Vec::with_capacity(tris.len());
-        for &t in tris {
-            let [a, b, c] = mesh.vertices(t);
+        let mut corners = Vec::with_capacity(blocks.len());
+        for slot in 0..blocks.len() {
+            let [a, b, c] = blocks.get(slot).v.map(Vec3::from);
             let n = (b - a).cross(c - a);
-            let centroid = (a + b + c) / 3.0;
-            let outward = n.dot(centroid - center) >= 0.0;
+            let outward = n.dot((a + b + c) / 3.0 - center) >= 0.0;
             let v = if outward { [a, b, c] } else { [a, c, b] };
             corners.push(v);
             let r = v.map(|p| p - center);
@@ -75,11 +71,9 @@ impl SolidSurface {
                 [b - a, a.cross(b)]
             }));
             s.normals.push(if outward { n } else { -n }.normalize_or_zero());
-            s.slot.push(*slot_of.get(&t)?);
         }
         // Each edge's two facets: the edges sorted by their corners' exact bits (lower first),
         // so an edge's two sides are neighbours in the list.
-        let key = |v: Vec3| v.to_array().map(f32::to_bits);
         let mut sides: Vec<_> = corners
             .iter()
             .enumerate()
@@ -91,7 +85,7 @@ impl SolidSurface {
             })
             .collect();
         sides.sort_unstable();
-        s.across = vec![[u32::MAX; 3]; tris.len()];
+        s.across = vec![[u32::MAX; 3]; corners.len()];
         for pair in sides.chunks(2) {
             let &[(a, b, f, i), (a2, b2, g, j)] = pair else { return None };
             if (a, b) != (a2, b2) {
@@ -104,7 +98,7 @@ impl SolidSurface {
             return None;
         }
         // About two facets a cell.
-        s.n = ((tris.len() as f64 / 12.0).sqrt().ceil() as usize).max(1);
+        s.n = ((corners.len() as f64 / 12.0).sqrt().ceil() as usize).max(1);
         s.start = vec![u32::MAX; 6 * s.n * s.n];
         for (f, c) in corners.iter().enumerate() {
             let cell = s.cell((c[0] + c[1] + c[2]) / 3.0 - center);
@@ -112,28 +106,22 @@ impl SolidSurface {
                 s.start[cell] = f as u32;
             }
         }
-        // Empty cells take a filled neighbour's facet along their face's rows, then columns.
+        // An empty cell takes a filled neighbour's facet on its face, sweep after sweep; any left
+        // (a face no centroid points to) starts at facet 0, a walk that may take longer.
         let n = s.n;
         for _ in 0..2 * n {
             let mut changed = false;
-            for face in 0..6 {
-                for i in 0..n {
-                    for j in 0..n {
-                        let at = (face * n + i) * n + j;
-                        if s.start[at] != u32::MAX {
-                            continue;
-                        }
-                        let near = [(i.wrapping_sub(1), j), (i + 1, j), (i, j.wrapping_sub(1)), (i, j + 1)];
-                        if let Some(f) = near
-                            .iter()
-                            .filter(|&&(a, b)| a < n && b < n)
-                            .map(|&(a, b)| s.start[(face * n + a) * n + b])
-                            .find(|&f| f != u32::MAX)
-                        {
-                            s.start[at] = f;
-                            changed = true;
-                        }
-                    }
+            for at in 0..s.start.len() {
+                let (face, i, j) = (at / (n * n), at / n % n, at % n);
+                if s.start[at] != u32::MAX {
+                    continue;
+                }
+                let near = [(i.wrapping_sub(1), j), (i + 1, j), (i, j.wrapping_sub(1)), (i, j + 1)];
+                let filled =
+                    near.iter().filter(|&&(a, b)| a < n && b < n).map(|&(a, b)| s.start[(face * n + a) * n + b]);
+                if let Some(f) = filled.into_iter().find(|&f| f != u32::MAX) {
+                    s.start[at] = f;
+                    changed = true;
                 }
             }
             if !changed {
@@ -184,9 +172,6 @@ impl SolidSurface {
             if least > 0.0 {
                 return self.confirm(own, f, o, d);
             }
-            if !(least <= 0.0) {
-                return None;
-            }
             let next = self.across[f][k] as usize;
             // Back where it came from: the line passes by their shared edge.
             if next == came_from {
@@ -200,16 +185,15 @@ impl SolidSurface {
     /// Facet `f`'s hit by the BVH's own test, where the margins make it the only one.
     #[inline(always)]
     fn confirm(&self, own: &Accel, f: usize, o: Vec3, d: Vec3) -> Option<Hit> {
+        // cos ≥ MIN_COS·|d|, squared (a NaN fails it).
         let cos = self.normals[f].dot(d);
-        if !(cos >= MIN_COS * d.length()) {
+        if !(cos > 0.0 && cos * cos >= MIN_COS * MIN_COS * d.length_squared()) {
             return None;
         }
-        let slot = self.slot[f] as usize;
-        let blocks = own.triangle_blocks();
         let ray = WatertightRay::new(Vec3A::from(o), Vec3A::from(d));
         // The slot's triangle by the one-at-a-time test, the eight-lane walk's reference: the
         // same numbers (`triangle.rs`' tests).
-        let tri = blocks.get(slot);
+        let tri = own.triangle_blocks().get(f);
         let (t, b1, b2) = tri.intersect(&ray, f32::INFINITY)?;
         let b0 = 1.0 - b1 - b2;
         (b0.min(b1).min(b2) >= MARGIN).then_some(Hit { t, triangle: tri.id, b1, b2, instance: NO_INSTANCE })
@@ -220,22 +204,20 @@ impl SolidSurface {
 mod tests {
     use super::*;
     use crate::sampler::hash_unit as u;
-    use crate::testing::mesh_of;
+    use crate::testing::{icosphere_faces, mesh_of};
 
-    /// An icosphere of `20·4^level` faces around `c`, each face its own vertex triple; `inward`
-    /// reverses the winding (the walk orients facets itself).
+    /// An icosphere of `20·4^level` faces around `c`; `inward` reverses the winding (the walk
+    /// orients facets itself).
     fn ball(c: Vec3, r: f32, level: u32, inward: bool) -> Vec<[Vec3; 3]> {
-        let (v, f) = crate::testing::icosphere(level);
-        let order = if inward { [0, 2, 1] } else { [0, 1, 2] };
-        f.iter().map(|t| order.map(|k| c + v[t[k] as usize] * r)).collect()
+        let faces = icosphere_faces(c, r, level);
+        faces.into_iter().map(|[a, b, e]| if inward { [a, e, b] } else { [a, b, e] }).collect()
     }
 
-    fn surface(tris: &[[Vec3; 3]], c: Vec3) -> (Mesh, Accel, SolidSurface) {
-        let mesh = mesh_of(tris);
-        let ids: Vec<u32> = (0..tris.len() as u32).collect();
-        let own = Accel::build_subset(&mesh, ids.clone());
-        let s = SolidSurface::new(&mesh, &ids, c, &own).expect("a closed solid");
-        (mesh, own, s)
+    /// The BVH of `tris` and their surface about `c`.
+    fn surface(tris: &[[Vec3; 3]], c: Vec3) -> (Accel, SolidSurface) {
+        let own = Accel::build_subset(&mesh_of(tris), (0..tris.len() as u32).collect());
+        let s = SolidSurface::new(&own, c).expect("a closed solid");
+        (own, s)
     }
 
     fn key(h: Option<Hit>) -> Option<(u32, u32, u32, u32)> {
@@ -249,7 +231,7 @@ mod tests {
         for (level, inward) in [(1, false), (3, false), (3, true)] {
             let c = Vec3::new(0.3, -1.2, 2.0);
             let tris = ball(c, 0.7, level, inward);
-            let (_, own, s) = surface(&tris, c);
+            let (own, s) = surface(&tris, c);
             // The walk starts where the ray leaves the ball inside the facets' planes, as
             // `ConvexSolids::closest` starts it.
             let r_in = tris.iter().map(|t| (t[1] - t[0]).cross(t[2] - t[0]).normalize().dot(t[0] - c).abs());
@@ -281,7 +263,7 @@ mod tests {
     fn edges_vertices_and_grazing_exits_are_left_to_the_bvh() {
         let c = Vec3::ZERO;
         let tris = ball(c, 1.0, 2, false);
-        let (_, own, s) = surface(&tris, c);
+        let (own, s) = surface(&tris, c);
         for t in &tris {
             for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
                 for target in [a, (a + b) * 0.5] {
@@ -306,9 +288,7 @@ mod tests {
     fn an_open_group_has_no_surface() {
         let mut tris = ball(Vec3::ZERO, 1.0, 1, false);
         tris.pop();
-        let mesh = mesh_of(&tris);
-        let ids: Vec<u32> = (0..tris.len() as u32).collect();
-        let own = Accel::build_subset(&mesh, ids.clone());
-        assert!(SolidSurface::new(&mesh, &ids, Vec3::ZERO, &own).is_none());
+        let own = Accel::build_subset(&mesh_of(&tris), (0..tris.len() as u32).collect());
+        assert!(SolidSurface::new(&own, Vec3::ZERO).is_none());
     }
 }

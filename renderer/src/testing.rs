@@ -176,6 +176,13 @@ pub fn mesh_of(tris: &[[Vec3; 3]]) -> crate::mesh::Mesh {
     m
 }
 
+/// An icosphere of `20·4^level` faces about `center` (outward winding), each face its own vertex
+/// triple, as a flat-shaded export has them (for [`mesh_of`]).
+pub fn icosphere_faces(center: Vec3, radius: f32, level: u32) -> Vec<[Vec3; 3]> {
+    let (v, f) = icosphere(level);
+    f.iter().map(|t| t.map(|k| center + v[k as usize] * radius)).collect()
+}
+
 /// A Lambert material (KHR_materials_specular specularFactor 0).
 pub fn lambert(albedo: Vec3) -> Material {
     Material {

@@ -31,7 +31,7 @@
 //!   the scene's BVH fell from 10.1 to 5.3 node visits with the bound, and its own BVH saves the
 //!   levels above the sphere (0.96 of glass's time). Before any walk, the ray's exit facet is
 //!   looked for by walking the solid's surface ([`crate::solid_surface`], [`ConvexSolids::closest`]):
-//!   its answer, where it is sure of one, is the walk's hit at about a third of its instructions.
+//!   its answer, where it is sure of one, is the walk's hit at about half its instructions.
 //! * **Shadow rays** ([`ConvexSolids::blocks`]): a segment with a point inside the inner ball
 //!   and its end outside the ball around the solid crosses the closed surface between the two,
 //!   so a walk would find a hit; the shadow ray is blocked without one (surfaces are opaque to

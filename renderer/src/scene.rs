@@ -356,7 +356,8 @@ impl Scene {
     }
 
     /// Turns the solids' surface walk off (inward rays then walk the solid's BVH) or on again
-    /// (tests and `bench` compare both; the hits are the same).
+    /// (`renderer/tests/convex_solid.rs` renders both; the hits are the same). Finding the solids
+    /// again (`set_convex_solids`) turns it back on.
     pub fn set_solid_surface_walk(&mut self, on: bool) {
         self.solids.set_surface_walk(on);
     }
@@ -366,8 +367,8 @@ impl Scene {
         self.solids.len()
     }
 
-    /// Turns the solids' bound off (false: every walk starts at 0) or finds them again (tests
-    /// and `bench` compare both; the hits are the same).
+    /// Turns the solids' bound off (false: every walk starts at 0) or finds them again
+    /// (`renderer/tests/convex_solid.rs` renders both; the hits are the same).
     pub fn set_convex_solids(&mut self, on: bool) {
         self.solids = if on { find_solids(&self.mesh, &self.materials) } else { Default::default() };
     }

@@ -129,11 +129,8 @@ impl LightBounds {
         let cos_x = cos_w.mul_add(cos_o, sin_w * sin_o);
         let sin_x = sin_w.mul_add(cos_o, -(cos_w * sin_o));
         // cos θp = cos(max(0, θx − θb)): 1 inside the cone or the bounds, or where θx ≤ θb.
-        let cos_p = if in_cone || inside || cos_x > cos_b {
-            1.0
-        } else {
-            cos_x.mul_add(cos_b, sin_x * half_diag) * inv_dist2
-        };
+        let cos_p =
+            if in_cone || inside || cos_x > cos_b { 1.0 } else { cos_x.mul_add(cos_b, sin_x * half_diag) * inv_dist2 };
         if cos_p <= self.cos_theta_e {
             return 0.0;
         }
@@ -142,11 +139,8 @@ impl LightBounds {
             // cos(max(0, θi − θb)), θi the angle between n (either side) and p − c.
             let cos_i = dot_fma(n, v).abs();
             let sin_i = safe_sqrt((-cos_i).mul_add(cos_i, dist2));
-            importance *= if inside || cos_i > cos_b {
-                1.0
-            } else {
-                cos_i.mul_add(cos_b, sin_i * half_diag) * inv_dist2
-            };
+            importance *=
+                if inside || cos_i > cos_b { 1.0 } else { cos_i.mul_add(cos_b, sin_i * half_diag) * inv_dist2 };
         }
         if importance.is_finite() {
             importance.max(0.0)

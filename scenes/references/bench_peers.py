@@ -22,7 +22,9 @@ noise, close for the suite's white lights). A relMSE not at least 1.25 times tha
 "(unresolved)": the reference cannot tell it apart from its own noise, and its net figure is floored at
 a tenth of the measured one. Efficiency = 1 / (relMSE · seconds): equal
 efficiency means equal error in equal time; the ratio column is each renderer's efficiency over
-Tessera's (above 1: better than Tessera).
+Tessera's (above 1: better than Tessera). The summary also gives each paths/s ratio paired run by run
+(the median over runs of the peer's time over Tessera's in that run, and their range), which a slow
+spell of a shared machine moves less than the ratio of the medians.
 """
 import argparse
 import os
@@ -79,6 +81,7 @@ def main():
         ap.error(f"unknown Mitsuba variant(s) {unknown} (this Mitsuba has {mi.variants()}); "
                  f"scenes are {sorted(mr.SCENES)}")
     summary = []
+    run_times = {}
     for name in a.scenes:
         rel, w, h = mr.SCENES[name]
         mi.set_variant("scalar_rgb")
@@ -124,6 +127,11 @@ def main():
             rows = [(label, statistics.median(t), statistics.median(e))
                     for label, (_, t, e) in zip(["tessera", "tessera before"], builds)]
             rows += [(f"mitsuba {v}", statistics.median(t), statistics.median(e)) for v, _, t, e in peers]
+            # Each renderer's time in every run, for ratios paired run by run: a run's renders
+            # follow one another within seconds, so a slow spell of a shared machine falls on
+            # both sides of a pair, where it can fall on one side only of the ratio of medians.
+            run_times[name] = {label: list(t) for label, (_, t, _e) in zip(["tessera", "tessera before"], builds)}
+            run_times[name].update({f"mitsuba {v}": list(t) for v, _, t, _e in peers})
             del peers
         # Efficiency from the relMSE less the reference's own (floored at a tenth of the measured
         # figure: a render as noisy as the reference cannot be resolved by it) and, raw, as measured.
@@ -142,7 +150,13 @@ def main():
                   f"{eff / base:>10.2f} {raw:>7.2f}{flag}")
             summary.append((name, label, t, w * h * a.spp / t / 1e6, e, eff / base, raw))
     print("\nsummary: Tessera's paths/s over each peer's, and each peer's efficiency over Tessera's "
-          "(the reference's own noise subtracted; raw: as measured)")
+          "(the reference's own noise subtracted; raw: as measured); paired: the median over runs of "
+          "the peer's time over Tessera's in the same run, with the runs' range")
+
+    def paired(name, label, over="tessera"):
+        # The same spp and size on both sides, so a time ratio is the paths/s ratio.
+        ratios = [b / t for t, b in zip(run_times[name][over], run_times[name][label])]
+        return statistics.median(ratios), min(ratios), max(ratios)
     for name in a.scenes:
         mine = [s for s in summary if s[0] == name and s[1] == "tessera"]
         before = [s for s in summary if s[0] == name and s[1] == "tessera before"]
@@ -153,8 +167,12 @@ def main():
                     # The peer's efficiency over the earlier build's: both are over the current one.
                     then = (f"   (before: paths/s ratio {before[0][3] / s[3]:.2f}, peer efficiency ratio "
                             f"{s[5] / before[0][5]:.2f})")
-                print(f"{name:<14} vs {s[1]:<22} paths/s ratio {mine[0][3] / s[3]:>6.2f}   peer efficiency ratio "
-                      f"{s[5]:>6.2f}   raw {s[6]:>6.2f}{then}")
+                pm, lo, hi = paired(name, s[1])
+                if before:
+                    bm, blo, bhi = paired(name, "tessera before")
+                    then += f"   (this build over the one before, paired: {bm:.2f}, {blo:.2f}–{bhi:.2f})"
+                print(f"{name:<14} vs {s[1]:<22} paths/s ratio {mine[0][3] / s[3]:>6.2f} (paired {pm:.2f}, "
+                      f"{lo:.2f}–{hi:.2f})   peer efficiency ratio {s[5]:>6.2f}   raw {s[6]:>6.2f}{then}")
 
 
 if __name__ == "__main__":

@@ -79,6 +79,8 @@ fn main() {
         let us: Vec<f32> = (0..points.len() as u64).map(|k| hash_unit(9000 + k)).collect();
         let normals = [n; MAX_WALKS];
         let mut chosen = 0usize;
+        // Levels a walk visits, counted over the batch loop's choices (family evaluations a walk).
+        let (mut level_sum, mut walks) = (0usize, 0usize);
         for _ in 0..REPETITIONS {
             let start = Instant::now();
             let mut u = 0.3f32;
@@ -105,6 +107,8 @@ fn main() {
                 tree.sample_batch(black_box(&points[at..at + MAX_WALKS]), &normals, &us[at..at + MAX_WALKS], &mut out);
                 for (light, _) in out.iter().flatten() {
                     chosen = chosen.wrapping_add(*light);
+                    level_sum += tree.levels(*light);
+                    walks += 1;
                 }
             }
             batch_ns.push(start.elapsed().as_nanos() as f64 / CALLS as f64);
@@ -125,7 +129,9 @@ fn main() {
         );
         println!(
             "{name}: independent walks: one at a time {i_min:.1} ns min, {i_med:.1} median; \
-             {MAX_WALKS} interleaved (sample_batch) {b_min:.1} ns min, {b_med:.1} median a walk"
+             {MAX_WALKS} interleaved (sample_batch) {b_min:.1} ns min, {b_med:.1} median a walk; \
+             {:.2} levels a walk",
+            level_sum as f64 / walks.max(1) as f64
         );
     }
 }

@@ -634,6 +634,18 @@ impl LightTree {
         }
     }
 
+    /// How many nodes a walk to `light` visits (its node's depth, the root's being 1): the number
+    /// of family evaluations `sample` makes when it picks that light, and `pmf` makes for it.
+    /// 0 for an index that is not a tree light.
+    pub fn levels(&self, light: usize) -> usize {
+        let Some(&(mut at, _)) = self.leaf_of.get(light) else { return 0 };
+        let mut levels = 1;
+        while let Some(&(up, _)) = self.parent.get(at as usize).filter(|(up, _)| *up != u32::MAX) {
+            (at, levels) = (up, levels + 1);
+        }
+        levels
+    }
+
     /// Probability that `sample(p, n, ·)` picks `light`: the same factors, multiplied in the same
     /// order (root first), so it is `sample`'s number bit for bit.
     pub fn pmf(&self, p: Vec3, n: Option<Vec3>, light: usize) -> f32 {
@@ -1012,6 +1024,7 @@ mod tests {
                     if c & LIGHT != 0 {
                         seen[(c & !LIGHT) as usize] += 1;
                         assert_eq!(tree.leaf_of[(c & !LIGHT) as usize], (i as u32, slot as u8));
+                        assert_eq!(tree.levels((c & !LIGHT) as usize), depth[i], "{n} lights: a walk's levels");
                     } else {
                         assert_eq!(tree.parent[c as usize], (i as u32, slot as u8));
                         depth[c as usize] = depth[i] + 1;
@@ -1019,6 +1032,7 @@ mod tests {
                 }
             }
             assert!(seen.iter().all(|&s| s == 1), "{n} lights: each in one slot");
+            assert_eq!(tree.levels(n), 0, "{n} lights: an index past the lights has no walk");
             let max_depth = depth.into_iter().max().unwrap_or(0);
             let binary_depth = (n as f64).log2().ceil() as usize;
             assert!(max_depth <= binary_depth.div_ceil(3) + 1, "{n} lights: {max_depth} levels");

@@ -634,25 +634,26 @@ impl LightTree {
         }
     }
 
+    /// The nodes on the walk to `light` and its slot in each, from its own node up to the root
+    /// (nothing for an index that is not a tree light): what `pmf` evaluates, and `levels` counts.
+    fn ancestors(&self, light: usize) -> impl Iterator<Item = (u32, u8)> + '_ {
+        let first = self.leaf_of.get(light).copied();
+        std::iter::successors(first, |&(at, _)| Some(self.parent[at as usize]).filter(|&(up, _)| up != u32::MAX))
+    }
+
     /// How many nodes a walk to `light` visits (its node's depth, the root's being 1): the number
     /// of family evaluations `sample` makes when it picks that light, and `pmf` makes for it.
     /// 0 for an index that is not a tree light.
     pub fn levels(&self, light: usize) -> usize {
-        let Some(&(mut at, _)) = self.leaf_of.get(light) else { return 0 };
-        let mut levels = 1;
-        while let Some(&(up, _)) = self.parent.get(at as usize).filter(|(up, _)| *up != u32::MAX) {
-            (at, levels) = (up, levels + 1);
-        }
-        levels
+        self.ancestors(light).count()
     }
 
     /// Probability that `sample(p, n, ·)` picks `light`: the same factors, multiplied in the same
     /// order (root first), so it is `sample`'s number bit for bit.
     pub fn pmf(&self, p: Vec3, n: Option<Vec3>, light: usize) -> f32 {
-        let Some(&(mut at, mut slot)) = self.leaf_of.get(light) else { return 0.0 };
         let mut factors = [0f32; MAX_DEPTH];
         let mut depth = 0;
-        loop {
+        for (at, slot) in self.ancestors(light) {
             let imp = self.importances(at as usize, p, n);
             let total = running_sums(&imp)[WIDTH - 1];
             let x = imp[slot as usize];
@@ -661,10 +662,9 @@ impl LightTree {
             }
             factors[depth] = x / total;
             depth += 1;
-            match self.parent[at as usize] {
-                (u32::MAX, _) => break,
-                (up, s) => (at, slot) = (up, s),
-            }
+        }
+        if depth == 0 {
+            return 0.0;
         }
         factors[..depth].iter().rev().product()
     }

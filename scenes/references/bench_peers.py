@@ -153,9 +153,9 @@ def main():
           "(the reference's own noise subtracted; raw: as measured); paired: the median over runs of "
           "the peer's time over Tessera's in the same run, with the runs' range")
 
-    def paired(name, label, over="tessera"):
+    def paired(name, label):
         # The same spp and size on both sides, so a time ratio is the paths/s ratio.
-        ratios = [b / t for t, b in zip(run_times[name][over], run_times[name][label])]
+        ratios = [b / t for t, b in zip(run_times[name]["tessera"], run_times[name][label])]
         return statistics.median(ratios), min(ratios), max(ratios)
     for name in a.scenes:
         mine = [s for s in summary if s[0] == name and s[1] == "tessera"]

@@ -265,7 +265,13 @@ struct Solid {
     center32: Vec3,
     inner_sq: f32,
     outer_sq: f32,
+    /// +1 when the solid's winding normals point out of it, −1 when in ([`Hull::outward`]).
+    outward: f64,
 }
+
+/// How far ahead of a facet's plane, in cosine, a direction must point for [`ConvexSolids::leaving`]
+/// to call the ray leaving (0.06° from grazing): grazing rays take the full walk.
+const LEAVING_MARGIN: f64 = 1e-3;
 
 /// At most this many solids are tried as occluders by a shadow ray ([`ConvexSolids::blocks`]):
 /// each costs a ray–ball test, and a shadow ray that no solid blocks pays them all.
@@ -284,6 +290,10 @@ pub struct ConvexSolids {
     surfaces: Vec<Option<SolidSurface>>,
     /// Inward rays skip the surface walk and walk the BVH alone (tests compare the two).
     bvh_only: bool,
+    /// Per node of the scene's BVH, the solid whose triangles alone its subtree holds, else
+    /// [`NONE`] ([`crate::accel::Accel::solid_marks`]; empty when not made): rays leaving a
+    /// solid skip its subtrees ([`Self::leaving`]).
+    node_marks: Vec<u32>,
 }
 
 impl ConvexSolids {
@@ -382,6 +392,40 @@ impl ConvexSolids {
             }
             _ => None,
         }
+    }
+
+    /// The solid a ray from triangle `from` along `d` leaves, when `from` is a facet of one and
+    /// `d` points out of it: ahead of the facet's plane by more than [`LEAVING_MARGIN`] of a
+    /// right angle's cosine, which covers the f32 normal's rounding many times over (the test is
+    /// in f64 on the f32 vertices). Such a ray cannot meet its solid again: the solid lies on or
+    /// behind every facet's plane (within the hull test's allowance), the ray's points ahead of
+    /// this one's. So its walk may skip the solid's subtrees ([`crate::accel::Accel::intersect_leaving`]).
+    #[inline]
+    pub(crate) fn leaving(&self, mesh: &Mesh, from: u32, d: Vec3) -> Option<u32> {
+        let s = *self.of_triangle.get(from as usize)?;
+        if s == NONE || self.node_marks.is_empty() {
+            return None;
+        }
+        let [a, b, c] = mesh.vertices(from).map(|v| v.as_dvec3());
+        let n = (b - a).cross(c - a) * self.solids[s as usize].outward;
+        let d = d.as_dvec3();
+        (n.dot(d) > LEAVING_MARGIN * (n.length_squared() * d.length_squared()).sqrt()).then_some(s)
+    }
+
+    /// The solid triangle `t` is a facet of, if any.
+    pub fn solid_of(&self, t: u32) -> Option<u32> {
+        self.of_triangle.get(t as usize).copied().filter(|&s| s != NONE)
+    }
+
+    /// The marks [`Self::leaving`]'s walks skip by (empty when none were made).
+    pub(crate) fn node_marks(&self) -> &[u32] {
+        &self.node_marks
+    }
+
+    /// Marks the nodes of `accel` (the scene's BVH) by the solid their subtree belongs to, for
+    /// [`Self::leaving`]; again after the BVH is rebuilt.
+    pub(crate) fn mark_nodes(&mut self, accel: &crate::accel::Accel) {
+        self.node_marks = if self.solids.is_empty() { Vec::new() } else { accel.solid_marks(&self.of_triangle) };
     }
 
     /// [`Self::bound`]'s distance, 0 where there is none.
@@ -485,6 +529,7 @@ fn inner_ball(mesh: &Mesh, tris: &[u32], hull: &Hull) -> Option<Solid> {
         center32,
         inner_sq: ((inner * inner) as f32).next_down(),
         outer_sq: ((outer * outer) as f32).next_up(),
+        outward: hull.outward,
     })
 }
 

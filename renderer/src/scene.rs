@@ -58,12 +58,16 @@ pub struct Scene {
 /// `ConvexSolids::blocks`). Opaque solids are left out: their rays never go inward, and the
 /// occlusion shortcut alone did not pay for its ray–ball tests (envlit's two spheres: the same
 /// time; veach's four sphere lights: 1.07× the time, every shadow ray testing four balls).
-fn find_solids(mesh: &Mesh, materials: &[Material]) -> crate::convex_solid::ConvexSolids {
-    crate::convex_solid::ConvexSolids::find(mesh, |m| {
+///
+/// The scene's BVH `accel` is marked by solid, so rays leaving one skip its subtrees.
+fn find_solids(mesh: &Mesh, materials: &[Material], accel: &Accel) -> crate::convex_solid::ConvexSolids {
+    let mut solids = crate::convex_solid::ConvexSolids::find(mesh, |m| {
         materials.get(m as usize).is_some_and(|m| {
             (m.transmission > 0.0 || m.transmission_texture.is_some()) && m.alpha_mode == AlphaMode::Opaque
         })
-    })
+    });
+    solids.mark_nodes(accel);
+    solids
 }
 
 /// [`crate::math::offset_scale`] of the largest coordinate within `bounds`.
@@ -84,7 +88,7 @@ impl Scene {
         let transparent = materials.iter().any(|m| m.alpha_mode != AlphaMode::Opaque);
         let uniform_bsdfs: Vec<Option<Bsdf>> = materials.iter().map(Material::uniform_bsdf).collect();
         let lane_materials = crate::spmd::LaneMaterial::table(&mesh, &materials, &uniform_bsdfs);
-        let solids = find_solids(&mesh, &materials);
+        let solids = find_solids(&mesh, &materials, &accel);
         Scene {
             mesh,
             materials,
@@ -247,7 +251,7 @@ impl Scene {
         self.time = t;
         self.pose_key = Some((frame, settings.fps.to_bits(), settings.animation.clone()));
         self.accel.rebuild_top(&self.mesh);
-        self.solids = find_solids(&self.mesh, &self.materials);
+        self.solids = find_solids(&self.mesh, &self.materials, &self.accel);
         if let Some(b) = self.mesh.world_bounds() {
             self.bounds = b;
             self.offset_scale = offset_scale_of(b);
@@ -355,6 +359,18 @@ impl Scene {
         self.solids.surface_exit(from, o, d)
     }
 
+    /// The closed convex solid triangle `t` is a facet of ([`crate::convex_solid`]), if any.
+    pub fn solid_of(&self, t: u32) -> Option<u32> {
+        self.solids.solid_of(t)
+    }
+
+    /// The solid a ray from triangle `from` along `d` leaves (it points out of the solid through
+    /// that facet), whose walk then skips the solid's subtrees
+    /// ([`crate::accel::Accel::intersect_leaving`]); None otherwise.
+    pub fn solid_left(&self, from: u32, d: Vec3) -> Option<u32> {
+        self.solids.leaving(&self.mesh, from, d)
+    }
+
     /// Turns the solids' surface walk off (inward rays then walk the solid's BVH) or on again
     /// (`renderer/tests/convex_solid.rs` renders both; the hits are the same). Finding the solids
     /// again (`set_convex_solids`) turns it back on.
@@ -370,12 +386,13 @@ impl Scene {
     /// Turns the solids' bound off (false: every walk starts at 0) or finds them again
     /// (`renderer/tests/convex_solid.rs` renders both; the hits are the same).
     pub fn set_convex_solids(&mut self, on: bool) {
-        self.solids = if on { find_solids(&self.mesh, &self.materials) } else { Default::default() };
+        self.solids = if on { find_solids(&self.mesh, &self.materials, &self.accel) } else { Default::default() };
     }
 
     /// Rebuilds the ray-query structure with another BVH (benchmarks compare them).
     pub fn use_accel(&mut self, kind: crate::accel::AccelKind) {
         self.accel = Accel::build_with(&self.mesh, kind);
+        self.solids.mark_nodes(&self.accel);
     }
 
     #[inline]
@@ -436,6 +453,8 @@ impl Scene {
             self.accel.intersect(o, d, f32::INFINITY)
         } else if let Some((tmin, solid)) = self.solids.bound(from, o, d) {
             self.solids.closest(solid, o, d, tmin)
+        } else if let Some(solid) = self.solids.leaving(&self.mesh, from, d) {
+            self.accel.intersect_leaving(o, d, self.solids.node_marks(), solid)
         } else {
             self.accel.intersect(o, d, f32::INFINITY)
         };
@@ -491,6 +510,8 @@ impl Scene {
                 for k in s..e {
                     if let Some((tmin, solid)) = self.solids.bound(from[k], o[k], d[k]) {
                         out[k] = self.solids.closest(solid, o[k], d[k], tmin);
+                    } else if let Some(solid) = self.solids.leaving(&self.mesh, from[k], d[k]) {
+                        out[k] = self.accel.intersect_leaving(o[k], d[k], self.solids.node_marks(), solid);
                     } else {
                         (qo[m], qd[m], at[m]) = (o[k], d[k], k);
                         m += 1;

@@ -154,3 +154,52 @@ fn renders_are_the_same_bits_with_the_solids_bound_or_without() {
         assert!(bits(&with) == bits(&without), "lanes {lanes}, batched {batched}: the bound changed the image");
     }
 }
+
+/// Rays leaving a solid through one of its facets skip the solid's subtrees
+/// (`Accel::intersect_leaving`): they find what the full walk finds. And the skip is real: the
+/// same directions from points just inside the facets, where a full walk meets the solid's own
+/// triangles, rarely do (only where a BVH leaf holds the solid's triangles with others').
+#[test]
+fn rays_leaving_a_solid_find_what_the_full_walks_find() {
+    let s = scene();
+    let glass: Vec<u32> = (0..s.mesh.triangles.len() as u32).filter(|&t| s.solid_of(t).is_some()).collect();
+    assert!(!glass.is_empty());
+    let key = |h: Option<renderer::accel::Hit>| h.map(|h| (h.triangle, h.t.to_bits(), h.b1.to_bits(), h.b2.to_bits()));
+    let (mut leaving, mut hits, mut own_from_inside, mut own_skipping) = (0u32, 0u32, 0u32, 0u32);
+    let n = 40_000u64;
+    for i in 0..n {
+        let tri = glass[((u(5 * i) * glass.len() as f32) as usize).min(glass.len() - 1)];
+        let [a, b, c] = s.mesh.vertices(tri);
+        let (b1, b2) = (u(5 * i + 1), u(5 * i + 2));
+        let (b1, b2) = if b1 + b2 > 1.0 { (1.0 - b1, 1.0 - b2) } else { (b1, b2) };
+        let p = a + (b - a) * b1 + (c - a) * b2;
+        // Any direction: the test sorts out which leave.
+        let (z, phi) = (2.0 * u(5 * i + 3) - 1.0, std::f32::consts::TAU * u(5 * i + 4));
+        let r = (1.0 - z * z).max(0.0).sqrt();
+        let d = Vec3::new(r * phi.cos(), r * phi.sin(), z);
+        let ng = (b - a).cross(c - a).normalize();
+        let front = if ng.dot(d) > 0.0 { ng } else { -ng };
+        let o = s.offset_ray_origin(p, front);
+        let full = s.accel.intersect(o, d, f32::INFINITY);
+        assert_eq!(key(full), key(s.intersect_surface(o, d, 0, tri)), "ray {i} from triangle {tri}");
+        let Some(solid) = s.solid_left(tri, d) else { continue };
+        assert_eq!(s.solid_of(tri), Some(solid));
+        assert_eq!(s.solid_tmin(tri, o, d), 0.0, "ray {i}: a leaving ray got an inward bound");
+        leaving += 1;
+        hits += full.is_some() as u32;
+        assert!(full.is_none_or(|h| s.solid_of(h.triangle) != Some(solid)), "ray {i}: a leaving ray met its solid");
+        // From just behind the facet the full walk may meet the solid; the skipping one seldom.
+        let inside = s.offset_ray_origin(p, -front);
+        let own = |h: Option<renderer::accel::Hit>| h.is_some_and(|h| s.solid_of(h.triangle) == Some(solid));
+        own_from_inside += own(s.accel.intersect(inside, d, f32::INFINITY)) as u32;
+        own_skipping += own(s.intersect_surface(inside, d, 0, tri)) as u32;
+    }
+    eprintln!(
+        "{leaving} of {n} rays leave a solid, {hits} of them hit something; from inside, {own_from_inside} \
+         full walks and {own_skipping} skipping ones meet the solid"
+    );
+    assert!(leaving as u64 > n / 3, "{leaving} of {n}: about half the directions leave");
+    assert!(hits > leaving / 10, "{hits} of {leaving}: the floor and the other spheres must be hit");
+    assert!(own_from_inside > leaving / 10, "{own_from_inside} full walks from inside met their solid");
+    assert!(own_skipping * 10 < own_from_inside, "{own_skipping} skipping walks met their solid: nothing was skipped");
+}

@@ -19,13 +19,19 @@ fn glass(roughness: f32) -> Material {
 /// A floor with three glass objects on it: an icosphere resting on the floor (touching it), a
 /// UV sphere, and an icosphere with a small plate inside (not isolated: no solid); a lamp above.
 fn scene() -> Scene {
+    scene_wound(false)
+}
+
+/// [`scene`], with the first sphere's winding turned inward when `inward` (a solid is a solid
+/// whichever way its triangles face).
+fn scene_wound(inward: bool) -> Scene {
     let mut b = SceneBuilder::default();
     let floor = b.material(lambert(Vec3::splat(0.6)));
     let smooth = b.material(glass(0.0));
     let rough = b.material(glass(0.3));
     let lamp = b.material(emitter(Vec3::splat(20.0)));
     b.quad(Vec3::ZERO, Vec3::new(4.0, 0.0, 0.0), Vec3::new(0.0, 0.0, -4.0), floor);
-    b.sphere(Vec3::new(-1.0, 0.5, 0.0), 0.5, 3, false, smooth);
+    b.sphere(Vec3::new(-1.0, 0.5, 0.0), 0.5, 3, inward, smooth);
     b.uv_sphere(Vec3::new(0.3, 0.6, -0.4), 0.4, 32, 16, rough);
     b.sphere(Vec3::new(1.3, 0.5, 0.6), 0.4, 2, false, smooth);
     b.quad(Vec3::new(1.3, 0.5, 0.6), Vec3::new(0.05, 0.0, 0.0), Vec3::new(0.0, 0.0, -0.05), floor);
@@ -158,10 +164,17 @@ fn renders_are_the_same_bits_with_the_solids_bound_or_without() {
 /// Rays leaving a solid through one of its facets skip the solid's subtrees
 /// (`Accel::intersect_leaving`): they find what the full walk finds. And the skip is real: the
 /// same directions from points just inside the facets, where a full walk meets the solid's own
-/// triangles, rarely do (only where a BVH leaf holds the solid's triangles with others').
+/// triangles, rarely do (only where a BVH leaf holds the solid's triangles with others'). With
+/// a sphere wound either way.
 #[test]
 fn rays_leaving_a_solid_find_what_the_full_walks_find() {
-    let s = scene();
+    for inward in [false, true] {
+        leaving_rays_in(&scene_wound(inward), inward);
+    }
+}
+
+fn leaving_rays_in(s: &Scene, inward: bool) {
+    assert_eq!(s.convex_solids(), 2, "inward winding {inward}");
     let glass: Vec<u32> = (0..s.mesh.triangles.len() as u32).filter(|&t| s.solid_of(t).is_some()).collect();
     assert!(!glass.is_empty());
     let key = |h: Option<renderer::accel::Hit>| h.map(|h| (h.triangle, h.t.to_bits(), h.b1.to_bits(), h.b2.to_bits()));
@@ -181,7 +194,7 @@ fn rays_leaving_a_solid_find_what_the_full_walks_find() {
         let front = if ng.dot(d) > 0.0 { ng } else { -ng };
         let o = s.offset_ray_origin(p, front);
         let full = s.accel.intersect(o, d, f32::INFINITY);
-        assert_eq!(key(full), key(s.intersect_surface(o, d, 0, tri)), "ray {i} from triangle {tri}");
+        assert_eq!(key(full), key(s.intersect_surface(o, d, 0, tri)), "ray {i} from triangle {tri} ({inward})");
         let Some(solid) = s.solid_left(tri, d) else { continue };
         assert_eq!(s.solid_of(tri), Some(solid));
         assert_eq!(s.solid_tmin(tri, o, d), 0.0, "ray {i}: a leaving ray got an inward bound");
@@ -195,8 +208,8 @@ fn rays_leaving_a_solid_find_what_the_full_walks_find() {
         own_skipping += own(s.intersect_surface(inside, d, 0, tri)) as u32;
     }
     eprintln!(
-        "{leaving} of {n} rays leave a solid, {hits} of them hit something; from inside, {own_from_inside} \
-         full walks and {own_skipping} skipping ones meet the solid"
+        "inward winding {inward}: {leaving} of {n} rays leave a solid, {hits} of them hit something; from \
+         inside, {own_from_inside} full walks and {own_skipping} skipping ones meet the solid"
     );
     assert!(leaving as u64 > n / 3, "{leaving} of {n}: about half the directions leave");
     assert!(hits > leaving / 10, "{hits} of {leaving}: the floor and the other spheres must be hit");

@@ -105,6 +105,9 @@ trait TraversalNode {
     fn test(&self, ray: &NodeRay) -> (u32, [f32; 8]);
     /// obvhs' `(child_base_idx, primitive_base_idx, imask)`.
     fn links(&self) -> (u32, u32, u32);
+    /// The primitive bits of leaf child `slot` (relative to `primitive_base_idx`, as in the hit
+    /// mask): its unary primitive count shifted to its first primitive's offset.
+    fn leaf_prims(&self, slot: usize) -> u32;
 }
 
 impl TraversalNode for CwBvhNode {
@@ -116,6 +119,12 @@ impl TraversalNode for CwBvhNode {
     fn links(&self) -> (u32, u32, u32) {
         (self.child_base_idx, self.primitive_base_idx, self.imask as u32)
     }
+    #[inline(always)]
+    fn leaf_prims(&self, slot: usize) -> u32 {
+        // obvhs' child metadata: a leaf's unary count in the top three bits, its offset below.
+        let meta = self.child_meta[slot] as u32;
+        ((meta >> 5) & 0x7) << (meta & 0x1f)
+    }
 }
 
 impl TraversalNode for WideNode {
@@ -126,6 +135,10 @@ impl TraversalNode for WideNode {
     #[inline(always)]
     fn links(&self) -> (u32, u32, u32) {
         (self.child_base_idx, self.primitive_base_idx, self.imask)
+    }
+    #[inline(always)]
+    fn leaf_prims(&self, slot: usize) -> u32 {
+        WideNode::leaf_prims(self, slot)
     }
 }
 
@@ -870,37 +883,58 @@ impl Accel {
     /// 500 for the scene's other rays (ARCHITECTURE.md, eighteenth round). Marks that do not fit
     /// this BVH's nodes (none made, or made for another build) leave the full walk.
     pub fn intersect_leaving(&self, o: Vec3, d: Vec3, marks: &[u32], solid: u32) -> Option<Hit> {
-        if self.top.is_some() || self.own.is_some() || self.wide.is_empty() || marks.len() != self.wide.len() {
+        if self.top.is_some() || self.own.is_some() || marks.len() != self.node_count() {
             return self.intersect(o, d, f32::INFINITY);
         }
         let (oa, da) = (Vec3A::from(o), Vec3A::from(d));
         if self.tris.is_empty() || !finite(oa, da) {
             return None;
         }
-        self.intersect_nodes::<_, false>(&self.wide, oa, da, 0.0, f32::INFINITY, |node| {
-            marks.get(node as usize) == Some(&solid)
-        })
+        let skip = |node: u32| marks.get(node as usize) == Some(&solid);
+        if self.wide.is_empty() {
+            self.intersect_nodes::<_, false>(&self.bvh.nodes, oa, da, 0.0, f32::INFINITY, skip)
+        } else {
+            self.intersect_nodes::<_, false>(&self.wide, oa, da, 0.0, f32::INFINITY, skip)
+        }
     }
 
-    /// Per decompressed node, the one mark `of_triangle` gives every triangle of its subtree
-    /// (leaf primitives of its own and of its descendants), or [`MIXED`] where they differ;
-    /// empty for a BVH without decompressed nodes (instanced, own, compressed), whose walks
-    /// then skip nothing. A subtree with no triangle at all is marked [`MIXED`] too.
+    /// How many nodes the one-level walk traverses (decompressed or compressed).
+    fn node_count(&self) -> usize {
+        if self.wide.is_empty() {
+            self.bvh.nodes.len()
+        } else {
+            self.wide.len()
+        }
+    }
+
+    /// Per node of the one-level walk (decompressed or compressed), the one mark `of_triangle`
+    /// gives every triangle of its subtree (leaf primitives of its own and of its
+    /// descendants), or [`MIXED`] where they differ; empty for an instanced BVH or the own one,
+    /// whose walks then skip nothing. A subtree with no triangle at all is marked [`MIXED`] too.
     pub(crate) fn solid_marks(&self, of_triangle: &[u32]) -> Vec<u32> {
-        const EMPTY: u32 = MIXED - 1;
-        if self.top.is_some() || self.own.is_some() || self.wide.is_empty() {
+        if self.top.is_some() || self.own.is_some() {
             return Vec::new();
         }
+        if self.wide.is_empty() {
+            self.marks_of(&self.bvh.nodes, of_triangle)
+        } else {
+            self.marks_of(&self.wide, of_triangle)
+        }
+    }
+
+    /// [`Self::solid_marks`] over `nodes`.
+    fn marks_of<N: TraversalNode>(&self, nodes: &[N], of_triangle: &[u32]) -> Vec<u32> {
+        const EMPTY: u32 = MIXED - 1;
         let join = |a: u32, b: u32| match (a, b) {
             (EMPTY, x) | (x, EMPTY) => x,
             (x, y) if x == y => x,
             _ => MIXED,
         };
-        let mut marks = vec![EMPTY; self.wide.len()];
+        let mut marks = vec![EMPTY; nodes.len()];
         // Children come after their parent in obvhs' layout, so one pass from the back sees a
         // node's children before the node; a layout that breaks this gets no marks.
-        for n in (0..self.wide.len()).rev() {
-            let node = &self.wide[n];
+        for n in (0..nodes.len()).rev() {
+            let node = &nodes[n];
             let (_, prim_base, imask) = node.links();
             let mut mark = EMPTY;
             for slot in 0..8u32 {

@@ -165,16 +165,21 @@ fn renders_are_the_same_bits_with_the_solids_bound_or_without() {
 /// (`Accel::intersect_leaving`): they find what the full walk finds. And the skip is real: the
 /// same directions from points just inside the facets, where a full walk meets the solid's own
 /// triangles, rarely do (only where a BVH leaf holds the solid's triangles with others'). With
-/// a sphere wound either way.
+/// a sphere wound either way, over decompressed and compressed nodes.
 #[test]
 fn rays_leaving_a_solid_find_what_the_full_walks_find() {
+    use renderer::accel::AccelKind;
     for inward in [false, true] {
-        leaving_rays_in(&scene_wound(inward), inward);
+        for kind in [AccelKind::Obvhs, AccelKind::ObvhsCompressed] {
+            let mut s = scene_wound(inward);
+            s.use_accel(kind);
+            leaving_rays_in(&s, &format!("inward winding {inward}, {kind:?}"));
+        }
     }
 }
 
-fn leaving_rays_in(s: &Scene, inward: bool) {
-    assert_eq!(s.convex_solids(), 2, "inward winding {inward}");
+fn leaving_rays_in(s: &Scene, case: &str) {
+    assert_eq!(s.convex_solids(), 2, "{case}");
     let glass: Vec<u32> = (0..s.mesh.triangles.len() as u32).filter(|&t| s.solid_of(t).is_some()).collect();
     assert!(!glass.is_empty());
     let key = |h: Option<renderer::accel::Hit>| h.map(|h| (h.triangle, h.t.to_bits(), h.b1.to_bits(), h.b2.to_bits()));
@@ -194,7 +199,7 @@ fn leaving_rays_in(s: &Scene, inward: bool) {
         let front = if ng.dot(d) > 0.0 { ng } else { -ng };
         let o = s.offset_ray_origin(p, front);
         let full = s.accel.intersect(o, d, f32::INFINITY);
-        assert_eq!(key(full), key(s.intersect_surface(o, d, 0, tri)), "ray {i} from triangle {tri} ({inward})");
+        assert_eq!(key(full), key(s.intersect_surface(o, d, 0, tri)), "{case}: ray {i} from triangle {tri}");
         let Some(solid) = s.solid_left(tri, d) else { continue };
         assert_eq!(s.solid_of(tri), Some(solid));
         assert_eq!(s.solid_tmin(tri, o, d), 0.0, "ray {i}: a leaving ray got an inward bound");
@@ -208,7 +213,7 @@ fn leaving_rays_in(s: &Scene, inward: bool) {
         own_skipping += own(s.intersect_surface(inside, d, 0, tri)) as u32;
     }
     eprintln!(
-        "inward winding {inward}: {leaving} of {n} rays leave a solid, {hits} of them hit something; from \
+        "{case}: {leaving} of {n} rays leave a solid, {hits} of them hit something; from \
          inside, {own_from_inside} full walks and {own_skipping} skipping ones meet the solid"
     );
     assert!(leaving as u64 > n / 3, "{leaving} of {n}: about half the directions leave");

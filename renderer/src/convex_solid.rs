@@ -16,7 +16,7 @@
 //! * **isolated**: no other triangle of the scene reaches into its hull (one whose bounds meet
 //!   the hull's box must be separated from it by its own plane or by one of the hull's),
 //!
-//! — two things follow, both exact:
+//! — three things follow, all exact:
 //!
 //! * **Inward rays** ([`ConvexSolids::tmin`]): a ray that starts on one of its triangles and
 //!   passes through the ball of radius `r` about the centre `c` that lies inside every facet plane
@@ -38,6 +38,14 @@
 //!   shadow rays, glass included, so solids are made only of alpha-OPAQUE triangles). On `glass`
 //!   15 % of the shadow rays were inward rays through a sphere, and the spheres' shadows on the
 //!   floor add more.
+//!
+//! * **Leaving rays** ([`ConvexSolids::leaving`]): a ray that starts on one of its facets and
+//!   points ahead of that facet's plane cannot meet the solid again (the solid lies on or
+//!   behind every facet's plane), so its walk of the scene's BVH skips the subtrees that hold
+//!   the solid's triangles alone ([`crate::accel::Accel::intersect_leaving`]). Such a walk
+//!   started inside the solid's boxes and tested the triangles around its origin: on `glass`
+//!   16 065 such rays cost 1 282 instructions each against 500 for the others (64×48, 16 spp);
+//!   with the skip, the render's instructions fell 3.8 %.
 //!
 //! Solids are looked for among transmissive triangles only (`Scene`'s `find_solids` says why).
 //! Scenes with instances, more than `MAX_SCENE_TRIANGLES` triangles or more than
@@ -408,8 +416,9 @@ impl ConvexSolids {
         }
         let [a, b, c] = mesh.vertices(from).map(|v| v.as_dvec3());
         let n = (b - a).cross(c - a) * self.solids[s as usize].outward;
-        let d = d.as_dvec3();
-        (n.dot(d) > LEAVING_MARGIN * (n.length_squared() * d.length_squared()).sqrt()).then_some(s)
+        let (d, nd) = (d.as_dvec3(), n.dot(d.as_dvec3()));
+        // n·d > margin·|n|·|d|, squared (no square root).
+        (nd > 0.0 && nd * nd > LEAVING_MARGIN * LEAVING_MARGIN * n.length_squared() * d.length_squared()).then_some(s)
     }
 
     /// The solid triangle `t` is a facet of, if any.

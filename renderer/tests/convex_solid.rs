@@ -40,6 +40,21 @@ fn scene_wound(inward: bool) -> Scene {
     b.build()
 }
 
+/// A hit as bits (triangle, t, barycentrics), to compare walks exactly.
+fn key(h: Option<renderer::accel::Hit>) -> Option<(u32, u32, u32, u32)> {
+    h.map(|h| (h.triangle, h.t.to_bits(), h.b1.to_bits(), h.b2.to_bits()))
+}
+
+/// Ray `i`'s start: a random one of triangles `tris`, a random point of it, its unit winding
+/// normal (random numbers 5i to 5i + 2; the caller's direction may take 5i + 3 and 5i + 4).
+fn point_on(s: &Scene, tris: &[u32], i: u64) -> (u32, Vec3, Vec3) {
+    let tri = tris[((u(5 * i) * tris.len() as f32) as usize).min(tris.len() - 1)];
+    let [a, b, c] = s.mesh.vertices(tri);
+    let (b1, b2) = (u(5 * i + 1), u(5 * i + 2));
+    let (b1, b2) = if b1 + b2 > 1.0 { (1.0 - b1, 1.0 - b2) } else { (b1, b2) };
+    (tri, a + (b - a) * b1 + (c - a) * b2, (b - a).cross(c - a).normalize())
+}
+
 #[test]
 fn inward_rays_bounded_by_a_solids_ball_find_what_the_full_walks_find() {
     let s = scene();
@@ -51,12 +66,7 @@ fn inward_rays_bounded_by_a_solids_ball_find_what_the_full_walks_find() {
     for i in 0..n {
         // A random point of a random glass triangle, a direction into the inside (refraction
         // and internal reflection go there), the origin offset as the integrator offsets it.
-        let tri = glass[((u(5 * i) * glass.len() as f32) as usize).min(glass.len() - 1)];
-        let [a, b, c] = s.mesh.vertices(tri);
-        let (b1, b2) = (u(5 * i + 1), u(5 * i + 2));
-        let (b1, b2) = if b1 + b2 > 1.0 { (1.0 - b1, 1.0 - b2) } else { (b1, b2) };
-        let p = a + (b - a) * b1 + (c - a) * b2;
-        let ng = (b - a).cross(c - a).normalize();
+        let (tri, p, ng) = point_on(&s, &glass, i);
         let (z, phi) = (u(5 * i + 3), std::f32::consts::TAU * u(5 * i + 4));
         let frame = renderer::math::Frame::from_normal(-ng);
         let r = (1.0 - z * z).max(0.0).sqrt();
@@ -65,8 +75,6 @@ fn inward_rays_bounded_by_a_solids_ball_find_what_the_full_walks_find() {
         let tmin = s.solid_tmin(tri, o, d);
         let full = s.accel.intersect(o, d, f32::INFINITY);
         let cut = s.intersect_surface(o, d, 0, tri);
-        let key =
-            |h: Option<renderer::accel::Hit>| h.map(|h| (h.triangle, h.t.to_bits(), h.b1.to_bits(), h.b2.to_bits()));
         assert_eq!(key(full), key(cut), "ray {i} from triangle {tri}: bound {tmin}");
         if tmin > 0.0 {
             bounded += 1;
@@ -182,20 +190,14 @@ fn leaving_rays_in(s: &Scene, case: &str) {
     assert_eq!(s.convex_solids(), 2, "{case}");
     let glass: Vec<u32> = (0..s.mesh.triangles.len() as u32).filter(|&t| s.solid_of(t).is_some()).collect();
     assert!(!glass.is_empty());
-    let key = |h: Option<renderer::accel::Hit>| h.map(|h| (h.triangle, h.t.to_bits(), h.b1.to_bits(), h.b2.to_bits()));
     let (mut leaving, mut hits, mut own_from_inside, mut own_skipping) = (0u32, 0u32, 0u32, 0u32);
     let n = 40_000u64;
     for i in 0..n {
-        let tri = glass[((u(5 * i) * glass.len() as f32) as usize).min(glass.len() - 1)];
-        let [a, b, c] = s.mesh.vertices(tri);
-        let (b1, b2) = (u(5 * i + 1), u(5 * i + 2));
-        let (b1, b2) = if b1 + b2 > 1.0 { (1.0 - b1, 1.0 - b2) } else { (b1, b2) };
-        let p = a + (b - a) * b1 + (c - a) * b2;
+        let (tri, p, ng) = point_on(s, &glass, i);
         // Any direction: the test sorts out which leave.
         let (z, phi) = (2.0 * u(5 * i + 3) - 1.0, std::f32::consts::TAU * u(5 * i + 4));
         let r = (1.0 - z * z).max(0.0).sqrt();
         let d = Vec3::new(r * phi.cos(), r * phi.sin(), z);
-        let ng = (b - a).cross(c - a).normalize();
         let front = if ng.dot(d) > 0.0 { ng } else { -ng };
         let o = s.offset_ray_origin(p, front);
         let full = s.accel.intersect(o, d, f32::INFINITY);

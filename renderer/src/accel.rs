@@ -35,10 +35,6 @@ pub struct Hit {
 /// `Hit::instance` of a world-space triangle.
 pub const NO_INSTANCE: u32 = u32::MAX;
 
-/// [`Accel::solid_marks`]' mark of a subtree whose triangles belong to different solids, or to
-/// none (`convex_solid::NONE`, the same value).
-pub const MIXED: u32 = u32::MAX;
-
 /// The top level of a scene with instances.
 /// (Its BVH is `Accel::bvh`.)
 struct TopLevel {
@@ -698,6 +694,10 @@ pub struct Accel {
     own: Option<crate::bvh::Bvh>,
     /// Set when the scene has instances (then `bvh`, `tris` and `own` are empty).
     top: Option<Box<TopLevel>>,
+    /// Per node of the one-level walk, the glass solid whose triangles alone its subtree holds,
+    /// else `convex_solid::NONE` ([`Self::mark_solids`]); empty until marked. Part of the
+    /// BVH, so a rebuild starts unmarked and can never skip by another build's marks.
+    solid_of_node: Vec<u32>,
 }
 
 impl Accel {
@@ -739,6 +739,7 @@ impl Accel {
                 batch_rays: false,
                 own: Some(crate::bvh::Bvh::build(tris)),
                 top: None,
+                solid_of_node: Vec::new(),
             };
         }
         let prims: Vec<obvhs::triangle::Triangle> = ids
@@ -762,7 +763,18 @@ impl Accel {
         );
         let (bvh, wide) = decompress(bvh, prims.len(), kind.wide_up_to());
         let batch_rays = prims.len() > BATCH_RAYS_ABOVE;
-        Accel { stack_len, bvh, wide, kind, tris, scalar_reference: false, batch_rays, own: None, top: None }
+        Accel {
+            stack_len,
+            bvh,
+            wide,
+            kind,
+            tris,
+            scalar_reference: false,
+            batch_rays,
+            own: None,
+            top: None,
+            solid_of_node: Vec::new(),
+        }
     }
 
     /// After an animation moved instances or world vertices: a new top level over the prototype
@@ -875,68 +887,52 @@ impl Accel {
 
     /// [`Self::intersect`] with no distance limit for a ray leaving closed convex solid `solid`
     /// through one of its facets (`ConvexSolids::leaving`): the walk does not go into subtrees
-    /// that hold that solid's triangles alone (`marks`, from [`Self::solid_marks`]), since the
-    /// ray cannot meet the solid again (the solid lies behind the facet's plane, the ray ahead
-    /// of it). Every other node is visited in the order the full walk visits it, so where the
-    /// full walk meets nothing of the solid, the hit is the same bits, ties included. Rays
-    /// leaving a glass sphere started inside its boxes and cost 1 282 instructions each against
-    /// 500 for the scene's other rays (ARCHITECTURE.md, eighteenth round). Marks that do not fit
-    /// this BVH's nodes (none made, or made for another build) leave the full walk.
-    pub fn intersect_leaving(&self, o: Vec3, d: Vec3, marks: &[u32], solid: u32) -> Option<Hit> {
-        if self.top.is_some() || self.own.is_some() || marks.len() != self.node_count() {
+    /// that hold that solid's triangles alone ([`Self::mark_solids`]), since the ray cannot meet
+    /// the solid again (the solid lies behind the facet's plane, the ray ahead of it). Every
+    /// other node is visited in the order the full walk visits it, so where the full walk meets
+    /// nothing of the solid, the hit is the same bits, ties included. Rays leaving a glass
+    /// sphere started inside its boxes and cost 1 282 instructions each against 500 for the
+    /// scene's other rays (ARCHITECTURE.md, eighteenth round). Unmarked, it is the full walk.
+    pub fn intersect_leaving(&self, o: Vec3, d: Vec3, solid: u32) -> Option<Hit> {
+        if self.solid_of_node.is_empty() {
             return self.intersect(o, d, f32::INFINITY);
         }
-        let (oa, da) = (Vec3A::from(o), Vec3A::from(d));
-        if self.tris.is_empty() || !finite(oa, da) {
-            return None;
-        }
-        let skip = |node: u32| marks.get(node as usize) == Some(&solid);
-        if self.wide.is_empty() {
-            self.intersect_nodes::<_, false>(&self.bvh.nodes, oa, da, 0.0, f32::INFINITY, skip)
-        } else {
-            self.intersect_nodes::<_, false>(&self.wide, oa, da, 0.0, f32::INFINITY, skip)
-        }
+        let skip = |node: u32| self.solid_of_node.get(node as usize) == Some(&solid);
+        self.intersect_object::<false>(Vec3A::from(o), Vec3A::from(d), 0.0, f32::INFINITY, skip)
     }
 
-    /// How many nodes the one-level walk traverses (decompressed or compressed).
-    fn node_count(&self) -> usize {
-        if self.wide.is_empty() {
-            self.bvh.nodes.len()
-        } else {
-            self.wide.len()
-        }
-    }
-
-    /// Per node of the one-level walk (decompressed or compressed), the one mark `of_triangle`
-    /// gives every triangle of its subtree (leaf primitives of its own and of its
-    /// descendants), or [`MIXED`] where they differ; empty for an instanced BVH or the own one,
-    /// whose walks then skip nothing. A subtree with no triangle at all is marked [`MIXED`] too.
-    pub(crate) fn solid_marks(&self, of_triangle: &[u32]) -> Vec<u32> {
-        if self.top.is_some() || self.own.is_some() {
-            return Vec::new();
-        }
-        if self.wide.is_empty() {
+    /// Marks each node of the one-level walk (decompressed or compressed) with the one entry of
+    /// `of_triangle` (a solid's index, or `convex_solid::NONE`) that every triangle of its
+    /// subtree has, or `NONE` where they differ, for [`Self::intersect_leaving`]. An empty
+    /// `of_triangle` (no solids), an instanced BVH or the own one leave it unmarked.
+    pub(crate) fn mark_solids(&mut self, of_triangle: &[u32]) {
+        self.solid_of_node = if of_triangle.is_empty() || self.top.is_some() || self.own.is_some() {
+            Vec::new()
+        } else if self.wide.is_empty() {
             self.marks_of(&self.bvh.nodes, of_triangle)
         } else {
             self.marks_of(&self.wide, of_triangle)
-        }
+        };
     }
 
-    /// [`Self::solid_marks`] over `nodes`.
+    /// [`Self::mark_solids`]' marks over `nodes`: empty if the layout is not parents first.
     fn marks_of<N: TraversalNode>(&self, nodes: &[N], of_triangle: &[u32]) -> Vec<u32> {
-        const EMPTY: u32 = MIXED - 1;
+        use crate::convex_solid::NONE;
+        // A node's mark before any of its triangles is seen (every node has some; the value
+        // is no solid's index either way, so it never makes a walk skip).
+        const UNSEEN: u32 = NONE - 1;
         let join = |a: u32, b: u32| match (a, b) {
-            (EMPTY, x) | (x, EMPTY) => x,
+            (UNSEEN, x) | (x, UNSEEN) => x,
             (x, y) if x == y => x,
-            _ => MIXED,
+            _ => NONE,
         };
-        let mut marks = vec![EMPTY; nodes.len()];
+        let mut marks = vec![UNSEEN; nodes.len()];
         // Children come after their parent in obvhs' layout, so one pass from the back sees a
-        // node's children before the node; a layout that breaks this gets no marks.
+        // node's children before the node.
         for n in (0..nodes.len()).rev() {
             let node = &nodes[n];
             let (_, prim_base, imask) = node.links();
-            let mut mark = EMPTY;
+            let mut mark = UNSEEN;
             for slot in 0..8u32 {
                 if imask & (1 << slot) != 0 {
                     let c = inner_child(node, slot) as usize;
@@ -950,16 +946,11 @@ impl Accel {
                         let prim = prim_base as usize + prims.trailing_zeros() as usize;
                         prims &= prims - 1;
                         let tri = self.tris.ids.get(prim).and_then(|&t| of_triangle.get(t as usize));
-                        mark = join(mark, tri.copied().unwrap_or(MIXED));
+                        mark = join(mark, tri.copied().unwrap_or(NONE));
                     }
                 }
             }
             marks[n] = mark;
-        }
-        for m in &mut marks {
-            if *m == EMPTY {
-                *m = MIXED;
-            }
         }
         marks
     }
@@ -973,7 +964,7 @@ impl Accel {
         if let Some(own) = &self.own {
             return Self::intersect_own(own, o, d, tmax);
         }
-        self.intersect_object::<BOUNDED>(Vec3A::from(o), Vec3A::from(d), tmin, tmax)
+        self.intersect_object::<BOUNDED>(Vec3A::from(o), Vec3A::from(d), tmin, tmax, |_| false)
     }
 
     /// Each ray's closest hit from `origin` along `directions` into `out` (what
@@ -1124,7 +1115,8 @@ impl Accel {
                     }
                     TopPrim::Instance { index, prototype, to_object } => {
                         let (oo, dd) = (to_object.transform_point3a(oa), to_object.transform_vector3a(da));
-                        if let Some(mut h) = top.blas[*prototype as usize].intersect_object::<false>(oo, dd, 0.0, bound)
+                        if let Some(mut h) =
+                            top.blas[*prototype as usize].intersect_object::<false>(oo, dd, 0.0, bound, |_| false)
                         {
                             h.instance = *index;
                             best = Some(h);
@@ -1140,16 +1132,24 @@ impl Accel {
 
     /// Closest hit in a one-level BVH (the scene's, or a prototype's with the ray already in object
     /// space, direction unnormalised). `BOUNDED`: the node tests start at `tmin` (else at 0, a
-    /// constant the walk is compiled with: scenes without glass solids pay nothing for the bound).
+    /// constant the walk is compiled with: scenes without glass solids pay nothing for the bound);
+    /// `skip` as in [`traverse_closest`].
     #[inline(always)]
-    fn intersect_object<const BOUNDED: bool>(&self, oa: Vec3A, da: Vec3A, tmin: f32, tmax: f32) -> Option<Hit> {
+    fn intersect_object<const BOUNDED: bool>(
+        &self,
+        oa: Vec3A,
+        da: Vec3A,
+        tmin: f32,
+        tmax: f32,
+        skip: impl Fn(u32) -> bool,
+    ) -> Option<Hit> {
         if self.tris.is_empty() || !finite(oa, da) {
             return None;
         }
         if self.wide.is_empty() {
-            self.intersect_nodes::<_, BOUNDED>(&self.bvh.nodes, oa, da, tmin, tmax, |_| false)
+            self.intersect_nodes::<_, BOUNDED>(&self.bvh.nodes, oa, da, tmin, tmax, skip)
         } else {
-            self.intersect_nodes::<_, BOUNDED>(&self.wide, oa, da, tmin, tmax, |_| false)
+            self.intersect_nodes::<_, BOUNDED>(&self.wide, oa, da, tmin, tmax, skip)
         }
     }
 

@@ -298,10 +298,6 @@ pub struct ConvexSolids {
     surfaces: Vec<Option<SolidSurface>>,
     /// Inward rays skip the surface walk and walk the BVH alone (tests compare the two).
     bvh_only: bool,
-    /// Per node of the scene's BVH, the solid whose triangles alone its subtree holds, else
-    /// [`NONE`] ([`crate::accel::Accel::solid_marks`]; empty when not made): rays leaving a
-    /// solid skip its subtrees ([`Self::leaving`]).
-    node_marks: Vec<u32>,
 }
 
 impl ConvexSolids {
@@ -411,7 +407,7 @@ impl ConvexSolids {
     #[inline]
     pub(crate) fn leaving(&self, mesh: &Mesh, from: u32, d: Vec3) -> Option<u32> {
         let s = *self.of_triangle.get(from as usize)?;
-        if s == NONE || self.node_marks.is_empty() {
+        if s == NONE {
             return None;
         }
         let [a, b, c] = mesh.vertices(from).map(|v| v.as_dvec3());
@@ -426,15 +422,11 @@ impl ConvexSolids {
         self.of_triangle.get(t as usize).copied().filter(|&s| s != NONE)
     }
 
-    /// The marks [`Self::leaving`]'s walks skip by (empty when none were made).
-    pub(crate) fn node_marks(&self) -> &[u32] {
-        &self.node_marks
-    }
-
     /// Marks the nodes of `accel` (the scene's BVH) by the solid their subtree belongs to, for
-    /// [`Self::leaving`]; again after the BVH is rebuilt.
-    pub(crate) fn mark_nodes(&mut self, accel: &crate::accel::Accel) {
-        self.node_marks = if self.solids.is_empty() { Vec::new() } else { accel.solid_marks(&self.of_triangle) };
+    /// [`Self::leaving`]'s walks ([`crate::accel::Accel::mark_solids`]; unmarked without solids).
+    /// Again whenever the BVH is rebuilt: a new one starts unmarked.
+    pub(crate) fn mark_nodes(&self, accel: &mut crate::accel::Accel) {
+        accel.mark_solids(&self.of_triangle);
     }
 
     /// [`Self::bound`]'s distance, 0 where there is none.

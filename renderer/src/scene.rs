@@ -60,8 +60,8 @@ pub struct Scene {
 /// time; veach's four sphere lights: 1.07× the time, every shadow ray testing four balls).
 ///
 /// The scene's BVH `accel` is marked by solid, so rays leaving one skip its subtrees.
-fn find_solids(mesh: &Mesh, materials: &[Material], accel: &Accel) -> crate::convex_solid::ConvexSolids {
-    let mut solids = crate::convex_solid::ConvexSolids::find(mesh, |m| {
+fn find_solids(mesh: &Mesh, materials: &[Material], accel: &mut Accel) -> crate::convex_solid::ConvexSolids {
+    let solids = crate::convex_solid::ConvexSolids::find(mesh, |m| {
         materials.get(m as usize).is_some_and(|m| {
             (m.transmission > 0.0 || m.transmission_texture.is_some()) && m.alpha_mode == AlphaMode::Opaque
         })
@@ -81,14 +81,14 @@ impl Scene {
     pub fn new(mesh: Mesh, materials: Vec<Material>, textures: Vec<Texture>, cameras: Vec<Camera>) -> Self {
         let (min, max) = mesh.world_bounds().unwrap_or((Vec3::splat(-1.0), Vec3::splat(1.0)));
         let t = std::time::Instant::now();
-        let accel = Accel::build(&mesh);
+        let mut accel = Accel::build(&mesh);
         tracing::debug!(triangles = mesh.triangles.len(), seconds = t.elapsed().as_secs_f64(), "BVH built");
         let lights = LightSet::build(&mesh, &materials, &textures, Vec::new(), None, (max - min).length() * 0.5);
         tracing::debug!(triangles = mesh.triangles.len(), lights = lights.lights.len(), "scene built");
         let transparent = materials.iter().any(|m| m.alpha_mode != AlphaMode::Opaque);
         let uniform_bsdfs: Vec<Option<Bsdf>> = materials.iter().map(Material::uniform_bsdf).collect();
         let lane_materials = crate::spmd::LaneMaterial::table(&mesh, &materials, &uniform_bsdfs);
-        let solids = find_solids(&mesh, &materials, &accel);
+        let solids = find_solids(&mesh, &materials, &mut accel);
         Scene {
             mesh,
             materials,
@@ -251,7 +251,7 @@ impl Scene {
         self.time = t;
         self.pose_key = Some((frame, settings.fps.to_bits(), settings.animation.clone()));
         self.accel.rebuild_top(&self.mesh);
-        self.solids = find_solids(&self.mesh, &self.materials, &self.accel);
+        self.solids = find_solids(&self.mesh, &self.materials, &mut self.accel);
         if let Some(b) = self.mesh.world_bounds() {
             self.bounds = b;
             self.offset_scale = offset_scale_of(b);
@@ -386,13 +386,19 @@ impl Scene {
     /// Turns the solids' bound off (false: every walk starts at 0) or finds them again
     /// (`renderer/tests/convex_solid.rs` renders both; the hits are the same).
     pub fn set_convex_solids(&mut self, on: bool) {
-        self.solids = if on { find_solids(&self.mesh, &self.materials, &self.accel) } else { Default::default() };
+        self.solids = if on {
+            find_solids(&self.mesh, &self.materials, &mut self.accel)
+        } else {
+            let none = crate::convex_solid::ConvexSolids::default();
+            none.mark_nodes(&mut self.accel);
+            none
+        };
     }
 
     /// Rebuilds the ray-query structure with another BVH (benchmarks compare them).
     pub fn use_accel(&mut self, kind: crate::accel::AccelKind) {
         self.accel = Accel::build_with(&self.mesh, kind);
-        self.solids.mark_nodes(&self.accel);
+        self.solids.mark_nodes(&mut self.accel);
     }
 
     #[inline]
@@ -454,7 +460,7 @@ impl Scene {
         } else if let Some((tmin, solid)) = self.solids.bound(from, o, d) {
             self.solids.closest(solid, o, d, tmin)
         } else if let Some(solid) = self.solids.leaving(&self.mesh, from, d) {
-            self.accel.intersect_leaving(o, d, self.solids.node_marks(), solid)
+            self.accel.intersect_leaving(o, d, solid)
         } else {
             self.accel.intersect(o, d, f32::INFINITY)
         };
@@ -511,7 +517,7 @@ impl Scene {
                     if let Some((tmin, solid)) = self.solids.bound(from[k], o[k], d[k]) {
                         out[k] = self.solids.closest(solid, o[k], d[k], tmin);
                     } else if let Some(solid) = self.solids.leaving(&self.mesh, from[k], d[k]) {
-                        out[k] = self.accel.intersect_leaving(o[k], d[k], self.solids.node_marks(), solid);
+                        out[k] = self.accel.intersect_leaving(o[k], d[k], solid);
                     } else {
                         (qo[m], qd[m], at[m]) = (o[k], d[k], k);
                         m += 1;

@@ -3,7 +3,8 @@
 #
 #   docker/build-images.sh            # builds the release binary, a base image if needed, then tessera:latest
 #   TESSERA_PGO=1 docker/build-images.sh   # the same with a profile-guided binary (scripts/build-pgo.sh:
-#                                          # same images, 4-15 % more paths/s, about 20 more minutes)
+#                                          # same images; 0.97-1.02 of the plain build's time with today's
+#                                          # renderer, see ARCHITECTURE.md; 8-20 more minutes)
 #
 # Base image, first that works: $TESSERA_BASE_IMAGE if set; debian:bookworm-slim if the engine already has
 # it or can pull it; otherwise a minimal Debian bookworm root made here with debootstrap from Debian's

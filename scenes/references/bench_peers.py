@@ -5,6 +5,7 @@
     apt-get install libllvm19    # for Mitsuba's vectorised CPU backend (llvm_ad_rgb)
     python3 scenes/references/bench_peers.py [--spp 64] [--runs 3] [--variants scalar_rgb llvm_ad_rgb] [scenes...]
     python3 scenes/references/bench_peers.py --before /tmp/tessera-before ...   # before and after in one command
+    python3 scenes/references/bench_peers.py --threads 1 ...   # per core: one thread for every renderer
 
 For each scene with a Mitsuba reference (make_references.py) it renders, at the reference's resolution
 and `--spp`, with `tessera render` (default settings: mis, Sobol; the render time Tessera reports,
@@ -68,8 +69,31 @@ def main():
                          "so a noisy machine's slow spells fall on both builds alike")
     ap.add_argument("--vector-width", type=int, choices=[4, 8, 16],
                     help="Dr.Jit's LLVM vector width for the llvm variants (default: the host's widest)")
+    ap.add_argument("--threads", type=int, metavar="N",
+                    help="threads for every renderer: Tessera's --threads and Dr.Jit's thread pool "
+                         "(dr.set_thread_count, which Mitsuba's scalar and llvm variants both render on); "
+                         "1 compares per-core speed, the issue's measure, without the two cores' interplay "
+                         "(default: all cores for both)")
     ap.add_argument("scenes", nargs="*", default=list(mr.SCENES))
     a = ap.parse_args()
+    if a.threads is not None:
+        if a.threads < 1:
+            ap.error("--threads must be at least 1")
+        a.tessera_args = f"{a.tessera_args} --threads {a.threads}"
+
+    def peer_render(scene, seed):
+        """mi.render, evaluated, on `--threads` of Dr.Jit's pool. The pool is set to N only around
+        the render: with one thread set beforehand, Mitsuba's own EXR loading (mi.Bitmap, which
+        this script reads every image with) hangs (Mitsuba 3.9.1, Dr.Jit's pool of one)."""
+        if a.threads is None:
+            return np.array(mi.render(scene, seed=seed, spp=a.spp), dtype=np.float64)
+        import drjit as dr
+        default = dr.thread_count()
+        dr.set_thread_count(a.threads)
+        try:
+            return np.array(mi.render(scene, seed=seed, spp=a.spp), dtype=np.float64)
+        finally:
+            dr.set_thread_count(default)
     # `--variants llvm_ad_rgb cornell` would otherwise take the scene for a variant (nargs="+" is
     # greedy) and run every scene: scene names given there are scenes.
     moved = [v for v in a.variants if v in mr.SCENES]
@@ -103,7 +127,7 @@ def main():
                         width = set_vector_width(dr, a.vector_width)
                         print(f"{name}: {variant} with Dr.Jit vector width {width}", file=sys.stderr)
                     scene = mi.load_dict(mr.build_scene(os.path.join(mr.ROOT, rel), w, h, 1, tmp, env))
-                    mi.render(scene, seed=999, spp=a.spp)  # warm-up (JIT compilation for llvm)
+                    peer_render(scene, 999)  # warm-up (JIT compilation for llvm)
                     peers.append((variant, scene, [], []))
                 except Exception as e:  # a missing libLLVM says so and the others still run
                     print(f"{name}: {variant} unavailable: {e}", file=sys.stderr)
@@ -121,7 +145,7 @@ def main():
                 for variant, scene, ptimes, perrs in peers:
                     mi.set_variant(variant)
                     t0 = time.perf_counter()
-                    img = np.array(mi.render(scene, seed=1000 + r, spp=a.spp), dtype=np.float64)[:, :, :3]
+                    img = peer_render(scene, 1000 + r)[:, :, :3]
                     ptimes.append(time.perf_counter() - t0)
                     perrs.append(rel_mse(img, ref))
             rows = [(label, statistics.median(t), statistics.median(e))
@@ -139,7 +163,9 @@ def main():
             return max(e - own, 0.1 * e)
         base = 1.0 / (rows[0][1] * net(rows[0][2]))
         base_raw = 1.0 / (rows[0][1] * rows[0][2])
-        print(f"\n{name} ({w}x{h}, {a.spp} spp, median of {a.runs} runs; the reference's own relMSE {own:.2e}, subtracted)")
+        threads = f", {a.threads} thread{'s' if a.threads > 1 else ''}" if a.threads else ""
+        print(f"\n{name} ({w}x{h}, {a.spp} spp{threads}, median of {a.runs} runs; the reference's own relMSE "
+              f"{own:.2e}, subtracted)")
         print(f"{'renderer':<22} {'seconds':>8} {'Mpaths/s':>9} {'raw relMSE':>10} {'relMSE':>10} {'efficiency':>11} "
               f"{'vs tessera':>10} {'raw vs':>7}")
         for label, t, e in rows:

@@ -117,9 +117,9 @@ impl TraversalNode for CwBvhNode {
     }
     #[inline(always)]
     fn leaf_prims(&self, slot: usize) -> u32 {
-        // obvhs' child metadata: a leaf's unary count in the top three bits, its offset below.
-        let meta = self.child_meta[slot] as u32;
-        ((meta >> 5) & 0x7) << (meta & 0x1f)
+        // obvhs' own decoding of the child's metadata: its first primitive and their count.
+        let (first, count) = self.child_primitives(slot);
+        ((1 << count) - 1) << (first - self.primitive_base_idx)
     }
 }
 

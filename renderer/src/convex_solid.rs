@@ -45,7 +45,8 @@
 //!   the solid's triangles alone ([`crate::accel::Accel::intersect_leaving`]). Such a walk
 //!   started inside the solid's boxes and tested the triangles around its origin: on `glass`
 //!   16 065 such rays cost 1 282 instructions each against 500 for the others (64×48, 16 spp);
-//!   with the skip, the render's instructions fell 3.8 %.
+//!   with the skip, the render's fell 4.0 % (callgrind `render_tile_counted`, 256.95 M →
+//!   246.61 M).
 //!
 //! Solids are looked for among transmissive triangles only (`Scene`'s `find_solids` says why).
 //! Scenes with instances, more than `MAX_SCENE_TRIANGLES` triangles or more than

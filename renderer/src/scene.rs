@@ -389,9 +389,8 @@ impl Scene {
         self.solids = if on {
             find_solids(&self.mesh, &self.materials, &mut self.accel)
         } else {
-            let none = crate::convex_solid::ConvexSolids::default();
-            none.mark_nodes(&mut self.accel);
-            none
+            self.accel.mark_solids(&[]);
+            Default::default()
         };
     }
 
@@ -460,6 +459,9 @@ impl Scene {
         } else if let Some((tmin, solid)) = self.solids.bound(from, o, d) {
             self.solids.closest(solid, o, d, tmin)
         } else if let Some(solid) = self.solids.leaving(&self.mesh, from, d) {
+            // Asked after the bound: asked first it charged every inward ray the facet's normal
+            // (glass +0.8 % instructions). The batch below asks in the same order; a helper for
+            // both cost glass 0.6 % more instructions (callgrind), so the two stay written out.
             self.accel.intersect_leaving(o, d, solid)
         } else {
             self.accel.intersect(o, d, f32::INFINITY)

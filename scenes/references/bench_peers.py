@@ -82,16 +82,18 @@ def main():
         a.tessera_args = f"{a.tessera_args} --threads {a.threads}"
 
     def peer_render(scene, seed):
-        """mi.render, evaluated, on `--threads` of Dr.Jit's pool. The pool is set to N only around
-        the render: with one thread set beforehand, Mitsuba's own EXR loading (mi.Bitmap, which
-        this script reads every image with) hangs (Mitsuba 3.9.1, Dr.Jit's pool of one)."""
-        if a.threads is None:
-            return np.array(mi.render(scene, seed=seed, spp=a.spp), dtype=np.float64)
+        """mi.render, evaluated, and its seconds, on `--threads` of Dr.Jit's pool. The pool is set
+        to N only around the render, outside the timing: with one thread set beforehand,
+        Mitsuba's own EXR loading (mi.Bitmap, which this script reads every image with) hangs
+        (Mitsuba 3.9.1, Dr.Jit's pool of one)."""
         import drjit as dr
         default = dr.thread_count()
-        dr.set_thread_count(a.threads)
+        if a.threads is not None:
+            dr.set_thread_count(a.threads)
         try:
-            return np.array(mi.render(scene, seed=seed, spp=a.spp), dtype=np.float64)
+            t0 = time.perf_counter()
+            img = np.array(mi.render(scene, seed=seed, spp=a.spp), dtype=np.float64)
+            return img, time.perf_counter() - t0
         finally:
             dr.set_thread_count(default)
     # `--variants llvm_ad_rgb cornell` would otherwise take the scene for a variant (nargs="+" is
@@ -144,10 +146,9 @@ def main():
                     errs.append(rel_mse(np.array(mi.Bitmap(out), dtype=np.float64)[:, :, :3], ref))
                 for variant, scene, ptimes, perrs in peers:
                     mi.set_variant(variant)
-                    t0 = time.perf_counter()
-                    img = peer_render(scene, 1000 + r)[:, :, :3]
-                    ptimes.append(time.perf_counter() - t0)
-                    perrs.append(rel_mse(img, ref))
+                    img, seconds = peer_render(scene, 1000 + r)
+                    ptimes.append(seconds)
+                    perrs.append(rel_mse(img[:, :, :3], ref))
             rows = [(label, statistics.median(t), statistics.median(e))
                     for label, (_, t, e) in zip(["tessera", "tessera before"], builds)]
             rows += [(f"mitsuba {v}", statistics.median(t), statistics.median(e)) for v, _, t, e in peers]

@@ -421,11 +421,15 @@ fn defer_unordered<N: TraversalNode>(
 /// [`traverse_closest`]); traversal stops at the first. The ray never shortens, so children are
 /// deferred in octant order and without their distances.
 #[inline(always)]
+///
+/// `skip(node)`: an inner child for which it is true is not visited, as in [`traverse_closest`]
+/// (`|_| false` for every walk but [`Accel::occluded_leaving`]'s, which the compiler then drops).
 fn traverse_any<N: TraversalNode>(
     nodes: &[N],
     stack: &mut [MaybeUninit<Deferred>],
     ray: NodeRay,
     mut group: impl FnMut(usize, u32) -> bool,
+    skip: impl Fn(u32) -> bool,
 ) -> bool {
     if nodes.is_empty() {
         return false;
@@ -441,6 +445,17 @@ fn traverse_any<N: TraversalNode>(
         }
         let below = sp;
         sp = defer_unordered(node, hits, oct, stack, sp);
+        // The deferred children a skip leaves out, packed down in their order.
+        let mut kept = below;
+        for i in below..sp {
+            // SAFETY: entries below `sp` have been written.
+            let e = unsafe { stack[i].assume_init() };
+            if !skip(e.node) {
+                stack[kept] = MaybeUninit::new(e);
+                kept += 1;
+            }
+        }
+        sp = kept;
         for e in &stack[below..sp] {
             // SAFETY: entries below `sp` have been written.
             if let Some(child) = nodes.get(unsafe { e.assume_init() }.node as usize) {
@@ -852,9 +867,9 @@ impl Accel {
     fn any(&self, ray: NodeRay, group: impl FnMut(usize, u32) -> bool) -> bool {
         with_stack(self.stack_len, |stack| {
             if self.wide.is_empty() {
-                traverse_any(&self.bvh.nodes, stack, ray, group)
+                traverse_any(&self.bvh.nodes, stack, ray, group, |_| false)
             } else {
-                traverse_any(&self.wide, stack, ray, group)
+                traverse_any(&self.wide, stack, ray, group, |_| false)
             }
         })
     }
@@ -1394,24 +1409,50 @@ impl Accel {
     /// prototype's with the ray in object space), as [`Self::intersect_object`] for closest hits.
     #[inline(always)]
     fn occluded_object(&self, oa: Vec3A, da: Vec3A, tmax: f32) -> bool {
+        self.occluded_skipping(oa, da, tmax, |_| false)
+    }
+
+    /// [`Self::occluded`] for a ray leaving closed convex solid `solid` through one of its facets
+    /// (`ConvexSolids::leaving`), as [`Self::intersect_leaving`] for closest hits: the walk does
+    /// not go into subtrees that hold that solid's triangles alone. Whether the ray meets
+    /// anything else is the full walk's answer; the solid itself it cannot meet (where the full
+    /// walk would, that is a false self-intersection). Unmarked, it is the full walk.
+    pub fn occluded_leaving(&self, o: Vec3, d: Vec3, tmax: f32, solid: u32) -> bool {
+        if self.solid_of_node.is_empty() {
+            return self.occluded(o, d, tmax);
+        }
+        let skip = |node: u32| self.solid_of_node.get(node as usize) == Some(&solid);
+        self.occluded_skipping(Vec3A::from(o), Vec3A::from(d), tmax, skip)
+    }
+
+    /// [`Self::occluded_object`], not visiting inner nodes `skip` names.
+    #[inline(always)]
+    fn occluded_skipping(&self, oa: Vec3A, da: Vec3A, tmax: f32, skip: impl Fn(u32) -> bool) -> bool {
         if self.tris.is_empty() || !finite(oa, da) {
             return false;
         }
         if self.wide.is_empty() {
-            self.occluded_nodes(&self.bvh.nodes, oa, da, tmax)
+            self.occluded_nodes(&self.bvh.nodes, oa, da, tmax, skip)
         } else {
-            self.occluded_nodes(&self.wide, oa, da, tmax)
+            self.occluded_nodes(&self.wide, oa, da, tmax, skip)
         }
     }
 
     /// [`Self::occluded_object`] over `nodes`, generic and not inlined for the reasons
     /// [`Self::intersect_nodes`] is.
     #[inline(never)]
-    fn occluded_nodes<N: TraversalNode>(&self, nodes: &[N], oa: Vec3A, da: Vec3A, tmax: f32) -> bool {
+    fn occluded_nodes<N: TraversalNode>(
+        &self,
+        nodes: &[N],
+        oa: Vec3A,
+        da: Vec3A,
+        tmax: f32,
+        skip: impl Fn(u32) -> bool,
+    ) -> bool {
         let wray = WatertightRay::new(oa, da);
         let ray = NodeRay::new(oa, da, tmax);
         with_stack(self.stack_len, |stack| {
-            traverse_any(nodes, stack, ray, |base, mask| self.any_in_group(&wray, base, mask, tmax))
+            traverse_any(nodes, stack, ray, |base, mask| self.any_in_group(&wray, base, mask, tmax), skip)
         })
     }
 }

@@ -276,6 +276,8 @@ struct Solid {
     outer_sq: f32,
     /// +1 when the solid's winding normals point out of it, −1 when in ([`Hull::outward`]).
     outward: f64,
+    /// Glass (inward rays, occlusion test and leaving rays) or opaque (leaving rays only).
+    glass: bool,
 }
 
 /// How far ahead of a facet's plane, in cosine, a direction must point for [`ConvexSolids::leaving`]
@@ -299,34 +301,42 @@ pub struct ConvexSolids {
     surfaces: Vec<Option<SolidSurface>>,
     /// Inward rays skip the surface walk and walk the BVH alone (tests compare the two).
     bvh_only: bool,
+    /// How many of `solids` (the first ones) are glass; `accels` and `surfaces` hold theirs.
+    glass: usize,
 }
 
 impl ConvexSolids {
-    /// The solids among the triangles `eligible` admits (by material index): the largest groups
-    /// (`SEARCH`) that are closed, convex and isolated.
-    pub fn find(mesh: &Mesh, eligible: impl Fn(u32) -> bool) -> Self {
+    /// The solids among the triangles `glass` admits (by material index): the largest groups
+    /// (`SEARCH`) that are closed, convex and isolated. With `opaque` too, the same search among
+    /// the triangles it admits (and `glass` does not) finds the opaque solids: those only skip
+    /// themselves when a ray leaves them ([`Self::leaving`]), since no ray goes into an opaque
+    /// solid and their occlusion test did not pay (`Scene`'s `find_solids`). Each kind is
+    /// searched with a budget of its own, so opaque groups cannot crowd out the glass ones.
+    pub fn find(mesh: &Mesh, glass: impl Fn(u32) -> bool, opaque: impl Fn(u32) -> bool) -> Self {
         let none = ConvexSolids::default();
         if !mesh.instances.is_empty() || mesh.triangles.len() > MAX_SCENE_TRIANGLES {
             return none;
         }
-        let tris: Vec<u32> =
-            (0..mesh.triangles.len() as u32).filter(|&t| eligible(mesh.triangles[t as usize].material)).collect();
-        if tris.len() > MAX_CANDIDATE_TRIANGLES {
-            return none;
+        let material = |t: &u32| mesh.triangles[*t as usize].material;
+        let all = 0..mesh.triangles.len() as u32;
+        let glass_tris: Vec<u32> = all.clone().filter(|t| glass(material(t))).collect();
+        let opaque_tris: Vec<u32> = all.filter(|t| !glass(material(t)) && opaque(material(t))).collect();
+        let mut candidates = Vec::new();
+        let mut budget = 0;
+        for (tris, is_glass) in [(glass_tris, true), (opaque_tris, false)] {
+            if tris.len() > MAX_CANDIDATE_TRIANGLES || tris.is_empty() {
+                continue;
+            }
+            let (found, left) = convex_groups(mesh, &tris, &SEARCH, |g, hull| {
+                if closed(mesh, g) {
+                    inner_ball(mesh, g, hull).map(|solid| Solid { glass: is_glass, ..solid })
+                } else {
+                    None
+                }
+            });
+            candidates.extend(found);
+            budget += left;
         }
-        let (candidates, mut budget) =
-            convex_groups(
-                mesh,
-                &tris,
-                &SEARCH,
-                |g, hull| {
-                    if closed(mesh, g) {
-                        inner_ball(mesh, g, hull)
-                    } else {
-                        None
-                    }
-                },
-            );
         if candidates.is_empty() {
             return none;
         }
@@ -346,6 +356,8 @@ impl ConvexSolids {
             apart(v.map(|p| p.as_dvec3()), &candidates[k].hull, &facets[k])
         });
         let mut out = none;
+        // The glass solids first (each kind largest first), so that a glass solid's index is
+        // also its BVH's and surface's, and the occlusion test's first solids are glass.
         for (c, ok) in candidates.into_iter().zip(isolated) {
             if !ok {
                 continue;
@@ -356,10 +368,13 @@ impl ConvexSolids {
             for &t in &c.tris {
                 out.of_triangle[t as usize] = out.solids.len() as u32;
             }
-            let own = crate::accel::Accel::build_subset(mesh, c.tris);
-            out.surfaces.push(SolidSurface::new(&own, c.value.center32));
+            if c.value.glass {
+                let own = crate::accel::Accel::build_subset(mesh, c.tris);
+                out.surfaces.push(SolidSurface::new(&own, c.value.center32));
+                out.accels.push(own);
+                out.glass += 1;
+            }
             out.solids.push(c.value);
-            out.accels.push(own);
         }
         out
     }
@@ -372,12 +387,19 @@ impl ConvexSolids {
     /// `MAX_OCCLUDERS` largest solids.
     #[inline]
     pub fn blocks(&self, o: Vec3, d: Vec3, tmax: f32) -> bool {
-        !tmax.is_nan() && tmax > 0.0 && self.solids.iter().take(MAX_OCCLUDERS).any(|s| s.blocks(o, d, tmax))
+        !tmax.is_nan()
+            && tmax > 0.0
+            && self.solids[..self.glass].iter().take(MAX_OCCLUDERS).any(|s| s.blocks(o, d, tmax))
     }
 
-    /// How many solids the scene has.
+    /// How many solids the scene has, glass and opaque.
     pub fn len(&self) -> usize {
         self.solids.len()
+    }
+
+    /// How many of them are glass (the rest only skip themselves when a ray leaves them).
+    pub fn glass_len(&self) -> usize {
+        self.glass
     }
 
     pub fn is_empty(&self) -> bool {
@@ -391,7 +413,9 @@ impl ConvexSolids {
     #[inline]
     pub(crate) fn bound(&self, from: u32, o: Vec3, d: Vec3) -> Option<(f32, usize)> {
         match self.of_triangle.get(from as usize) {
-            Some(&s) if s != NONE => {
+            // An opaque solid's rays never head inward (a reflection leaves its surface), so
+            // none is worth the ball's exit.
+            Some(&s) if (s as usize) < self.glass => {
                 let t = self.solids[s as usize].exit(o, d);
                 (t > 0.0).then_some((t, s as usize))
             }
@@ -532,6 +556,7 @@ fn inner_ball(mesh: &Mesh, tris: &[u32], hull: &Hull) -> Option<Solid> {
         inner_sq: ((inner * inner) as f32).next_down(),
         outer_sq: ((outer * outer) as f32).next_up(),
         outward: hull.outward,
+        glass: true,
     })
 }
 
@@ -563,7 +588,7 @@ mod tests {
     }
 
     fn solids(tris: &[[Vec3; 3]]) -> ConvexSolids {
-        ConvexSolids::find(&mesh_of(tris), |_| true)
+        ConvexSolids::find(&mesh_of(tris), |_| true, |_| false)
     }
 
     /// The nearest hit of every triangle (Möller and Trumbore 1997), for the tests' exits.
@@ -596,7 +621,7 @@ mod tests {
         tris.push([Vec3::new(-5.0, 0.0, -5.0), Vec3::new(0.0, 0.0, 5.0), Vec3::new(5.0, 0.0, -5.0)]);
         tris.push([Vec3::new(-5.0, 0.0, -3.0), Vec3::new(5.0, 0.0, -3.0), Vec3::new(0.0, 5.0, -3.0)]);
         let m = mesh_of(&tris);
-        let s = ConvexSolids::find(&m, |_| true);
+        let s = ConvexSolids::find(&m, |_| true, |_| false);
         assert_eq!(s.len(), 1, "the ball is a solid; floor and wall are not closed groups");
         // From the centre of a face, inward: the bound lies short of the exit, close to it.
         for f in [0u32, 17, 101, 250] {
@@ -638,6 +663,6 @@ mod tests {
         touched.push([Vec3::new(-2.0, top, -2.0), Vec3::new(0.0, top, 2.0), Vec3::new(2.0, top, -2.0)]);
         assert_eq!(solids(&touched).len(), 1);
         // Not glass: nothing looked for.
-        assert!(ConvexSolids::find(&mesh_of(&whole), |_| false).is_empty());
+        assert!(ConvexSolids::find(&mesh_of(&whole), |_| false, |_| false).is_empty());
     }
 }

@@ -85,6 +85,7 @@ pub fn radiance_batch(
     let mut from = [crate::convex_solid::NONE; MAX_BATCH];
     let mut hits = [None; MAX_BATCH];
     let (mut tmax, mut visible) = ([0f32; MAX_BATCH], [0f32; MAX_BATCH]);
+    let mut sf = [crate::convex_solid::NONE; MAX_BATCH];
     // The shadow rays' paths and light samples.
     let mut waiting = [(0u8, ShadowRay::default()); MAX_BATCH];
     // The shaded vertices and their light choices.
@@ -135,7 +136,7 @@ pub fn radiance_batch(
             let mut shadow = None;
             let more = paths[k].finish::<true>(scene, settings, v, LightChoice::Made(choice), &mut shadow, rays);
             if let Some(s) = shadow {
-                (ro[shadows], rd[shadows], tmax[shadows]) = (s.o, s.d, s.tmax);
+                (ro[shadows], rd[shadows], tmax[shadows], sf[shadows]) = (s.o, s.d, s.tmax, s.from);
                 waiting[shadows] = (k as u8, s);
                 shadows += 1;
             }
@@ -144,7 +145,13 @@ pub fn radiance_batch(
                 still += 1;
             }
         }
-        scene.visibility_batch(&ro[..shadows], &rd[..shadows], &tmax[..shadows], &mut visible[..shadows]);
+        scene.visibility_batch(
+            &ro[..shadows],
+            &rd[..shadows],
+            &tmax[..shadows],
+            &sf[..shadows],
+            &mut visible[..shadows],
+        );
         for (i, (k, s)) in waiting[..shadows].iter().enumerate() {
             paths[*k as usize].add_direct(s, visible[i]);
         }
@@ -200,6 +207,8 @@ struct ShadowRay {
     o: Vec3,
     d: Vec3,
     tmax: f32,
+    /// The triangle the ray leaves (a solid's facet skips its solid: [`Scene::visibility_from`]).
+    from: u32,
     /// Beer–Lambert transmittance to the light, inside an absorbing mesh.
     medium: Option<Vec3>,
     /// β·f·Le.
@@ -583,7 +592,7 @@ impl Path {
                         if let Some((o, d, tmax)) = to_light {
                             // Alone, the ray is traced first and the rest is only worked out when
                             // light gets through; deferred, it all waits in `shadow`.
-                            let visible = if DEFER { 1.0 } else { scene.visibility(o, d, tmax) };
+                            let visible = if DEFER { 1.0 } else { scene.visibility_from(o, d, tmax, triangle) };
                             if visible != 0.0 {
                                 let w = match settings.integrator {
                                     IntegratorKind::Mis if !ls.delta => {
@@ -595,6 +604,7 @@ impl Path {
                                     o,
                                     d,
                                     tmax,
+                                    from: triangle,
                                     // Inside an absorbing mesh, the light is too (glass stops
                                     // shadow rays).
                                     medium: (self.medium != Vec3::ZERO).then(|| transmittance(self.medium, ls.dist)),

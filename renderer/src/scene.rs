@@ -52,20 +52,27 @@ pub struct Scene {
     lanes: bool,
 }
 
-/// The closed convex solids ([`crate::convex_solid`]) among the triangles whose material
-/// transmits light (only those send rays inward: refraction and internal reflection) and is
-/// opaque to shadow rays (alpha OPAQUE: a shadow ray through a solid is blocked,
-/// `ConvexSolids::blocks`). Opaque solids are left out: their rays never go inward, and the
-/// occlusion shortcut alone did not pay for its ray–ball tests (envlit's two spheres: the same
-/// time; veach's four sphere lights: 1.07× the time, every shadow ray testing four balls).
+/// The closed convex solids ([`crate::convex_solid`]). Glass ones: among the triangles whose
+/// material transmits light (only those send rays inward: refraction and internal reflection)
+/// and is opaque to shadow rays (alpha OPAQUE: a shadow ray through a solid is blocked,
+/// `ConvexSolids::blocks`). Opaque ones (every other alpha-OPAQUE triangle): their rays never go
+/// inward, and the occlusion shortcut alone did not pay for its ray–ball tests (envlit's two
+/// spheres: the same time; veach's four sphere lights: 1.07× the time, every shadow ray testing
+/// four balls), so they only skip themselves when a ray leaves them (`ConvexSolids::leaving`):
+/// on envlit, whose two spheres are 2 560 of its 2 562 triangles, a ray leaving a sphere
+/// started inside its boxes and tested the triangles around its origin.
 ///
 /// The scene's BVH `accel` is marked by solid, so rays leaving one skip its subtrees.
 fn find_solids(mesh: &Mesh, materials: &[Material], accel: &mut Accel) -> crate::convex_solid::ConvexSolids {
-    let solids = crate::convex_solid::ConvexSolids::find(mesh, |m| {
-        materials.get(m as usize).is_some_and(|m| {
-            (m.transmission > 0.0 || m.transmission_texture.is_some()) && m.alpha_mode == AlphaMode::Opaque
-        })
-    });
+    let opaque = |m: u32| materials.get(m as usize).is_some_and(|m| m.alpha_mode == AlphaMode::Opaque);
+    let transmits =
+        |m: u32| materials.get(m as usize).is_some_and(|m| m.transmission > 0.0 || m.transmission_texture.is_some());
+    // Emitters are left out of the opaque ones: a path that meets a light seldom goes on from
+    // it, and every ray from a solid's triangle pays the solid's checks (veach's four sphere
+    // lights: 1.6 % more instructions, nothing saved).
+    let emits = |m: u32| materials.get(m as usize).is_some_and(Material::is_emissive);
+    let solids =
+        crate::convex_solid::ConvexSolids::find(mesh, |m| transmits(m) && opaque(m), |m| opaque(m) && !emits(m));
     solids.mark_nodes(accel);
     solids
 }
@@ -350,7 +357,7 @@ impl Scene {
     /// (Inlined as a length test: scenes without solids keep their shadow-ray path as it was.)
     #[inline]
     pub fn solid_blocks(&self, o: Vec3, d: Vec3, tmax: f32) -> bool {
-        !self.solids.is_empty() && self.solids.blocks(o, d, tmax)
+        self.solids.glass_len() != 0 && self.solids.blocks(o, d, tmax)
     }
 
     /// The exit of an inward ray from triangle `from` found by walking its solid's surface
@@ -380,7 +387,13 @@ impl Scene {
 
     /// How many closed convex glass solids the scene has ([`crate::convex_solid`]).
     pub fn convex_solids(&self) -> usize {
-        self.solids.len()
+        self.solids.glass_len()
+    }
+
+    /// How many closed convex opaque solids the scene has: rays leaving one skip it
+    /// ([`crate::convex_solid::ConvexSolids::leaving`]), and that is all they do.
+    pub fn opaque_solids(&self) -> usize {
+        self.solids.len() - self.solids.glass_len()
     }
 
     /// Turns the solids' bound off (false: every walk starts at 0) or finds them again
@@ -547,14 +560,22 @@ impl Scene {
         !self.has_transparency() && self.accel.intersect_bundle(origin, directions, out)
     }
 
-    /// [`Self::visibility`] for up to [`crate::accel::MAX_BATCH`] rays, ray k to `tmax[k]`, into
-    /// `out`: traced together ([`Accel::occluded_batch`]) where no surface is transparent, else
-    /// one after the other. The same fractions either way.
-    pub fn visibility_batch(&self, o: &[Vec3], d: &[Vec3], tmax: &[f32], out: &mut [f32]) {
-        let n = o.len().min(d.len()).min(tmax.len()).min(out.len());
+    /// [`Self::visibility_from`] for up to [`crate::accel::MAX_BATCH`] rays, ray k to `tmax[k]`
+    /// from triangle `from[k]`, into `out`: traced together ([`Accel::occluded_batch`]) where no
+    /// surface is transparent, else one after the other. The same fractions either way.
+    pub fn visibility_batch(&self, o: &[Vec3], d: &[Vec3], tmax: &[f32], from: &[u32], out: &mut [f32]) {
+        let n = o.len().min(d.len()).min(tmax.len()).min(from.len()).min(out.len());
         if self.has_transparency() || !self.batches_rays() {
-            for k in 0..n {
-                out[k] = self.visibility(o[k], d[k], tmax[k]);
+            // Without solids no ray leaves one: the start triangles are not read (asking cost
+            // Cornell 1 % more instructions).
+            if self.solids.is_empty() {
+                for k in 0..n {
+                    out[k] = self.visibility(o[k], d[k], tmax[k]);
+                }
+            } else {
+                for k in 0..n {
+                    out[k] = self.visibility_from(o[k], d[k], tmax[k], from[k]);
+                }
             }
             return;
         }
@@ -568,6 +589,8 @@ impl Scene {
             for k in s..e {
                 if self.solid_blocks(o[k], d[k], tmax[k]) {
                     out[k] = 0.0;
+                } else if let Some(solid) = self.solids.leaving(&self.mesh, from[k], d[k]) {
+                    out[k] = if self.accel.occluded_leaving(o[k], d[k], tmax[k], solid) { 0.0 } else { 1.0 };
                 } else {
                     (qo[m], qd[m], qt[m], at[m]) = (o[k], d[k], tmax[k], k);
                     m += 1;
@@ -601,6 +624,24 @@ impl Scene {
     /// scene, None restores the rule. The images are the same either way (tests compare them).
     pub fn set_batch_paths(&mut self, on: Option<bool>) {
         self.batch_paths = on;
+    }
+
+    /// [`Self::visibility`] of a ray that starts on triangle `from` (`convex_solid::NONE` for
+    /// none): where it leaves a closed convex solid through that facet, its walk skips the
+    /// solid's subtrees ([`Accel::occluded_leaving`]), which it cannot meet. With transparent
+    /// surfaces, the layer-by-layer walk of [`Self::visibility`].
+    pub fn visibility_from(&self, o: Vec3, d: Vec3, tmax: f32, from: u32) -> f32 {
+        match self.solids.leaving(&self.mesh, from, d) {
+            Some(solid) if !self.has_transparency() => {
+                let blocked = self.solid_blocks(o, d, tmax) || self.accel.occluded_leaving(o, d, tmax, solid);
+                if blocked {
+                    0.0
+                } else {
+                    1.0
+                }
+            }
+            _ => self.visibility(o, d, tmax),
+        }
     }
 
     /// Fraction of light that gets from `o` along `d` to distance `tmax`: 0 behind an opaque (or

@@ -709,14 +709,15 @@ pub fn radiance8(
                 let (so, sdl, tm) = (origin.to_lanes(), sd.to_lanes(), tmax.to_array());
                 let (mut lane, mut count) = ([0u8; LANES], 0);
                 let (mut qo, mut qd, mut qt) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [0f32; LANES]);
+                let mut qf = [0u32; LANES];
                 for k in lanes_of(ok.bits()) {
                     // An area light's ray may stop at its clear box (as the scalar path's).
                     let t = scene.lights.shadow_tmax(lidx[k], so[k], sdl[k], tm[k]);
-                    (lane[count], qo[count], qd[count], qt[count]) = (k as u8, so[k], sdl[k], t);
+                    (lane[count], qo[count], qd[count], qt[count], qf[count]) = (k as u8, so[k], sdl[k], t, tri[k]);
                     count += 1;
                 }
                 let mut seen = [0f32; LANES];
-                scene.visibility_batch(&qo[..count], &qd[..count], &qt[..count], &mut seen[..count]);
+                scene.visibility_batch(&qo[..count], &qd[..count], &qt[..count], &qf[..count], &mut seen[..count]);
                 let mut visible = 0u32;
                 for j in 0..count {
                     if seen[j] != 0.0 {

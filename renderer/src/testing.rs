@@ -336,7 +336,8 @@ pub fn trace_in_batches(
             &[crate::convex_solid::NONE; MAX_BATCH][..e - s],
             &mut hits[s..e],
         );
-        scene.visibility_batch(&o[s..e], &d[s..e], &[tmax; MAX_BATCH][..e - s], &mut seen[s..e]);
+        let from = [crate::convex_solid::NONE; MAX_BATCH];
+        scene.visibility_batch(&o[s..e], &d[s..e], &[tmax; MAX_BATCH][..e - s], &from[..e - s], &mut seen[s..e]);
     }
     (hits, seen)
 }

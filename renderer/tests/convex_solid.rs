@@ -223,3 +223,96 @@ fn leaving_rays_in(s: &Scene, case: &str) {
     assert!(own_from_inside > leaving / 10, "{own_from_inside} full walks from inside met their solid");
     assert!(own_skipping * 10 < own_from_inside, "{own_skipping} skipping walks met their solid: nothing was skipped");
 }
+
+/// envlit's kind of scene: an opaque Lambert icosphere resting on a floor, a rough metal UV
+/// sphere, and a glowing sphere (an emitter: left out), under a lamp.
+fn opaque_scene() -> Scene {
+    let mut b = SceneBuilder::default();
+    let floor = b.material(lambert(Vec3::splat(0.6)));
+    let white = b.material(lambert(Vec3::splat(0.8)));
+    let metal = b.material(renderer::testing::metal(Vec3::splat(0.9), 0.3));
+    let glow = b.material(emitter(Vec3::splat(4.0)));
+    let lamp = b.material(emitter(Vec3::splat(20.0)));
+    b.quad(Vec3::ZERO, Vec3::new(4.0, 0.0, 0.0), Vec3::new(0.0, 0.0, -4.0), floor);
+    b.sphere(Vec3::new(-1.0, 0.5, 0.0), 0.5, 3, false, white);
+    b.uv_sphere(Vec3::new(0.3, 0.6, -0.4), 0.4, 32, 16, metal);
+    b.sphere(Vec3::new(1.3, 0.4, 0.6), 0.3, 2, false, glow);
+    b.quad(Vec3::new(0.0, 3.0, 0.0), Vec3::new(0.5, 0.0, 0.0), Vec3::new(0.0, 0.0, 0.5), lamp);
+    b.look_at(Vec3::new(0.0, 1.6, 4.0), Vec3::new(0.0, 0.4, 0.0), 40.0);
+    b.build()
+}
+
+/// Opaque closed convex solids only skip themselves when a ray leaves them: bounce rays
+/// (`Scene::intersect_surface`) and shadow rays (`Scene::visibility_from`,
+/// `Accel::occluded_leaving`) find what the full walks find, and the skip is real (from just
+/// behind the facets the full walks meet the solid, the skipping ones do not). No inward bound
+/// and no occlusion shortcut: an opaque solid's rays never head inward.
+#[test]
+fn rays_leaving_an_opaque_solid_find_what_the_full_walks_find() {
+    let s = opaque_scene();
+    assert_eq!(s.convex_solids(), 0, "no glass");
+    assert_eq!(s.opaque_solids(), 2, "the Lambert and metal spheres; the glowing one is an emitter");
+    let on_solids: Vec<u32> = (0..s.mesh.triangles.len() as u32).filter(|&t| s.solid_of(t).is_some()).collect();
+    let (mut leaving, mut blocked, mut own_from_inside, mut own_skipping) = (0u32, 0u32, 0u32, 0u32);
+    let n = 40_000u64;
+    for i in 0..n {
+        let (tri, p, ng) = point_on(&s, &on_solids, i);
+        let (z, phi) = (2.0 * u(5 * i + 3) - 1.0, std::f32::consts::TAU * u(5 * i + 4));
+        let r = (1.0 - z * z).max(0.0).sqrt();
+        let d = Vec3::new(r * phi.cos(), r * phi.sin(), z);
+        let front = if ng.dot(d) > 0.0 { ng } else { -ng };
+        let o = s.offset_ray_origin(p, front);
+        assert_eq!(s.solid_tmin(tri, o, d), 0.0, "ray {i}: an opaque solid bounded a ray");
+        assert!(!s.solid_blocks(o, d, 10.0), "ray {i}: an opaque solid blocked a shadow ray without a walk");
+        let full = s.accel.intersect(o, d, f32::INFINITY);
+        assert_eq!(key(full), key(s.intersect_surface(o, d, 0, tri)), "ray {i} from triangle {tri}");
+        // A shadow ray to a point 0.5–3 away, and one to infinity.
+        for tmax in [0.5 + 2.5 * u(5 * i + 3), f32::INFINITY] {
+            assert_eq!(
+                s.visibility(o, d, tmax),
+                s.visibility_from(o, d, tmax, tri),
+                "shadow ray {i} from triangle {tri} to {tmax}"
+            );
+        }
+        let Some(solid) = s.solid_left(tri, d) else { continue };
+        leaving += 1;
+        blocked += s.accel.occluded(o, d, f32::INFINITY) as u32;
+        // From just behind the facet the full walk meets the solid; the skipping one must not.
+        let inside = s.offset_ray_origin(p, -front);
+        own_from_inside += s.accel.occluded(inside, d, 0.05) as u32;
+        own_skipping += s.accel.occluded_leaving(inside, d, 0.05, solid) as u32;
+    }
+    eprintln!(
+        "{leaving} of {n} rays leave a solid, {blocked} of them blocked; from inside, within 0.05, \
+         {own_from_inside} full walks and {own_skipping} skipping ones are blocked"
+    );
+    assert!(leaving as u64 > n / 3, "{leaving} of {n}: about half the directions leave");
+    assert!(blocked > leaving / 20, "{blocked} of {leaving}: the floor and the other sphere must block some");
+    assert!(own_from_inside > leaving / 2, "{own_from_inside} full walks from inside met their solid");
+    assert!(own_skipping * 10 < own_from_inside, "{own_skipping} skipping walks met their solid: nothing was skipped");
+}
+
+/// Renders of the opaque scene are the same bits with its solids and without, with the kernel
+/// and without, rays batched or not.
+#[test]
+fn opaque_solids_leave_renders_the_same_bits() {
+    let mut s = opaque_scene();
+    let settings = RenderSettings { width: 40, height: 30, spp: 8, seed: 5, ..RenderSettings::default() };
+    let rect = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
+    let bits = |p: &renderer::film::PartialSums| {
+        p.sum_rgb.iter().flatten().chain(&p.sum_lum_sq).map(|v| v.to_bits()).collect::<Vec<_>>()
+    };
+    for (lanes, batched) in [(true, false), (false, false), (true, true), (false, true)] {
+        s.set_lanes(lanes);
+        s.set_batch_rays(batched);
+        s.set_convex_solids(true);
+        assert_eq!(s.opaque_solids(), 2);
+        let with = render_tile_counted(&s, &settings, rect, 0..settings.spp, &Counters::default());
+        s.set_convex_solids(false);
+        assert_eq!(s.opaque_solids(), 0);
+        let without = render_tile_counted(&s, &settings, rect, 0..settings.spp, &Counters::default());
+        let total: f64 = with.sum_rgb.iter().flatten().sum();
+        assert!(total > 0.0 && total.is_finite(), "lanes {lanes}, batched {batched}: a black image tests nothing");
+        assert!(bits(&with) == bits(&without), "lanes {lanes}, batched {batched}: the opaque solids changed the image");
+    }
+}

@@ -141,32 +141,31 @@ fn segments_a_solid_blocks_are_blocked_by_its_triangles() {
 #[test]
 fn renders_are_the_same_bits_with_the_solids_bound_or_without() {
     let mut s = scene();
-    let settings = RenderSettings { width: 40, height: 30, spp: 8, seed: 3, ..RenderSettings::default() };
-    let rect = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
-    let bits = |p: &renderer::film::PartialSums| {
-        p.sum_rgb.iter().flatten().chain(&p.sum_lum_sq).map(|v| v.to_bits()).collect::<Vec<_>>()
-    };
     for (lanes, batched) in [(true, false), (false, false), (true, true), (false, true)] {
         s.set_lanes(lanes);
         s.set_batch_rays(batched);
         assert_eq!(s.batches_rays(), batched);
         s.set_convex_solids(true);
         assert_eq!(s.convex_solids(), 2);
-        let with = render_tile_counted(&s, &settings, rect, 0..settings.spp, &Counters::default());
+        let with = render_bits(&s, 3);
         // The solids' BVHs alone, without the surface walk.
         s.set_solid_surface_walk(false);
-        let bvh_only = render_tile_counted(&s, &settings, rect, 0..settings.spp, &Counters::default());
-        assert!(bits(&with) == bits(&bvh_only), "lanes {lanes}, batched {batched}: the surface walk changed the image");
+        assert!(with == render_bits(&s, 3), "lanes {lanes}, batched {batched}: the surface walk changed the image");
         s.set_convex_solids(false);
         assert_eq!(s.convex_solids(), 0);
-        let without = render_tile_counted(&s, &settings, rect, 0..settings.spp, &Counters::default());
-        let total: f64 = with.sum_rgb.iter().flatten().sum();
-        assert!(
-            total > 0.0 && total.is_finite(),
-            "lanes {lanes}, batched {batched}: a black or broken image tests nothing"
-        );
-        assert!(bits(&with) == bits(&without), "lanes {lanes}, batched {batched}: the bound changed the image");
+        assert!(with == render_bits(&s, 3), "lanes {lanes}, batched {batched}: the bound changed the image");
     }
+}
+
+/// A 40×30 render of `s` at 8 spp (seed `seed`): its sums and squared luminances as bits.
+/// Fails on a black or broken image, which would test nothing.
+fn render_bits(s: &Scene, seed: u64) -> Vec<u64> {
+    let settings = RenderSettings { width: 40, height: 30, spp: 8, seed, ..RenderSettings::default() };
+    let rect = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
+    let p = render_tile_counted(s, &settings, rect, 0..settings.spp, &Counters::default());
+    let total: f64 = p.sum_rgb.iter().flatten().sum();
+    assert!(total > 0.0 && total.is_finite(), "a black or broken image tests nothing");
+    p.sum_rgb.iter().flatten().chain(&p.sum_lum_sq).map(|v| v.to_bits()).collect()
 }
 
 /// Rays leaving a solid through one of its facets skip the solid's subtrees
@@ -297,22 +296,14 @@ fn rays_leaving_an_opaque_solid_find_what_the_full_walks_find() {
 #[test]
 fn opaque_solids_leave_renders_the_same_bits() {
     let mut s = opaque_scene();
-    let settings = RenderSettings { width: 40, height: 30, spp: 8, seed: 5, ..RenderSettings::default() };
-    let rect = Rect { x0: 0, y0: 0, width: settings.width, height: settings.height };
-    let bits = |p: &renderer::film::PartialSums| {
-        p.sum_rgb.iter().flatten().chain(&p.sum_lum_sq).map(|v| v.to_bits()).collect::<Vec<_>>()
-    };
     for (lanes, batched) in [(true, false), (false, false), (true, true), (false, true)] {
         s.set_lanes(lanes);
         s.set_batch_rays(batched);
         s.set_convex_solids(true);
         assert_eq!(s.opaque_solids(), 2);
-        let with = render_tile_counted(&s, &settings, rect, 0..settings.spp, &Counters::default());
+        let with = render_bits(&s, 5);
         s.set_convex_solids(false);
         assert_eq!(s.opaque_solids(), 0);
-        let without = render_tile_counted(&s, &settings, rect, 0..settings.spp, &Counters::default());
-        let total: f64 = with.sum_rgb.iter().flatten().sum();
-        assert!(total > 0.0 && total.is_finite(), "lanes {lanes}, batched {batched}: a black image tests nothing");
-        assert!(bits(&with) == bits(&without), "lanes {lanes}, batched {batched}: the opaque solids changed the image");
+        assert!(with == render_bits(&s, 5), "lanes {lanes}, batched {batched}: the opaque solids changed the image");
     }
 }

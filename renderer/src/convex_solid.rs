@@ -57,9 +57,9 @@
 //! pay for its ball tests (`Scene`'s `find_solids` says why). On `envlit`, whose two spheres
 //! are 2 560 of its 2 562 triangles, bounce and shadow rays leave a sphere at nearly every
 //! vertex: the render's instructions fell 7.9 % (callgrind `render_tile_counted`, 64×48,
-//! 16 spp, 221.19 M → 203.78 M), the image the same bits. Scenes with instances, more than
-//! `MAX_SCENE_TRIANGLES` triangles, or more than `MAX_CANDIDATE_TRIANGLES` triangles of a kind
-//! get none of that kind.
+//! 16 spp, 221.19 M → 203.78 M), the image the same bits. Scenes with instances or more than
+//! `MAX_SCENE_TRIANGLES` triangles get no solids, and scenes with more than
+//! `MAX_CANDIDATE_TRIANGLES` glass or `MAX_OPAQUE_CANDIDATES` opaque triangles none of that kind.
 
 use crate::accel::Hit;
 use crate::mesh::Mesh;
@@ -80,6 +80,13 @@ const SEARCH: Search = Search { sizes: 16..=8192, max_groups: 64, budget: 64_000
 /// looked for: grouping them hashes every vertex, and a scene with this much of it is not made
 /// of small convex pieces.
 const MAX_CANDIDATE_TRIANGLES: usize = 1_000_000;
+
+/// Above this many opaque triangles no opaque solid is looked for: the search's grouping (a hash
+/// of every vertex) took `tessera bench scale --instances 0`'s "load + BVH" from 0.09–0.13 s to
+/// 0.15–0.20 s at 100 352 triangles (three runs each) and from 1.41 to 1.95 s at 900 482 (one),
+/// for a saving that needs a scene of small convex pieces; at 50 562, 0.08–0.12 s against
+/// 0.10–0.12 s.
+const MAX_OPAQUE_CANDIDATES: usize = 100_000;
 
 /// Above this many scene triangles no isolated group is looked for (here or in `clear_box`):
 /// the isolation test passes over every triangle.
@@ -334,7 +341,8 @@ impl ConvexSolids {
         let mut candidates = Vec::new();
         let mut budget = 0;
         for (tris, is_glass) in [(glass_tris, true), (opaque_tris, false)] {
-            if tris.len() > MAX_CANDIDATE_TRIANGLES || tris.is_empty() {
+            let most = if is_glass { MAX_CANDIDATE_TRIANGLES } else { MAX_OPAQUE_CANDIDATES };
+            if tris.len() > most || tris.is_empty() {
                 continue;
             }
             let (found, left) = convex_groups(mesh, &tris, &SEARCH, |g, hull| {

@@ -376,7 +376,7 @@ impl Walk {
         } else {
             let node = &nodes[self.current as usize];
             let hits = node.test(&self.ray).0;
-            self.sp = defer_unordered(node, hits, self.ray.oct_inv4 & 7, stack, self.sp);
+            self.sp = defer_unordered(node, hits, self.ray.oct_inv4 & 7, stack, self.sp, &|_| false);
             let prims = hits & 0x00ff_ffff;
             if prims != 0 {
                 let base = node.links().1;
@@ -398,7 +398,8 @@ impl Walk {
 
 /// Pushes the inner children `hits` marks (bit 24 + p: the child in slot p ^ `oct`) onto
 /// `stack` above `sp`, in octant order and without distances (an any-hit walk never shortens its
-/// ray, so their order cannot skip one); returns the new stack pointer.
+/// ray, so their order cannot skip one), but for those `skip` names (as in
+/// [`traverse_closest`]); returns the new stack pointer.
 #[inline(always)]
 fn defer_unordered<N: TraversalNode>(
     node: &N,
@@ -406,12 +407,17 @@ fn defer_unordered<N: TraversalNode>(
     oct: u32,
     stack: &mut [MaybeUninit<Deferred>],
     mut sp: usize,
+    skip: &impl Fn(u32) -> bool,
 ) -> usize {
     let mut inner = hits >> 24;
     while inner != 0 && sp < stack.len() {
         let slot = inner.trailing_zeros() ^ oct;
         inner &= inner - 1;
-        stack[sp] = MaybeUninit::new(Deferred { node: inner_child(node, slot), entry: 0.0 });
+        let child = inner_child(node, slot);
+        if skip(child) {
+            continue;
+        }
+        stack[sp] = MaybeUninit::new(Deferred { node: child, entry: 0.0 });
         sp += 1;
     }
     sp
@@ -420,10 +426,10 @@ fn defer_unordered<N: TraversalNode>(
 /// True when `group(base, mask)` reports a hit for some group of primitive slots (as in
 /// [`traverse_closest`]); traversal stops at the first. The ray never shortens, so children are
 /// deferred in octant order and without their distances.
-#[inline(always)]
 ///
 /// `skip(node)`: an inner child for which it is true is not visited, as in [`traverse_closest`]
 /// (`|_| false` for every walk but [`Accel::occluded_leaving`]'s, which the compiler then drops).
+#[inline(always)]
 fn traverse_any<N: TraversalNode>(
     nodes: &[N],
     stack: &mut [MaybeUninit<Deferred>],
@@ -444,18 +450,7 @@ fn traverse_any<N: TraversalNode>(
             return true;
         }
         let below = sp;
-        sp = defer_unordered(node, hits, oct, stack, sp);
-        // The deferred children a skip leaves out, packed down in their order.
-        let mut kept = below;
-        for i in below..sp {
-            // SAFETY: entries below `sp` have been written.
-            let e = unsafe { stack[i].assume_init() };
-            if !skip(e.node) {
-                stack[kept] = MaybeUninit::new(e);
-                kept += 1;
-            }
-        }
-        sp = kept;
+        sp = defer_unordered(node, hits, oct, stack, sp, &skip);
         for e in &stack[below..sp] {
             // SAFETY: entries below `sp` have been written.
             if let Some(child) = nodes.get(unsafe { e.assume_init() }.node as usize) {

@@ -56,8 +56,8 @@
 //! skips itself for rays leaving it: no ray goes into it, and the shadow-ray shortcut did not
 //! pay for its ball tests (`Scene`'s `find_solids` says why). On `envlit`, whose two spheres
 //! are 2 560 of its 2 562 triangles, bounce and shadow rays leave a sphere at nearly every
-//! vertex: the render's instructions fell 7.9 % (callgrind `render_tile_counted`, 64×48,
-//! 16 spp, 221.19 M → 203.78 M), the image the same bits. Scenes with instances or more than
+//! vertex: the render's instructions fell 8.2 % (callgrind `render_tile_counted`, 64×48,
+//! 16 spp, 221.19 M → 203.12 M), the image the same bits. Scenes with instances or more than
 //! `MAX_SCENE_TRIANGLES` triangles get no solids, and scenes with more than
 //! `MAX_CANDIDATE_TRIANGLES` glass or `MAX_OPAQUE_CANDIDATES` opaque triangles none of that kind.
 
@@ -76,9 +76,8 @@ pub const NONE: u32 = u32::MAX;
 /// vertex-plane tests for convexity and the separation of the triangles near a solid.
 const SEARCH: Search = Search { sizes: 16..=8192, max_groups: 64, budget: 64_000_000 };
 
-/// Above this many eligible triangles of a kind (glass, or opaque) no solid of that kind is
-/// looked for: grouping them hashes every vertex, and a scene with this much of it is not made
-/// of small convex pieces.
+/// Above this many glass triangles no glass solid is looked for: grouping them hashes every
+/// vertex, and a scene with this much glass is not made of small convex pieces.
 const MAX_CANDIDATE_TRIANGLES: usize = 1_000_000;
 
 /// Above this many opaque triangles no opaque solid is looked for: the search's grouping (a hash
@@ -293,8 +292,6 @@ struct Solid {
     outer_sq: f32,
     /// +1 when the solid's winding normals point out of it, −1 when in ([`Hull::outward`]).
     outward: f64,
-    /// Glass (inward rays, occlusion test and leaving rays) or opaque (leaving rays only).
-    glass: bool,
 }
 
 /// How far ahead of a facet's plane, in cosine, a direction must point for [`ConvexSolids::leaving`]
@@ -345,9 +342,10 @@ impl ConvexSolids {
             if tris.len() > most || tris.is_empty() {
                 continue;
             }
+            // Each candidate's value: its solid, and whether it is glass.
             let (found, left) = convex_groups(mesh, &tris, &SEARCH, |g, hull| {
                 if closed(mesh, g) {
-                    inner_ball(mesh, g, hull).map(|solid| Solid { glass: is_glass, ..solid })
+                    inner_ball(mesh, g, hull).map(|solid| (solid, is_glass))
                 } else {
                     None
                 }
@@ -361,7 +359,7 @@ impl ConvexSolids {
         // Isolation: a triangle near a solid must be separated from its hull, within the budget.
         let facets: Vec<Vec<(DVec3, f64)>> =
             candidates.iter().map(|c| c.tris.iter().filter_map(|&t| plane(mesh, t)).collect()).collect();
-        let bounds = |c: &Candidate<Solid>| {
+        let bounds = |c: &Candidate<(Solid, bool)>| {
             let grow = Vec3::splat(4.0 * c.hull.tol as f32);
             (c.hull.lo - grow, c.hull.hi + grow)
         };
@@ -386,13 +384,14 @@ impl ConvexSolids {
             for &t in &c.tris {
                 out.of_triangle[t as usize] = out.solids.len() as u32;
             }
-            if c.value.glass {
+            let (solid, glass) = c.value;
+            if glass {
                 let own = crate::accel::Accel::build_subset(mesh, c.tris);
-                out.surfaces.push(SolidSurface::new(&own, c.value.center32));
+                out.surfaces.push(SolidSurface::new(&own, solid.center32));
                 out.accels.push(own);
                 out.glass += 1;
             }
-            out.solids.push(c.value);
+            out.solids.push(solid);
         }
         out
     }
@@ -574,7 +573,6 @@ fn inner_ball(mesh: &Mesh, tris: &[u32], hull: &Hull) -> Option<Solid> {
         inner_sq: ((inner * inner) as f32).next_down(),
         outer_sq: ((outer * outer) as f32).next_up(),
         outward: hull.outward,
-        glass: true,
     })
 }
 

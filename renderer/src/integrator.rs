@@ -85,7 +85,8 @@ pub fn radiance_batch(
     let mut from = [crate::convex_solid::NONE; MAX_BATCH];
     let mut hits = [None; MAX_BATCH];
     let (mut tmax, mut visible) = ([0f32; MAX_BATCH], [0f32; MAX_BATCH]);
-    let mut sf = [crate::convex_solid::NONE; MAX_BATCH];
+    // The triangles the shadow rays start on.
+    let mut shadow_from = [crate::convex_solid::NONE; MAX_BATCH];
     // The shadow rays' paths and light samples.
     let mut waiting = [(0u8, ShadowRay::default()); MAX_BATCH];
     // The shaded vertices and their light choices.
@@ -136,7 +137,7 @@ pub fn radiance_batch(
             let mut shadow = None;
             let more = paths[k].finish::<true>(scene, settings, v, LightChoice::Made(choice), &mut shadow, rays);
             if let Some(s) = shadow {
-                (ro[shadows], rd[shadows], tmax[shadows], sf[shadows]) = (s.o, s.d, s.tmax, s.from);
+                (ro[shadows], rd[shadows], tmax[shadows], shadow_from[shadows]) = (s.o, s.d, s.tmax, s.from);
                 waiting[shadows] = (k as u8, s);
                 shadows += 1;
             }
@@ -149,7 +150,7 @@ pub fn radiance_batch(
             &ro[..shadows],
             &rd[..shadows],
             &tmax[..shadows],
-            &sf[..shadows],
+            &shadow_from[..shadows],
             &mut visible[..shadows],
         );
         for (i, (k, s)) in waiting[..shadows].iter().enumerate() {

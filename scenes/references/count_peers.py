@@ -78,10 +78,13 @@ def callgrind(cmd, env=None, inclusive=True):
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
         if p.returncode != 0:
             sys.exit(f"{' '.join(cmd[:3])}… failed under valgrind:\n{p.stderr[-2000:]}")
-        listing = subprocess.run(["callgrind_annotate", f"--inclusive={'yes' if inclusive else 'no'}", "--threshold=100", out],
-                                 stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, check=True,
-                                 cwd="/").stdout  # from a source tree's root it shortens paths and
-        # then gave other inclusive counts (half of some functions')
+        # Run from "/": from a source tree's root callgrind_annotate shortens paths and then gave
+        # other inclusive counts (half of some functions'). No source annotation: its counted
+        # lines would read as more functions.
+        annotate = ["callgrind_annotate", f"--inclusive={'yes' if inclusive else 'no'}", "--threshold=100",
+                    "--auto=no", out]
+        listing = subprocess.run(annotate, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+                                 check=True, cwd="/").stdout
         return listing, p.stdout
 
 

@@ -1300,6 +1300,90 @@ impl Accel {
         });
     }
 
+    /// [`Self::intersect`] with no distance limit for each of the rays `o[k] + t d[k]` into
+    /// `out[k]`, one walk after another in one call: the hits are the walks' own, bit for bit.
+    ///
+    /// Why: on a BVH too small to miss cache ([`Self::batches_rays`] false) a walk is short
+    /// (Cornell: 1.45 nodes and 1.36 triangle blocks, 534 instructions), and the calls from the
+    /// kernel down to each walk cost some 80 instructions more a ray (the scene's and the
+    /// BVH's checks, a call with its frame and saved registers each). Here they are paid once
+    /// for all the rays (ARCHITECTURE.md, twenty-second round).
+    pub fn intersect_lanes(&self, o: &[Vec3], d: &[Vec3], out: &mut [Option<Hit>]) {
+        let n = o.len().min(d.len()).min(out.len());
+        if self.top.is_some() || self.own.is_some() || self.tris.is_empty() {
+            for k in 0..n {
+                out[k] = self.intersect(o[k], d[k], f32::INFINITY);
+            }
+        } else if self.wide.is_empty() {
+            self.intersect_nodes_lanes(&self.bvh.nodes, &o[..n], &d[..n], &mut out[..n]);
+        } else {
+            self.intersect_nodes_lanes(&self.wide, &o[..n], &d[..n], &mut out[..n]);
+        }
+    }
+
+    /// [`Self::intersect_lanes`]' walks over `nodes`, generic and not inlined for the reasons
+    /// [`Self::intersect_nodes`] is.
+    #[inline(never)]
+    fn intersect_nodes_lanes<N: TraversalNode>(&self, nodes: &[N], o: &[Vec3], d: &[Vec3], out: &mut [Option<Hit>]) {
+        with_stack(self.stack_len, |stack| {
+            for ((&o, &d), out) in o.iter().zip(d).zip(out.iter_mut()) {
+                let (oa, da) = (Vec3A::from(o), Vec3A::from(d));
+                if !finite(oa, da) {
+                    *out = None;
+                    continue;
+                }
+                let ray = NodeRay::new(oa, da, f32::INFINITY);
+                let wray = WatertightRay::new(oa, da);
+                let mut best = (f32::INFINITY, NO_LEAF, 0.0, 0.0);
+                traverse_closest(
+                    nodes,
+                    stack,
+                    ray,
+                    |r, base, mask| self.closest_in_group(&wray, &mut best, r.tmax, base, mask),
+                    |_| false,
+                );
+                *out = self.leaf_hit(best);
+            }
+        });
+    }
+
+    /// [`Self::occluded`] for each of the rays `o[k] + t d[k]`, `0 < t < tmax[k]`, into `out[k]`,
+    /// one walk after another in one call, as [`Self::intersect_lanes`] for closest hits.
+    pub fn occluded_lanes(&self, o: &[Vec3], d: &[Vec3], tmax: &[f32], out: &mut [bool]) {
+        let n = o.len().min(d.len()).min(tmax.len()).min(out.len());
+        if self.top.is_some() || self.own.is_some() || self.tris.is_empty() {
+            for k in 0..n {
+                out[k] = self.occluded(o[k], d[k], tmax[k]);
+            }
+        } else if self.wide.is_empty() {
+            self.occluded_nodes_lanes(&self.bvh.nodes, &o[..n], &d[..n], &tmax[..n], &mut out[..n]);
+        } else {
+            self.occluded_nodes_lanes(&self.wide, &o[..n], &d[..n], &tmax[..n], &mut out[..n]);
+        }
+    }
+
+    /// [`Self::occluded_lanes`]' walks over `nodes` (see [`Self::intersect_nodes_lanes`]).
+    #[inline(never)]
+    fn occluded_nodes_lanes<N: TraversalNode>(
+        &self,
+        nodes: &[N],
+        o: &[Vec3],
+        d: &[Vec3],
+        tmax: &[f32],
+        out: &mut [bool],
+    ) {
+        with_stack(self.stack_len, |stack| {
+            for (((&o, &d), &tmax), out) in o.iter().zip(d).zip(tmax).zip(out.iter_mut()) {
+                let (oa, da) = (Vec3A::from(o), Vec3A::from(d));
+                *out = finite(oa, da) && {
+                    let wray = WatertightRay::new(oa, da);
+                    let ray = NodeRay::new(oa, da, tmax);
+                    traverse_any(nodes, stack, ray, |base, mask| self.any_in_group(&wray, base, mask, tmax), |_| false)
+                };
+            }
+        });
+    }
+
     /// Whether any leaf triangle of the group (`traverse_any`) lies on the ray before `tmax`.
     #[inline(always)]
     fn any_in_group(&self, wray: &WatertightRay, base: usize, mask: u32, tmax: f32) -> bool {
@@ -1540,6 +1624,60 @@ mod tests {
         }
         eprintln!("{hits} hits, {ties} ties on shared edges");
         assert!(hits > 30_000, "the test rays must hit ({hits})");
+    }
+
+    /// Rays walked one after another in one call (`intersect_lanes`, `occluded_lanes`) find what
+    /// each finds alone, bit for bit (closest hits: distance, triangle and barycentrics) and
+    /// answer for answer (occlusion), for 0 to 19 rays at a time, with compressed and wide nodes
+    /// and a heap stack, where a ray ends early (tmax), is not finite, or has a −0.0 component.
+    #[test]
+    fn lane_walks_find_each_rays_own_hit() {
+        let (b, all) = sphere_cluster();
+        let (mut hits, mut blocked) = (0usize, 0usize);
+        for (kind, heap) in [(AccelKind::ObvhsCompressed, false), (AccelKind::Obvhs, false), (AccelKind::Obvhs, true)] {
+            let mut accel = Accel::build_triangles(&b.mesh, all.clone(), kind);
+            if heap {
+                accel.stack_len = STACK + 1;
+            }
+            let mut i = 0u64;
+            for n in (0..20).cycle().take(400) {
+                let (mut o, mut d, mut tmax) = (Vec::new(), Vec::new(), Vec::new());
+                for _ in 0..n {
+                    i += 1;
+                    let u = |j: u64| crate::sampler::hash_unit(8 * i + j);
+                    o.push(Vec3::new(u(0), u(1), u(2)) * 8.0 - 4.0);
+                    let mut dir = Vec3::new(u(3), u(4), u(5)) * 2.0 - 1.0;
+                    match i % 23 {
+                        0 => dir.x = f32::NAN,
+                        1 => o.last_mut().unwrap().y = f32::INFINITY,
+                        2 => dir.z = -0.0,
+                        _ => {}
+                    }
+                    d.push(dir);
+                    tmax.push(if i % 3 == 0 { 4.0 * u(6) } else { f32::INFINITY });
+                }
+                let mut got = vec![None; n];
+                accel.intersect_lanes(&o, &d, &mut got);
+                let mut got_blocked = vec![false; n];
+                accel.occluded_lanes(&o, &d, &tmax, &mut got_blocked);
+                for k in 0..n {
+                    let want = accel.intersect(o[k], d[k], f32::INFINITY);
+                    let bits = |h: Option<Hit>| h.map(|h| (h.t.to_bits(), h.triangle, h.b1.to_bits(), h.b2.to_bits()));
+                    assert_eq!(
+                        bits(got[k]),
+                        bits(want),
+                        "ray {k} of {n} ({kind:?}, heap {heap}): {:?} {:?}",
+                        o[k],
+                        d[k]
+                    );
+                    assert_eq!(got_blocked[k], accel.occluded(o[k], d[k], tmax[k]), "ray {k} of {n}, tmax {}", tmax[k]);
+                    hits += want.is_some() as usize;
+                    blocked += got_blocked[k] as usize;
+                }
+            }
+        }
+        // The rays must meet the spheres often, and the short ones must often get through.
+        assert!(hits > 5_000 && blocked > 3_000 && blocked < hits, "{hits} hits, {blocked} blocked");
     }
 
     /// Rays traversed as a batch find what each finds alone, bit for bit (closest hits) and

@@ -351,7 +351,9 @@ impl Environment {
     /// distribution's rows are megabytes, and a lookup's miss is more than the arithmetic around
     /// it can hide. One lookup after another, each lane waited for its own miss; asking for every
     /// lane's lines first and then looking them up (`spmd::radiance8`'s escape) lets the misses
-    /// overlap.
+    /// overlap. Always inlined: a change elsewhere in the renderer once tipped LLVM into calling
+    /// it, and envlit's render took 0.6 % more instructions (callgrind, 64×48, 16 spp).
+    #[inline(always)]
     pub fn prefetch(&self, p: &MapPoint) {
         if self.uniform {
             return;

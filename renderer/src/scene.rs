@@ -513,8 +513,13 @@ impl Scene {
     pub fn intersect_surface_batch(&self, o: &[Vec3], d: &[Vec3], seed: &[u32], from: &[u32], out: &mut [Option<Hit>]) {
         let n = o.len().min(d.len()).min(seed.len()).min(from.len()).min(out.len());
         if !self.batches_rays() {
-            for k in 0..n {
-                out[k] = self.intersect_surface(o[k], d[k], seed[k], from[k]);
+            if self.solids.is_empty() && !self.has_transparency() {
+                // The walks one after another in one call (`Accel::intersect_lanes`).
+                self.accel.intersect_lanes(&o[..n], &d[..n], &mut out[..n]);
+            } else {
+                for k in 0..n {
+                    out[k] = self.intersect_surface(o[k], d[k], seed[k], from[k]);
+                }
             }
             return;
         }
@@ -565,6 +570,19 @@ impl Scene {
     /// surface is transparent, else one after the other. The same fractions either way.
     pub fn visibility_batch(&self, o: &[Vec3], d: &[Vec3], tmax: &[f32], from: &[u32], out: &mut [f32]) {
         let n = o.len().min(d.len()).min(tmax.len()).min(from.len()).min(out.len());
+        if self.solids.is_empty() && !self.has_transparency() && !self.batches_rays() {
+            // The walks one after another in one call (`Accel::occluded_lanes`).
+            const B: usize = crate::accel::MAX_BATCH;
+            let mut blocked = [false; B];
+            for s in (0..n).step_by(B) {
+                let e = (s + B).min(n);
+                self.accel.occluded_lanes(&o[s..e], &d[s..e], &tmax[s..e], &mut blocked[..e - s]);
+                for k in s..e {
+                    out[k] = if blocked[k - s] { 0.0 } else { 1.0 };
+                }
+            }
+            return;
+        }
         if self.has_transparency() || !self.batches_rays() {
             for k in 0..n {
                 out[k] = self.visibility_from(o[k], d[k], tmax[k], from[k]);

@@ -1654,7 +1654,7 @@ mod tests {
                         _ => {}
                     }
                     d.push(dir);
-                    tmax.push(if i % 3 == 0 { 4.0 * u(6) } else { f32::INFINITY });
+                    tmax.push(if i.is_multiple_of(3) { 4.0 * u(6) } else { f32::INFINITY });
                 }
                 let mut got = vec![None; n];
                 accel.intersect_lanes(&o, &d, &mut got);

@@ -74,8 +74,18 @@ def main():
                          "(dr.set_thread_count, which Mitsuba's scalar and llvm variants both render on); "
                          "1 compares per-core speed, the issue's measure, without the two cores' interplay "
                          "(default: all cores for both)")
+    ap.add_argument("--rr-depth", type=int, metavar="N",
+                    help="the bounce from which Russian roulette may end paths, for every renderer (Tessera's "
+                         "--rr-depth, Mitsuba's rr_depth; default 5 for both). The two play it differently past "
+                         "that bounce (Tessera only below a throughput of 1/4, Mitsuba below 0.95), so their "
+                         "paths differ in length; 65 or more turns it off for both, and paths/s then compares "
+                         "paths of the same lengths")
     ap.add_argument("scenes", nargs="*", default=list(mr.SCENES))
     a = ap.parse_args()
+    if a.rr_depth is not None:
+        if a.rr_depth < 0:
+            ap.error("--rr-depth must be at least 0")
+        a.tessera_args = f"{a.tessera_args} --rr-depth {a.rr_depth}"
     if a.threads is not None:
         if a.threads < 1:
             ap.error("--threads must be at least 1")
@@ -128,7 +138,8 @@ def main():
                         import drjit as dr
                         width = set_vector_width(dr, a.vector_width)
                         print(f"{name}: {variant} with Dr.Jit vector width {width}", file=sys.stderr)
-                    scene = mi.load_dict(mr.build_scene(os.path.join(mr.ROOT, rel), w, h, 1, tmp, env))
+                    scene = mi.load_dict(mr.build_scene(os.path.join(mr.ROOT, rel), w, h, 1, tmp, env,
+                                                         5 if a.rr_depth is None else a.rr_depth))
                     peer_render(scene, 999)  # warm-up (JIT compilation for llvm)
                     peers.append((variant, scene, [], []))
                 except Exception as e:  # a missing libLLVM says so and the others still run
@@ -165,6 +176,7 @@ def main():
         base = 1.0 / (rows[0][1] * net(rows[0][2]))
         base_raw = 1.0 / (rows[0][1] * rows[0][2])
         threads = f", {a.threads} thread{'s' if a.threads > 1 else ''}" if a.threads else ""
+        threads += f", roulette from bounce {a.rr_depth}" if a.rr_depth is not None else ""
         print(f"\n{name} ({w}x{h}, {a.spp} spp{threads}, median of {a.runs} runs; the reference's own relMSE "
               f"{own:.2e}, subtracted)")
         print(f"{'renderer':<22} {'seconds':>8} {'Mpaths/s':>9} {'raw relMSE':>10} {'relMSE':>10} {'efficiency':>11} "

@@ -79,7 +79,7 @@ def main():
                          "--rr-depth, Mitsuba's rr_depth; default 5 for both). The two play it differently past "
                          "that bounce (Tessera only below a throughput of 1/4, Mitsuba below 0.95), so their "
                          "paths differ in length; 65 or more turns it off for both, and paths/s then compares "
-                         "paths of the same lengths")
+                         "paths ended by the same rule (escape, absorption, the depth limit)")
     ap.add_argument("scenes", nargs="*", default=list(mr.SCENES))
     a = ap.parse_args()
     if a.rr_depth is not None:

@@ -907,8 +907,15 @@ impl Accel {
         if self.solid_of_node.is_empty() {
             return self.intersect(o, d, f32::INFINITY);
         }
-        let skip = |node: u32| self.solid_of_node.get(node as usize) == Some(&solid);
-        self.intersect_object::<false>(Vec3A::from(o), Vec3A::from(d), 0.0, f32::INFINITY, skip)
+        self.intersect_object::<false>(Vec3A::from(o), Vec3A::from(d), 0.0, f32::INFINITY, self.solid_nodes(solid))
+    }
+
+    /// The inner nodes a ray leaving solid `solid` need not visit: those whose triangles all
+    /// belong to it ([`Self::mark_solids`]), for [`Self::intersect_leaving`] and
+    /// [`Self::occluded_leaving`].
+    #[inline(always)]
+    fn solid_nodes(&self, solid: u32) -> impl Fn(u32) -> bool + '_ {
+        move |node| self.solid_of_node.get(node as usize) == Some(&solid)
     }
 
     /// Marks each node of the one-level walk (decompressed or compressed) with the one entry of
@@ -1180,6 +1187,23 @@ impl Accel {
         tmax: f32,
         skip: impl Fn(u32) -> bool,
     ) -> Option<Hit> {
+        with_stack(self.stack_len, |stack| self.closest_walk::<N, BOUNDED>(nodes, stack, oa, da, tmin, tmax, skip))
+    }
+
+    /// One closest-hit walk of a finite ray over `nodes` with `stack`, for [`Self::intersect_nodes`]
+    /// and [`Self::intersect_nodes_lanes`] (`BOUNDED`, `tmin` and `skip` as in the first).
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn closest_walk<N: TraversalNode, const BOUNDED: bool>(
+        &self,
+        nodes: &[N],
+        stack: &mut [MaybeUninit<Deferred>],
+        oa: Vec3A,
+        da: Vec3A,
+        tmin: f32,
+        tmax: f32,
+        skip: impl Fn(u32) -> bool,
+    ) -> Option<Hit> {
         let mut ray = NodeRay::new(oa, da, tmax);
         if BOUNDED {
             // NaN-safe: a NaN bound leaves the default.
@@ -1187,15 +1211,13 @@ impl Accel {
         }
         let wray = WatertightRay::new(oa, da);
         let mut best = (tmax, NO_LEAF, 0.0, 0.0);
-        with_stack(self.stack_len, |stack| {
-            traverse_closest(
-                nodes,
-                stack,
-                ray,
-                |r, base, mask| self.closest_in_group(&wray, &mut best, r.tmax, base, mask),
-                skip,
-            )
-        });
+        traverse_closest(
+            nodes,
+            stack,
+            ray,
+            |r, base, mask| self.closest_in_group(&wray, &mut best, r.tmax, base, mask),
+            skip,
+        );
         self.leaf_hit(best)
     }
 
@@ -1328,21 +1350,11 @@ impl Accel {
         with_stack(self.stack_len, |stack| {
             for ((&o, &d), out) in o.iter().zip(d).zip(out.iter_mut()) {
                 let (oa, da) = (Vec3A::from(o), Vec3A::from(d));
-                if !finite(oa, da) {
-                    *out = None;
-                    continue;
-                }
-                let ray = NodeRay::new(oa, da, f32::INFINITY);
-                let wray = WatertightRay::new(oa, da);
-                let mut best = (f32::INFINITY, NO_LEAF, 0.0, 0.0);
-                traverse_closest(
-                    nodes,
-                    stack,
-                    ray,
-                    |r, base, mask| self.closest_in_group(&wray, &mut best, r.tmax, base, mask),
-                    |_| false,
-                );
-                *out = self.leaf_hit(best);
+                *out = if finite(oa, da) {
+                    self.closest_walk::<N, false>(nodes, stack, oa, da, 0.0, f32::INFINITY, |_| false)
+                } else {
+                    None
+                };
             }
         });
     }
@@ -1375,11 +1387,7 @@ impl Accel {
         with_stack(self.stack_len, |stack| {
             for (((&o, &d), &tmax), out) in o.iter().zip(d).zip(tmax).zip(out.iter_mut()) {
                 let (oa, da) = (Vec3A::from(o), Vec3A::from(d));
-                *out = finite(oa, da) && {
-                    let wray = WatertightRay::new(oa, da);
-                    let ray = NodeRay::new(oa, da, tmax);
-                    traverse_any(nodes, stack, ray, |base, mask| self.any_in_group(&wray, base, mask, tmax), |_| false)
-                };
+                *out = finite(oa, da) && self.any_walk(nodes, stack, oa, da, tmax, |_| false);
             }
         });
     }
@@ -1500,8 +1508,7 @@ impl Accel {
         if self.solid_of_node.is_empty() {
             return self.occluded(o, d, tmax);
         }
-        let skip = |node: u32| self.solid_of_node.get(node as usize) == Some(&solid);
-        self.occluded_skipping(Vec3A::from(o), Vec3A::from(d), tmax, skip)
+        self.occluded_skipping(Vec3A::from(o), Vec3A::from(d), tmax, self.solid_nodes(solid))
     }
 
     /// [`Self::occluded_object`], not visiting inner nodes `skip` names.
@@ -1528,11 +1535,24 @@ impl Accel {
         tmax: f32,
         skip: impl Fn(u32) -> bool,
     ) -> bool {
+        with_stack(self.stack_len, |stack| self.any_walk(nodes, stack, oa, da, tmax, skip))
+    }
+
+    /// One any-hit walk of a finite ray over `nodes` with `stack`, for [`Self::occluded_nodes`] and
+    /// [`Self::occluded_nodes_lanes`].
+    #[inline(always)]
+    fn any_walk<N: TraversalNode>(
+        &self,
+        nodes: &[N],
+        stack: &mut [MaybeUninit<Deferred>],
+        oa: Vec3A,
+        da: Vec3A,
+        tmax: f32,
+        skip: impl Fn(u32) -> bool,
+    ) -> bool {
         let wray = WatertightRay::new(oa, da);
         let ray = NodeRay::new(oa, da, tmax);
-        with_stack(self.stack_len, |stack| {
-            traverse_any(nodes, stack, ray, |base, mask| self.any_in_group(&wray, base, mask, tmax), skip)
-        })
+        traverse_any(nodes, stack, ray, |base, mask| self.any_in_group(&wray, base, mask, tmax), skip)
     }
 }
 

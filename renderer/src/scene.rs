@@ -52,6 +52,16 @@ pub struct Scene {
     lanes: bool,
 }
 
+/// The visibility of an opaque scene's shadow ray: 1 where it gets through, else 0.
+#[inline(always)]
+fn passes(through: bool) -> f32 {
+    if through {
+        1.0
+    } else {
+        0.0
+    }
+}
+
 /// The closed convex solids ([`crate::convex_solid`]). Glass ones: among the triangles whose
 /// material transmits light (only those send rays inward: refraction and internal reflection)
 /// and is opaque to shadow rays (alpha OPAQUE: a shadow ray through a solid is blocked,
@@ -582,7 +592,7 @@ impl Scene {
                 let e = (s + B).min(n);
                 self.accel.occluded_lanes(&o[s..e], &d[s..e], &tmax[s..e], &mut blocked[..e - s]);
                 for k in s..e {
-                    out[k] = if blocked[k - s] { 0.0 } else { 1.0 };
+                    out[k] = passes(!blocked[k - s]);
                 }
             }
             return;
@@ -604,7 +614,7 @@ impl Scene {
                 if self.solid_blocks(o[k], d[k], tmax[k]) {
                     out[k] = 0.0;
                 } else if let Some(solid) = self.solids.leaving(&self.mesh, from[k], d[k]) {
-                    out[k] = if self.accel.occluded_leaving(o[k], d[k], tmax[k], solid) { 0.0 } else { 1.0 };
+                    out[k] = passes(!self.accel.occluded_leaving(o[k], d[k], tmax[k], solid));
                 } else {
                     (qo[m], qd[m], qt[m], at[m]) = (o[k], d[k], tmax[k], k);
                     m += 1;
@@ -612,7 +622,7 @@ impl Scene {
             }
             self.accel.occluded_batch(&qo[..m], &qd[..m], &qt[..m], &mut blocked[..m]);
             for j in 0..m {
-                out[at[j]] = if blocked[j] { 0.0 } else { 1.0 };
+                out[at[j]] = passes(!blocked[j]);
             }
         }
     }
@@ -653,12 +663,7 @@ impl Scene {
         }
         match self.solids.leaving(&self.mesh, from, d) {
             Some(solid) if !self.has_transparency() => {
-                let blocked = self.solid_blocks(o, d, tmax) || self.accel.occluded_leaving(o, d, tmax, solid);
-                if blocked {
-                    0.0
-                } else {
-                    1.0
-                }
+                passes(!(self.solid_blocks(o, d, tmax) || self.accel.occluded_leaving(o, d, tmax, solid)))
             }
             _ => self.visibility(o, d, tmax),
         }
@@ -671,7 +676,7 @@ impl Scene {
             return 0.0;
         }
         if !self.has_transparency() {
-            return if self.accel.occluded(o, d, tmax) { 0.0 } else { 1.0 };
+            return passes(!self.accel.occluded(o, d, tmax));
         }
         let mut t_total = 1.0f32;
         for _ in 0..MAX_TRANSPARENT_LAYERS {

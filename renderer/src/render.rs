@@ -193,18 +193,19 @@ pub fn render_tile_counted(
         .unwrap_or_else(|_| crate::camera::Camera::framing(scene.bounds.0, scene.bounds.1));
     let raster = camera.raster(settings.width, settings.height);
     let batches = scene.batches_paths();
-    // Eight paths in lock step where the kernel renders the scene (`spmd`), else sixteen a batch
-    // where it pays (`radiance_batch`), else one at a time: the same sums all three ways.
+    // The kernel's lanes where it renders the scene (`spmd`), else sixteen paths a batch where
+    // it pays (`radiance_batch`), else one at a time: the same sums all three ways.
     let lanes = scene.lanes(settings);
-    let width = match (lanes, batches) {
-        (Some(_), _) => crate::spmd::LANES,
-        (None, true) => MAX_BATCH,
-        (None, false) => 1,
-    };
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    if let Some(materials) = lanes {
+        let pixels = kernel_pixels(scene, materials, settings, &raster, camera.origin, rect, samples.clone());
+        return tile_sums(rect, samples, pixels, counters);
+    }
+    let width = if lanes.is_none() && batches { MAX_BATCH } else { 1 };
     // Per pixel: its sums, its sample count, and the rays traced and non-finite samples met, which
     // go to the shared counters once per tile rather than once per pixel (threads adding to the
     // same atomics contend for their cache line).
-    let pixels: Vec<([f64; 3], f64, u32, u64, u64)> = (0..rect.pixels())
+    let pixels: Vec<PixelResult> = (0..rect.pixels())
         .into_par_iter()
         .map(|i| {
             let x = rect.x0 + (i as u32 % rect.width);
@@ -215,37 +216,19 @@ pub fn render_tile_counted(
             if width > 1 {
                 // `width` samples' paths at a time, added in sample order: the same sums as one
                 // at a time. A batch leaves a pixel's last sample to the single path (a batch of
-                // one is that path with bookkeeping); the kernel takes it in a lane.
-                let pixel_sampler = PixelSample::new(settings.sampler, settings.seed, (x, y), 0);
-                let mut samplers = [pixel_sampler; MAX_BATCH];
-                let (mut dirs, mut l) = ([Vec3::ZERO; MAX_BATCH], [Vec3::ZERO; MAX_BATCH]);
-                while s + 1 < samples.end || (lanes.is_some() && s < samples.end) {
+                // one is that path with bookkeeping).
+                let (mut samplers, mut dirs, mut l) = (
+                    [PixelSample::new(settings.sampler, settings.seed, (x, y), 0); MAX_BATCH],
+                    [Vec3::ZERO; MAX_BATCH],
+                    [Vec3::ZERO; MAX_BATCH],
+                );
+                while s + 1 < samples.end {
                     let n = ((samples.end - s) as usize).min(width);
-                    // The kernel's camera rays eight at a time (it exists on AVX2 builds only).
-                    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-                    if lanes.is_some() {
-                        camera_rays8(settings, &raster, (x, y), &pixel_sampler, s, &mut samplers[..n], &mut dirs[..n]);
-                    }
-                    if lanes.is_none() {
-                        for k in 0..n {
-                            (samplers[k], dirs[k]) = camera_ray(settings, &raster, (x, y), s + k as u32);
-                        }
+                    for k in 0..n {
+                        (samplers[k], dirs[k]) = camera_ray(settings, &raster, (x, y), s + k as u32);
                     }
                     let (dirs, samplers, l) = (&dirs[..n], &samplers[..n], &mut l[..n]);
-                    match lanes {
-                        #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-                        Some(materials) => crate::spmd::radiance8(
-                            scene,
-                            materials,
-                            settings,
-                            camera.origin,
-                            dirs,
-                            samplers,
-                            &mut rays,
-                            l,
-                        ),
-                        _ => radiance_batch(scene, settings, camera.origin, dirs, samplers, &mut rays, l),
-                    }
+                    radiance_batch(scene, settings, camera.origin, dirs, samplers, &mut rays, l);
                     for lk in l.iter() {
                         sums.add(*lk);
                     }
@@ -256,15 +239,24 @@ pub fn render_tile_counted(
                 let (sampler, d) = camera_ray(settings, &raster, (x, y), s);
                 sums.add(radiance(scene, settings, camera.origin, d, &sampler, &mut rays));
             }
-            let PixelSums { rgb, lum_sq, bad } = sums;
-            (rgb, lum_sq, samples.len() as u32, rays, bad)
+            (sums, samples.len() as u32, rays)
         })
         .collect();
+    tile_sums(rect, samples, pixels, counters)
+}
+
+/// One pixel's result in a tile: its sums, its sample count, and rays traced (which go to the
+/// shared counters once per tile rather than once per pixel: threads adding to the same atomics
+/// contend for their cache line).
+type PixelResult = (PixelSums, u32, u64);
+
+/// A tile's sums from its pixels' results (row-major), the counters updated once.
+fn tile_sums(rect: Rect, samples: Range<u32>, pixels: Vec<PixelResult>, counters: &Counters) -> PartialSums {
     let mut out = PartialSums::new(rect);
     let (mut rays, mut bad) = (0u64, 0u64);
-    for (i, (rgb, lsq, n, r, b)) in pixels.into_iter().enumerate() {
+    for (i, (PixelSums { rgb, lum_sq, bad: b }, n, r)) in pixels.into_iter().enumerate() {
         out.sum_rgb[i] = rgb;
-        out.sum_lum_sq[i] = lsq;
+        out.sum_lum_sq[i] = lum_sq;
         out.count[i] = n;
         rays += r;
         bad += b;
@@ -275,6 +267,83 @@ pub fn render_tile_counted(
         counters.nonfinite.fetch_add(bad, Ordering::Relaxed);
     }
     out
+}
+
+/// The pixels one task of the kernel streams through its lanes: sixteen pixels of sixteen
+/// samples (a pass's default) fill one stream ([`crate::spmd::STREAM`]).
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+const STREAM_PIXELS: usize = 16;
+
+/// [`render_tile_counted`]'s pixels through the SPMD kernel: each task takes [`STREAM_PIXELS`]
+/// pixels, lays their samples' camera rays out pixel by pixel (eight at a time:
+/// `camera_rays8`) in streams of up to [`crate::spmd::STREAM`] paths, and adds each path's
+/// radiance to its pixel in sample order, so the sums are the one-path-at-a-time sums.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+fn kernel_pixels(
+    scene: &Scene,
+    materials: &[crate::spmd::LaneMaterial],
+    settings: &RenderSettings,
+    raster: &crate::camera::Raster,
+    origin: Vec3,
+    rect: Rect,
+    samples: Range<u32>,
+) -> Vec<PixelResult> {
+    use crate::spmd::{LANES, STREAM};
+    let pixels = rect.pixels();
+    // A thread's stream buffers (camera ray directions, samplers, each path's pixel as an offset
+    // into the group, radiance), made once per thread rather than once per group.
+    let buffers = || {
+        let sampler = PixelSample::new(settings.sampler, settings.seed, (0, 0), 0);
+        (vec![Vec3::ZERO; STREAM], vec![sampler; STREAM], vec![0u8; STREAM], vec![Vec3::ZERO; STREAM])
+    };
+    let groups: Vec<Vec<PixelResult>> = (0..pixels.div_ceil(STREAM_PIXELS))
+        .into_par_iter()
+        .map_init(buffers, |(dirs, samplers, owner, l), g| {
+            let first = g * STREAM_PIXELS;
+            let group = first..(first + STREAM_PIXELS).min(pixels);
+            let mut sums: [PixelSums; STREAM_PIXELS] = Default::default();
+            let mut rays = 0u64;
+            let mut fill = 0;
+            let mut run = |fill: usize, dirs: &[Vec3], samplers: &[PixelSample], owner: &[u8], l: &mut [Vec3]| {
+                crate::spmd::radiance8(scene, materials, settings, origin, dirs, samplers, &mut rays, &mut l[..fill]);
+                for (l, &o) in l[..fill].iter().zip(owner) {
+                    sums[o as usize].add(*l);
+                }
+            };
+            for i in group.clone() {
+                let (x, y) = (rect.x0 + (i as u32 % rect.width), rect.y0 + (i as u32 / rect.width));
+                let sampler = PixelSample::new(settings.sampler, settings.seed, (x, y), 0);
+                let mut s = samples.start;
+                while s < samples.end {
+                    let m = ((samples.end - s) as usize).min(LANES).min(STREAM - fill);
+                    let span = fill..fill + m;
+                    camera_rays8(
+                        settings,
+                        raster,
+                        (x, y),
+                        &sampler,
+                        s,
+                        &mut samplers[span.clone()],
+                        &mut dirs[span.clone()],
+                    );
+                    owner[span].fill((i - first) as u8);
+                    (fill, s) = (fill + m, s + m as u32);
+                    if fill == STREAM {
+                        run(fill, dirs, samplers, owner, l);
+                        fill = 0;
+                    }
+                }
+            }
+            if fill > 0 {
+                run(fill, &dirs[..fill], &samplers[..fill], &owner[..fill], l);
+            }
+            // The group's rays go with its first pixel (the tile adds them all up).
+            let n = samples.len() as u32;
+            let mut rays = Some(rays);
+            sums.into_iter().take(group.len()).map(|s| (s, n, rays.take().unwrap_or(0))).collect()
+        })
+        .collect();
+    groups.into_iter().flatten().collect()
 }
 
 /// What [`render`] produced.

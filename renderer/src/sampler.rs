@@ -135,8 +135,11 @@ fn sobol_int4_rev(index_rev: u32, seed: u32) -> [u32; 4] {
 #[inline(always)]
 fn dimension_scrambles(seed: u32) -> [u32; 4] {
     let s = seed.wrapping_mul(0x9c8f_2d3b);
-    [s ^ 0x912f_69ba, s ^ 0x174f_18ab, s ^ 0x691e_72ca, s ^ 0xb40c_c1b8]
+    DIMENSION_SCRAMBLES.map(|c| s ^ c)
 }
+
+/// What [`dimension_scrambles`] xors into its seed's product for each of the four dimensions.
+const DIMENSION_SCRAMBLES: [u32; 4] = [0x912f_69ba, 0x174f_18ab, 0x691e_72ca, 0xb40c_c1b8];
 
 /// [`sobol_4d`] for two seeds: `(sobol_4d(index, seed_a), sobol_4d(index, seed_b))` bit for bit.
 /// The per-seed index scramble and table lookups stay scalar; the scramble of the eight
@@ -163,38 +166,88 @@ pub fn sobol_4d_pair(index: u32, seed_a: u32, seed_b: u32) -> ([f32; 4], [f32; 4
     }
 }
 
-/// The sets `set_a` and `set_b` of up to eight samples of one pixel at once, dimension-major:
-/// `a[i][k]` and `b[i][k]` are dimension i of sample `samplers[k]`'s sets, the numbers
-/// [`PixelSample::get_4d_pair`] gives bit for bit (lanes past `samplers.len()` repeat sample 0).
-/// False, with nothing written, unless every sampler is Sobol with the same pixel and the same
-/// 2^16 block, so the eight share their seeds: the SPMD kernel's lanes are one pixel's samples
-/// (`spmd::radiance8`), where this does once what eight `get_4d_pair` calls did eight times (the
-/// two set seeds, the index scramble's hash and the dimensions' scramble hashes), runs the index
-/// scramble and the dimensions' scrambles across the lanes, and leaves each dimension in the
-/// lane order the kernel's registers want.
+/// Eight samples' own pairs of sets at once, dimension-major: `a[i][k]` and `b[i][k]` are
+/// dimension i of `samplers[k].get_4d_pair(sets_a[k], sets_b[k])`, bit for bit. The samples may
+/// be of any pixels, blocks and bounces: the SPMD kernel's lanes run paths of a stream of pixels
+/// and refill as paths end (`spmd::radiance8`), so their bounces differ. Each lane's two set
+/// seeds are scalar hashes; the index scramble, the dimensions' scramble hashes and scrambles,
+/// the bit reversal and the conversion to floats run across the lanes, and each dimension lands
+/// in the lane order the kernel's registers want. False, with nothing written, unless every
+/// sampler is Sobol.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[inline(always)]
-pub(crate) fn get_4d_pair_lanes(
-    samplers: &[PixelSample],
-    set_a: u32,
-    set_b: u32,
+pub(crate) fn get_4d_pair_each_lanes(
+    samplers: &[PixelSample; 8],
+    sets_a: &[u32; 8],
+    sets_b: &[u32; 8],
     a: &mut [[f32; 8]; 4],
     b: &mut [[f32; 8]; 4],
 ) -> bool {
-    let Some((first, index)) = lane_indices(samplers) else { return false };
-    let (seed_a, seed_b) = (first.sobol_seed(set_a), first.sobol_seed(set_b));
+    if samplers.iter().any(|s| s.kind != SamplerKind::Sobol) {
+        return false;
+    }
+    // `sobol_seed`'s hash inputs, the set hashes (a table lookup each) one lane at a time; the
+    // hashes themselves eight-wide.
+    let (mut index, mut pixel, mut set_a, mut set_b) = ([0u32; 8], [0u32; 8], [0u32; 8], [0u32; 8]);
+    for k in 0..8 {
+        let s = &samplers[k];
+        let block = s.index >> 16;
+        (index[k], pixel[k]) = (s.index & 0xffff, s.pixel_seed);
+        (set_a[k], set_b[k]) = (set_hash(sets_a[k], block), set_hash(sets_b[k], block));
+    }
     // SAFETY: AVX2 is enabled at compile time; loads and stores are unaligned.
-    unsafe { sobol_lanes_avx2(index, [seed_a, seed_b], [a, b]) };
+    unsafe {
+        use std::arch::x86_64::*;
+        let load = |x: &[u32; 8]| _mm256_loadu_si256(x.as_ptr() as *const __m256i);
+        let pixel = load(&pixel);
+        let seed = |sets: &[u32; 8]| {
+            let mut seed = [0u32; 8];
+            let h = hash_u32_avx2(_mm256_xor_si256(pixel, load(sets)));
+            _mm256_storeu_si256(seed.as_mut_ptr() as *mut __m256i, h);
+            seed
+        };
+        sobol_lanes_avx2(index, [seed(&set_a), seed(&set_b)], [a, b])
+    };
     true
 }
 
-/// [`get_4d_pair_lanes`] for one set: `out[i][k]` is dimension i of `samplers[k].get_4d(set)`.
+/// [`hash_u32`] on eight lanes: `hash_u64` (SplitMix64's finalizer) of each zero-extended lane,
+/// four 64-bit lanes a register, its low 32 bits. AVX2 has no 64-bit multiply; each is three
+/// 32×32→64 ones (`a·k mod 2^64 = a_lo·k_lo + (a_hi·k_lo + a_lo·k_hi)·2^32`).
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[inline(always)]
+unsafe fn hash_u32_avx2(x: std::arch::x86_64::__m256i) -> std::arch::x86_64::__m256i {
+    use std::arch::x86_64::*;
+    let splat = |k: u64| _mm256_set1_epi64x(k as i64);
+    let mul = |a: __m256i, k: u64| {
+        let (k_lo, k_hi) = (splat(k & 0xffff_ffff), splat(k >> 32));
+        let cross = _mm256_add_epi64(_mm256_mul_epu32(_mm256_srli_epi64::<32>(a), k_lo), _mm256_mul_epu32(a, k_hi));
+        _mm256_add_epi64(_mm256_mul_epu32(a, k_lo), _mm256_slli_epi64::<32>(cross))
+    };
+    let hash = |x: __m256i| {
+        let x = _mm256_add_epi64(x, splat(0x9e37_79b9_7f4a_7c15));
+        let x = mul(_mm256_xor_si256(x, _mm256_srli_epi64::<30>(x)), 0xbf58_476d_1ce4_e5b9);
+        let x = mul(_mm256_xor_si256(x, _mm256_srli_epi64::<27>(x)), 0x94d0_49bb_1331_11eb);
+        _mm256_xor_si256(x, _mm256_srli_epi64::<31>(x))
+    };
+    let lo = hash(_mm256_cvtepu32_epi64(_mm256_castsi256_si128(x)));
+    let hi = hash(_mm256_cvtepu32_epi64(_mm256_extracti128_si256::<1>(x)));
+    // The low halves of the eight 64-bit results, back in lane order.
+    let even = _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6);
+    let (lo, hi) = (_mm256_permutevar8x32_epi32(lo, even), _mm256_permutevar8x32_epi32(hi, even));
+    _mm256_blend_epi32::<0xf0>(lo, hi)
+}
+
+/// Up to eight samples of one pixel at once, one set, dimension-major: `out[i][k]` is dimension i
+/// of `samplers[k].get_4d(set)` bit for bit (lanes past `samplers.len()` repeat sample 0). False,
+/// with nothing written, unless every sampler is Sobol with the same pixel and the same 2^16
+/// block, so the eight share their seed: a pixel's camera rays (`render::camera_rays8`).
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[inline(always)]
 pub(crate) fn get_4d_lanes(samplers: &[PixelSample], set: u32, out: &mut [[f32; 8]; 4]) -> bool {
     let Some((first, index)) = lane_indices(samplers) else { return false };
     // SAFETY: AVX2 is enabled at compile time; loads and stores are unaligned.
-    unsafe { sobol_lanes_avx2(index, [first.sobol_seed(set)], [out]) };
+    unsafe { sobol_lanes_avx2(index, [[first.sobol_seed(set); 8]], [out]) };
     true
 }
 
@@ -218,17 +271,18 @@ fn lane_indices(samplers: &[PixelSample]) -> Option<(&PixelSample, [u32; 8])> {
     Some((first, index))
 }
 
-/// [`get_4d_pair_lanes`]' arithmetic: `sobol_4d(index[k], seeds[s])` for the eight lanes k into
-/// `out[s]`, dimension-major.
+/// [`get_4d_pair_each_lanes`]' arithmetic: `sobol_4d(index[k], seeds[s][k])` for the eight lanes k
+/// into `out[s]`, dimension-major.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[inline(always)]
-unsafe fn sobol_lanes_avx2<const N: usize>(index: [u32; 8], seeds: [u32; N], out: [&mut [[f32; 8]; 4]; N]) {
-    use sobol_burley::parts::hash;
+unsafe fn sobol_lanes_avx2<const N: usize>(index: [u32; 8], seeds: [[u32; 8]; N], out: [&mut [[f32; 8]; 4]; N]) {
     use std::arch::x86_64::*;
+    let splat = |x: u32| _mm256_set1_epi32(x as i32);
     let index_rev = reverse_bits_avx2(_mm256_loadu_si256(index.as_ptr() as *const __m256i));
     for (seed, out) in seeds.into_iter().zip(out) {
-        // `sobol_int4_rev`: the index scramble (one hash for the eight lanes), then the table rows.
-        let rev = owen_scramble_rev_avx2(index_rev, _mm256_set1_epi32(hash(seed ^ 0x79c6_8e4a) as i32));
+        let seed = _mm256_loadu_si256(seed.as_ptr() as *const __m256i);
+        // `sobol_int4_rev`: the index scramble, then the table rows.
+        let rev = owen_scramble_rev_avx2(index_rev, hash_avx2(_mm256_xor_si256(seed, splat(0x79c6_8e4a))));
         let mut rev_lanes = [0u32; 8];
         _mm256_storeu_si256(rev_lanes.as_mut_ptr() as *mut __m256i, rev);
         let tables = &SOBOL_BYTE_TABLES;
@@ -252,10 +306,10 @@ unsafe fn sobol_lanes_avx2<const N: usize>(index: [u32; 8], seeds: [u32; N], out
             _mm256_unpacklo_epi64(t1, t3),
             _mm256_unpackhi_epi64(t1, t3),
         ];
-        // Each dimension's scramble (`hash_int4(dimension_scrambles(seed))`), one for the lanes.
-        let scrambles = dimension_scrambles(seed);
+        // Each dimension's scramble (`hash_int4(dimension_scrambles(seed))`).
+        let scramble = _mm256_mullo_epi32(seed, splat(0x9c8f_2d3b));
         for (j, x) in dim.into_iter().enumerate() {
-            let h = _mm256_set1_epi32(hash(scrambles[j]) as i32);
+            let h = hash_avx2(_mm256_xor_si256(scramble, splat(DIMENSION_SCRAMBLES[j])));
             let f = to_f32_norm_avx2(reverse_bits_avx2(owen_scramble_rev_avx2(x, h)));
             _mm256_storeu_ps(out[j].as_mut_ptr(), f);
         }
@@ -300,6 +354,20 @@ unsafe fn reverse_bits_avx2(x: std::arch::x86_64::__m256i) -> std::arch::x86_64:
     _mm256_or_si256(_mm256_srli_epi32::<16>(x), _mm256_slli_epi32::<16>(x))
 }
 
+/// `sobol_burley::parts::hash_int4` (skeeto's hash-prospector hash) on eight lanes.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[inline(always)]
+unsafe fn hash_avx2(n: std::arch::x86_64::__m256i) -> std::arch::x86_64::__m256i {
+    use std::arch::x86_64::*;
+    let splat = |x: u32| _mm256_set1_epi32(x as i32);
+    let mut h = _mm256_xor_si256(n, splat(0xe6fe_3beb));
+    h = _mm256_xor_si256(h, _mm256_srli_epi32::<16>(h));
+    h = _mm256_mullo_epi32(h, splat(0x7feb_352d));
+    h = _mm256_xor_si256(h, _mm256_srli_epi32::<15>(h));
+    h = _mm256_mullo_epi32(h, splat(0x846c_a68b));
+    _mm256_xor_si256(h, _mm256_srli_epi32::<16>(h))
+}
+
 /// `Int4::to_f32_norm` on eight lanes: the top 23 bits as a float in [0, 1).
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[inline(always)]
@@ -317,16 +385,7 @@ unsafe fn to_f32_norm_avx2(x: std::arch::x86_64::__m256i) -> std::arch::x86_64::
 #[inline(always)]
 unsafe fn owen_reverse_to_f32_avx2(n: [u32; 8], scramble: [u32; 8]) -> [f32; 8] {
     use std::arch::x86_64::*;
-    let splat = |x: u32| _mm256_set1_epi32(x as i32);
-    let mul = |a: __m256i, k: __m256i| _mm256_mullo_epi32(a, k);
-    let xor = |a: __m256i, b: __m256i| _mm256_xor_si256(a, b);
-    // hash_int4
-    let mut h = xor(_mm256_loadu_si256(scramble.as_ptr() as *const __m256i), splat(0xe6fe_3beb));
-    h = xor(h, _mm256_srli_epi32::<16>(h));
-    h = mul(h, splat(0x7feb_352d));
-    h = xor(h, _mm256_srli_epi32::<15>(h));
-    h = mul(h, splat(0x846c_a68b));
-    h = xor(h, _mm256_srli_epi32::<16>(h));
+    let h = hash_avx2(_mm256_loadu_si256(scramble.as_ptr() as *const __m256i));
     // owen_scramble_int4_rev(n, h), Int4::reverse_bits, Int4::to_f32_norm
     let x = owen_scramble_rev_avx2(_mm256_loadu_si256(n.as_ptr() as *const __m256i), h);
     let f = to_f32_norm_avx2(reverse_bits_avx2(x));
@@ -465,12 +524,12 @@ mod tests {
         }
     }
 
-    /// A pixel's samples drawn eight lanes at once are each sample's own pair of sets, bit for
+    /// A pixel's samples drawn eight lanes at once for one set are each sample's own set, bit for
     /// bit: runs of one to eight consecutive and scattered indices, in block 0 and past it, sets
-    /// inside and past the hash table; and the lanes refuse samplers that do not share their seeds.
+    /// inside and past the hash table; and the lanes refuse samplers that do not share their seed.
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[test]
-    fn lanes_equal_each_sample_alone() {
+    fn one_pixels_lanes_equal_each_sample_alone() {
         let mut checked = 0;
         for (seed, pixel) in [(0u64, (0u32, 0u32)), (3, (5, 9)), (u64::MAX, (4095, 17))] {
             for start in [0u32, 1, 8, 61, 65_530, 65_536, 131_071, 200_001] {
@@ -482,21 +541,13 @@ mod tests {
                             .filter(|s| s.index >> 16 == start >> 16)
                             .collect();
                         for set in [0u32, 1, 2, 9, 254, 255, 256, 300] {
-                            let (mut la, mut lb) = ([[0f32; 8]; 4], [[0f32; 8]; 4]);
-                            assert!(
-                                get_4d_pair_lanes(&samplers, set, set + 2, &mut la, &mut lb),
-                                "one pixel, one block"
-                            );
                             let mut one = [[0f32; 8]; 4];
-                            assert!(get_4d_lanes(&samplers, set + 2, &mut one));
+                            assert!(get_4d_lanes(&samplers, set, &mut one), "one pixel, one block");
                             for (k, s) in samplers.iter().enumerate() {
                                 // `at` is `new` with that index.
-                                let alone = PixelSample::new(SamplerKind::Sobol, seed, pixel, s.index);
-                                let (a, b) = alone.get_4d_pair(set, set + 2);
+                                let alone = PixelSample::new(SamplerKind::Sobol, seed, pixel, s.index).get_4d(set);
                                 for i in 0..4 {
-                                    assert_eq!(one[i][k].to_bits(), b[i].to_bits(), "set {set} lane {k} dim {i}");
-                                    assert_eq!(la[i][k].to_bits(), a[i].to_bits(), "set {set} lane {k} dim {i}");
-                                    assert_eq!(lb[i][k].to_bits(), b[i].to_bits(), "set {set} lane {k} dim {i}");
+                                    assert_eq!(one[i][k].to_bits(), alone[i].to_bits(), "set {set} lane {k} dim {i}");
                                 }
                                 checked += 1;
                             }
@@ -509,11 +560,8 @@ mod tests {
         let s = |kind, pixel, index| PixelSample::new(kind, 3, pixel, index);
         let sobol = SamplerKind::Sobol;
         let refused = |samplers: &[PixelSample]| {
-            let (mut a, mut b, mut c) = ([[7f32; 8]; 4], [[7f32; 8]; 4], [[7f32; 8]; 4]);
-            let pair = get_4d_pair_lanes(samplers, 0, 1, &mut a, &mut b);
-            let one = get_4d_lanes(samplers, 0, &mut c);
-            assert_eq!(pair, one);
-            !pair && a == [[7f32; 8]; 4] && b == a && c == a
+            let mut c = [[7f32; 8]; 4];
+            !get_4d_lanes(samplers, 0, &mut c) && c == [[7f32; 8]; 4]
         };
         assert!(refused(&[]));
         assert!(refused(&[s(sobol, (1, 1), 0), s(sobol, (1, 2), 1)]));
@@ -521,6 +569,65 @@ mod tests {
         assert!(refused(&[s(SamplerKind::Independent, (1, 1), 0)]));
         assert!(refused(&[s(sobol, (1, 1), 0); 9]));
         assert!(!refused(&[s(sobol, (1, 1), 0); 8]));
+    }
+
+    /// Eight samples of different pixels, blocks and bounces drawn at once are each sample's own
+    /// pair of sets, bit for bit (the kernel's lanes after refills), for sets inside and past the
+    /// hash table; a lane of the independent sampler makes the call refuse, writing nothing.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[test]
+    fn each_lanes_own_sets_equal_each_sample_alone() {
+        let mut checked = 0;
+        let indices = [0u32, 1, 7, 61, 65_535, 65_536, 131_071, 200_001, 3, 40_000];
+        let sets = [0u32, 1, 2, 9, 254, 255, 256, 300, 5, 77, 129];
+        for round in 0..200u32 {
+            let mut samplers = [PixelSample::new(SamplerKind::Sobol, 0, (0, 0), 0); 8];
+            let (mut sets_a, mut sets_b) = ([0u32; 8], [0u32; 8]);
+            for k in 0..8 {
+                let r = hash_u32(round * 8 + k as u32);
+                let seed = [0u64, 3, u64::MAX][(r % 3) as usize];
+                let pixel = ((r >> 4) % 4096, (r >> 16) % 64);
+                let index = indices[((r >> 8) as usize) % indices.len()];
+                samplers[k] = PixelSample::new(SamplerKind::Sobol, seed, pixel, index);
+                sets_a[k] = sets[((r >> 12) as usize) % sets.len()];
+                sets_b[k] = sets_a[k] + 1 + (r >> 28);
+            }
+            let (mut a, mut b) = ([[0f32; 8]; 4], [[0f32; 8]; 4]);
+            assert!(get_4d_pair_each_lanes(&samplers, &sets_a, &sets_b, &mut a, &mut b));
+            for (k, s) in samplers.iter().enumerate() {
+                let (ea, eb) = (s.get_4d(sets_a[k]), s.get_4d(sets_b[k]));
+                for i in 0..4 {
+                    assert_eq!(a[i][k].to_bits(), ea[i].to_bits(), "round {round} lane {k} dim {i}");
+                    assert_eq!(b[i][k].to_bits(), eb[i].to_bits(), "round {round} lane {k} dim {i}");
+                }
+                checked += 1;
+            }
+        }
+        assert_eq!(checked, 1600);
+        let mut samplers = [PixelSample::new(SamplerKind::Sobol, 3, (1, 1), 0); 8];
+        samplers[5] = PixelSample::new(SamplerKind::Independent, 3, (1, 1), 0);
+        let (mut a, mut b) = ([[7f32; 8]; 4], [[7f32; 8]; 4]);
+        assert!(!get_4d_pair_each_lanes(&samplers, &[0; 8], &[1; 8], &mut a, &mut b));
+        assert!(a == [[7f32; 8]; 4] && b == a);
+    }
+
+    /// The eight-lane `hash_u32` is the scalar one on every lane, for inputs at the edges of
+    /// the 32-bit range and hashes between.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[test]
+    fn eight_lane_hash_equals_the_scalar_one() {
+        use std::arch::x86_64::*;
+        let edges = [0u32, 1, 2, 0x7fff_ffff, 0x8000_0000, 0xffff_fffe, u32::MAX, 0x9e37_79b9];
+        for round in 0..1000u32 {
+            let x: [u32; 8] = if round == 0 { edges } else { std::array::from_fn(|k| hash_u32(round * 8 + k as u32)) };
+            let mut got = [0u32; 8];
+            // SAFETY: AVX2 is enabled at compile time; loads and stores are unaligned.
+            unsafe {
+                let h = hash_u32_avx2(_mm256_loadu_si256(x.as_ptr() as *const __m256i));
+                _mm256_storeu_si256(got.as_mut_ptr() as *mut __m256i, h);
+            }
+            assert_eq!(got, x.map(hash_u32), "inputs {x:?}");
+        }
     }
 
     /// The tabulated set hashes are the formula's, inside the table and past it, in block 0

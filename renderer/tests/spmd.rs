@@ -157,6 +157,35 @@ fn room_with(wall: Material, sphere: Material, size: f32, light_radiance: f32) -
     b.build()
 }
 
+/// The kernel streams sixteen pixels' samples through its lanes, refilling a lane as its path
+/// ends (`render::kernel_pixels`, `spmd::radiance8`): a pixel's samples split across streams
+/// (40 samples a pixel: streams of 256, 256 and 128 paths), a last group of three pixels, a
+/// tile away from the image's corner, sample ranges that start and end off a multiple of eight,
+/// and a ray count, all as the scalar path has them.
+#[test]
+fn eight_lanes_stream_pixels_and_samples_as_the_scalar_path_sums_them() {
+    let mut scene = room(Vec3::splat(0.6), 1.0, 5.0);
+    let settings = RenderSettings { width: 20, height: 12, spp: 64, seed: 9, ..RenderSettings::default() };
+    for (rect, samples) in [
+        (Rect { x0: 0, y0: 0, width: 7, height: 5 }, 0..40u32),
+        (Rect { x0: 9, y0: 4, width: 5, height: 3 }, 3..61),
+        (Rect { x0: 19, y0: 11, width: 1, height: 1 }, 13..14),
+    ] {
+        let (lane_count, single_count) = (Counters::default(), Counters::default());
+        scene.set_lanes(true);
+        assert!(scene.lanes(&settings).is_some());
+        let lanes = render_tile_counted(&scene, &settings, rect, samples.clone(), &lane_count);
+        scene.set_lanes(false);
+        let single = render_tile_counted(&scene, &settings, rect, samples.clone(), &single_count);
+        let rays = |c: &Counters| c.rays.load(Ordering::Relaxed);
+        assert_eq!(rays(&lane_count), rays(&single_count), "{rect:?} {samples:?}: other rays counted");
+        let total: f64 = single.sum_rgb.iter().flatten().sum();
+        assert!(total > 0.0 && total.is_finite(), "{rect:?} {samples:?}: {total}");
+        assert_eq!(lanes.count, single.count, "{rect:?} {samples:?}");
+        assert!(sum_bits(&lanes) == sum_bits(&single), "{rect:?} {samples:?}: the kernel changed the sums");
+    }
+}
+
 #[test]
 fn eight_lanes_match_the_scalar_path_at_the_extremes() {
     let base = RenderSettings { width: 24, height: 18, spp: 11, seed: 5, ..RenderSettings::default() };

@@ -169,7 +169,7 @@ fn eight_lanes_stream_pixels_and_samples_as_the_scalar_path_sums_them() {
     for (rect, samples) in [
         (Rect { x0: 0, y0: 0, width: 7, height: 5 }, 0..40u32),
         (Rect { x0: 9, y0: 4, width: 5, height: 3 }, 3..61),
-        (Rect { x0: 19, y0: 11, width: 1, height: 1 }, 13..14),
+        (Rect { x0: 10, y0: 6, width: 1, height: 1 }, 13..14),
     ] {
         let (lane_count, single_count) = (Counters::default(), Counters::default());
         scene.set_lanes(true);
@@ -180,7 +180,7 @@ fn eight_lanes_stream_pixels_and_samples_as_the_scalar_path_sums_them() {
         let rays = |c: &Counters| c.rays.load(Ordering::Relaxed);
         assert_eq!(rays(&lane_count), rays(&single_count), "{rect:?} {samples:?}: other rays counted");
         let total: f64 = single.sum_rgb.iter().flatten().sum();
-        assert!(total > 0.0 && total.is_finite(), "{rect:?} {samples:?}: {total}");
+        assert!(total > 0.0 && total.is_finite(), "{rect:?} {samples:?}: a black tile tests nothing ({total})");
         assert_eq!(lanes.count, single.count, "{rect:?} {samples:?}");
         assert!(sum_bits(&lanes) == sum_bits(&single), "{rect:?} {samples:?}: the kernel changed the sums");
     }

@@ -239,25 +239,26 @@ pub fn render_tile_counted(
                 let (sampler, d) = camera_ray(settings, &raster, (x, y), s);
                 sums.add(radiance(scene, settings, camera.origin, d, &sampler, &mut rays));
             }
-            (sums, samples.len() as u32, rays)
+            (sums, rays)
         })
         .collect();
     tile_sums(rect, samples, pixels, counters)
 }
 
-/// One pixel's result in a tile: its sums, its sample count, and rays traced (which go to the
-/// shared counters once per tile rather than once per pixel: threads adding to the same atomics
-/// contend for their cache line).
-type PixelResult = (PixelSums, u32, u64);
+/// One pixel's result in a tile: its sums and rays traced (which go to the shared counters once
+/// per tile rather than once per pixel: threads adding to the same atomics contend for their
+/// cache line).
+type PixelResult = (PixelSums, u64);
 
-/// A tile's sums from its pixels' results (row-major), the counters updated once.
+/// A tile's sums from its pixels' results (row-major), each of `samples.len()` samples, the
+/// counters updated once.
 fn tile_sums(rect: Rect, samples: Range<u32>, pixels: Vec<PixelResult>, counters: &Counters) -> PartialSums {
     let mut out = PartialSums::new(rect);
     let (mut rays, mut bad) = (0u64, 0u64);
-    for (i, (PixelSums { rgb, lum_sq, bad: b }, n, r)) in pixels.into_iter().enumerate() {
+    for (i, (PixelSums { rgb, lum_sq, bad: b }, r)) in pixels.into_iter().enumerate() {
         out.sum_rgb[i] = rgb;
         out.sum_lum_sq[i] = lum_sq;
-        out.count[i] = n;
+        out.count[i] = samples.len() as u32;
         rays += r;
         bad += b;
     }
@@ -304,9 +305,10 @@ fn kernel_pixels(
             let mut sums: [PixelSums; STREAM_PIXELS] = Default::default();
             let mut rays = 0u64;
             let mut fill = 0;
-            let mut run = |fill: usize, dirs: &[Vec3], samplers: &[PixelSample], owner: &[u8], l: &mut [Vec3]| {
-                crate::spmd::radiance8(scene, materials, settings, origin, dirs, samplers, &mut rays, &mut l[..fill]);
-                for (l, &o) in l[..fill].iter().zip(owner) {
+            let mut run = |dirs: &[Vec3], samplers: &[PixelSample], owner: &[u8], l: &mut [Vec3]| {
+                let l = &mut l[..dirs.len()];
+                crate::spmd::radiance8(scene, materials, settings, origin, dirs, samplers, &mut rays, l);
+                for (l, &o) in l.iter().zip(owner) {
                     sums[o as usize].add(*l);
                 }
             };
@@ -329,18 +331,17 @@ fn kernel_pixels(
                     owner[span].fill((i - first) as u8);
                     (fill, s) = (fill + m, s + m as u32);
                     if fill == STREAM {
-                        run(fill, dirs, samplers, owner, l);
+                        run(dirs, samplers, owner, l);
                         fill = 0;
                     }
                 }
             }
             if fill > 0 {
-                run(fill, &dirs[..fill], &samplers[..fill], &owner[..fill], l);
+                run(&dirs[..fill], &samplers[..fill], &owner[..fill], l);
             }
             // The group's rays go with its first pixel (the tile adds them all up).
-            let n = samples.len() as u32;
-            let mut rays = Some(rays);
-            sums.into_iter().take(group.len()).map(|s| (s, n, rays.take().unwrap_or(0))).collect()
+            let rays = |i: usize| if i == 0 { rays } else { 0 };
+            sums.into_iter().take(group.len()).enumerate().map(|(i, s)| (s, rays(i))).collect()
         })
         .collect();
     groups.into_iter().flatten().collect()

@@ -199,13 +199,7 @@ pub(crate) fn get_4d_pair_each_lanes(
     unsafe {
         use std::arch::x86_64::*;
         let load = |x: &[u32; 8]| _mm256_loadu_si256(x.as_ptr() as *const __m256i);
-        let pixel = load(&pixel);
-        let seed = |sets: &[u32; 8]| {
-            let mut seed = [0u32; 8];
-            let h = hash_u32_avx2(_mm256_xor_si256(pixel, load(sets)));
-            _mm256_storeu_si256(seed.as_mut_ptr() as *mut __m256i, h);
-            seed
-        };
+        let seed = |sets: &[u32; 8]| hash_u32_avx2(_mm256_xor_si256(load(&pixel), load(sets)));
         sobol_lanes_avx2(index, [seed(&set_a), seed(&set_b)], [a, b])
     };
     true
@@ -247,7 +241,7 @@ unsafe fn hash_u32_avx2(x: std::arch::x86_64::__m256i) -> std::arch::x86_64::__m
 pub(crate) fn get_4d_lanes(samplers: &[PixelSample], set: u32, out: &mut [[f32; 8]; 4]) -> bool {
     let Some((first, index)) = lane_indices(samplers) else { return false };
     // SAFETY: AVX2 is enabled at compile time; loads and stores are unaligned.
-    unsafe { sobol_lanes_avx2(index, [[first.sobol_seed(set); 8]], [out]) };
+    unsafe { sobol_lanes_avx2(index, [std::arch::x86_64::_mm256_set1_epi32(first.sobol_seed(set) as i32)], [out]) };
     true
 }
 
@@ -271,16 +265,19 @@ fn lane_indices(samplers: &[PixelSample]) -> Option<(&PixelSample, [u32; 8])> {
     Some((first, index))
 }
 
-/// [`get_4d_pair_each_lanes`]' arithmetic: `sobol_4d(index[k], seeds[s][k])` for the eight lanes k
-/// into `out[s]`, dimension-major.
+/// [`get_4d_pair_each_lanes`]' arithmetic: `sobol_4d(index[k], seeds[s]'s lane k)` for the eight
+/// lanes k into `out[s]`, dimension-major.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[inline(always)]
-unsafe fn sobol_lanes_avx2<const N: usize>(index: [u32; 8], seeds: [[u32; 8]; N], out: [&mut [[f32; 8]; 4]; N]) {
+unsafe fn sobol_lanes_avx2<const N: usize>(
+    index: [u32; 8],
+    seeds: [std::arch::x86_64::__m256i; N],
+    out: [&mut [[f32; 8]; 4]; N],
+) {
     use std::arch::x86_64::*;
     let splat = |x: u32| _mm256_set1_epi32(x as i32);
     let index_rev = reverse_bits_avx2(_mm256_loadu_si256(index.as_ptr() as *const __m256i));
     for (seed, out) in seeds.into_iter().zip(out) {
-        let seed = _mm256_loadu_si256(seed.as_ptr() as *const __m256i);
         // `sobol_int4_rev`: the index scramble, then the table rows.
         let rev = owen_scramble_rev_avx2(index_rev, hash_avx2(_mm256_xor_si256(seed, splat(0x79c6_8e4a))));
         let mut rev_lanes = [0u32; 8];

@@ -370,7 +370,17 @@ pub fn radiance8(
     // Each lane's hit triangle, where its next ray starts (`Path::from`; none for the camera's).
     let mut tri = [none; LANES];
     let scale = scene.offset_scale();
+    // The lanes that ran the last bounce: those of them not alive now ended there.
+    let mut started = 0u32;
     loop {
+        // The paths that ended at the last bounce: their radiance out.
+        let ended = started & !alive;
+        if ended != 0 {
+            let lanes = l.to_lanes();
+            for k in lanes_of(ended) {
+                out[path[k]] = lanes[k];
+            }
+        }
         // The empty lanes take the stream's next paths: a camera ray each, from a fresh state.
         let mut dirs = rd.to_lanes();
         let mut fresh = 0u32;
@@ -406,476 +416,463 @@ pub fn radiance8(
         if alive == 0 {
             break;
         }
-        let started = alive;
-        alive = 'bounce: {
-            // One lane at a time: the rays (together where the BVH batches them:
-            // `Scene::intersect_surface_batch`), the sample sets, the surface points and the
-            // emission met.
-            let mut u_bsdf = [[0f32; LANES]; 4];
-            let mut u_light = [[0f32; LANES]; 4];
-            let mut albedo = [Vec3::ZERO; LANES];
-            let mut mat_id = [0usize; LANES];
-            let mut nee_bits = 0u32;
-            // The shading lanes whose material is opaque but not plain Lambert, and those of glass.
-            let (mut general, mut glass_bits) = (0u32, 0u32);
-            let mut emit = [Vec3::ZERO; LANES];
-            let mut emit_w = [1f32; LANES];
-            let mut shading = 0u32;
-            // The live lanes past their camera ray, in lane order, and their rays; the camera rays'
-            // hits were found at the start.
-            let mut hits = [None; LANES];
-            let (mut lane, mut count) = ([0u8; LANES], 0);
-            let (mut qo, mut qd, mut qf) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [0u32; LANES]);
-            for k in lanes_of(alive) {
-                if depth[k] == 0 {
-                    hits[k] = fresh_hit[k];
-                    continue;
-                }
-                *rays += 1;
-                (lane[count], qo[count], qd[count], qf[count]) = (k as u8, ro[k], dirs[k], tri[k]);
-                count += 1;
+        started = alive;
+        // One lane at a time: the rays (together where the BVH batches them:
+        // `Scene::intersect_surface_batch`), the sample sets, the surface points and the
+        // emission met.
+        let mut u_bsdf = [[0f32; LANES]; 4];
+        let mut u_light = [[0f32; LANES]; 4];
+        let mut albedo = [Vec3::ZERO; LANES];
+        let mut mat_id = [0usize; LANES];
+        let mut nee_bits = 0u32;
+        // The shading lanes whose material is opaque but not plain Lambert, and those of glass.
+        let (mut general, mut glass_bits) = (0u32, 0u32);
+        let mut emit = [Vec3::ZERO; LANES];
+        let mut emit_w = [1f32; LANES];
+        let mut shading = 0u32;
+        // The live lanes past their camera ray, in lane order, and their rays; a fresh lane's
+        // camera ray was answered when it took its path (`camera_group`).
+        let mut hits = [None; LANES];
+        let (mut lane, mut count) = ([0u8; LANES], 0);
+        let (mut qo, mut qd, mut qf) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [0u32; LANES]);
+        for k in lanes_of(alive) {
+            if depth[k] == 0 {
+                hits[k] = fresh_hit[k];
+                continue;
             }
-            if count > 0 {
-                let mut found = [None; LANES];
-                scene.intersect_surface_batch(
-                    &qo[..count],
-                    &qd[..count],
-                    &[0; LANES][..count],
-                    &qf[..count],
-                    &mut found[..count],
-                );
-                for j in 0..count {
-                    hits[lane[j] as usize] = found[j];
-                }
+            *rays += 1;
+            (lane[count], qo[count], qd[count], qf[count]) = (k as u8, ro[k], dirs[k], tri[k]);
+            count += 1;
+        }
+        if count > 0 {
+            let mut found = [None; LANES];
+            scene.intersect_surface_batch(
+                &qo[..count],
+                &qd[..count],
+                &[0; LANES][..count],
+                &qf[..count],
+                &mut found[..count],
+            );
+            for j in 0..count {
+                hits[lane[j] as usize] = found[j];
             }
-            // The hit triangles' vertices, gathered lane by lane; the surface points eight-wide.
-            let (mut v0, mut v1, mut v2) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
-            let (mut n0, mut n1, mut n2) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
-            let (mut hb1, mut hb2) = ([0f32; LANES], [0f32; LANES]);
-            let (mut hit_bits, mut smooth) = (0u32, 0u32);
-            let mut escaped = 0u32;
-            for k in lanes_of(alive) {
-                // A lane that finds nothing, or stops here, is not shading: its path ends.
-                let Some(hit) = hits[k] else {
-                    escaped |= 1 << k;
-                    continue;
-                };
-                hit_bits |= 1 << k;
-                let mesh = &scene.mesh;
-                let t = &mesh.triangles[hit.triangle as usize];
-                let [i0, i1, i2] = [t.v[0] as usize, t.v[1] as usize, t.v[2] as usize];
-                (v0[k], v1[k], v2[k]) = (mesh.positions[i0], mesh.positions[i1], mesh.positions[i2]);
-                if t.flags & flags::NORMALS != 0 {
-                    smooth |= 1 << k;
-                    (n0[k], n1[k], n2[k]) = (mesh.normals[i0], mesh.normals[i1], mesh.normals[i2]);
-                }
-                (hb1[k], hb2[k], tri[k]) = (hit.b1, hit.b2, hit.triangle);
+        }
+        // The hit triangles' vertices, gathered lane by lane; the surface points eight-wide.
+        let (mut v0, mut v1, mut v2) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
+        let (mut n0, mut n1, mut n2) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
+        let (mut hb1, mut hb2) = ([0f32; LANES], [0f32; LANES]);
+        let (mut hit_bits, mut smooth) = (0u32, 0u32);
+        let mut escaped = 0u32;
+        for k in lanes_of(alive) {
+            // A lane that finds nothing, or stops here, is not shading: its path ends.
+            let Some(hit) = hits[k] else {
+                escaped |= 1 << k;
+                continue;
+            };
+            hit_bits |= 1 << k;
+            let mesh = &scene.mesh;
+            let t = &mesh.triangles[hit.triangle as usize];
+            let [i0, i1, i2] = [t.v[0] as usize, t.v[1] as usize, t.v[2] as usize];
+            (v0[k], v1[k], v2[k]) = (mesh.positions[i0], mesh.positions[i1], mesh.positions[i2]);
+            if t.flags & flags::NORMALS != 0 {
+                smooth |= 1 << k;
+                (n0[k], n1[k], n2[k]) = (mesh.normals[i0], mesh.normals[i1], mesh.normals[i2]);
             }
-            // The hit lanes' two sample sets (`Path::begin_bounce`), each at its own bounce: all
-            // eight lanes at once where four or more want them and every sampler is Sobol
-            // (`sampler::get_4d_pair_each_lanes`), else lane by lane. A value is a function of its
-            // sample and dimension alone, so drawing a lane that will not read it changes nothing.
-            let (mut sets_a, mut sets_b) = ([0u32; LANES], [0u32; LANES]);
-            for k in 0..LANES {
-                let base = dims::BOUNCE_BASE + dims::BOUNCE_STRIDE * depth[k];
-                (sets_a[k], sets_b[k]) = ((base + dims::BSDF_DIR) / 4, (base + dims::LIGHT_POS) / 4);
-            }
-            let drawn = hit_bits.count_ones() >= 4
-                && crate::sampler::get_4d_pair_each_lanes(&lane_samplers, &sets_a, &sets_b, &mut u_bsdf, &mut u_light);
-            if !drawn {
-                for k in lanes_of(hit_bits) {
-                    let (a, b) = lane_samplers[k].get_4d_pair(sets_a[k], sets_b[k]);
-                    for i in 0..4 {
-                        u_bsdf[i][k] = a[i];
-                        u_light[i][k] = b[i];
-                    }
+            (hb1[k], hb2[k], tri[k]) = (hit.b1, hit.b2, hit.triangle);
+        }
+        // The hit lanes' two sample sets (`Path::begin_bounce`), each at its own bounce: all
+        // eight lanes at once where four or more want them and every sampler is Sobol
+        // (`sampler::get_4d_pair_each_lanes`), else lane by lane. A value is a function of its
+        // sample and dimension alone, so drawing a lane that will not read it changes nothing.
+        let (mut sets_a, mut sets_b) = ([0u32; LANES], [0u32; LANES]);
+        for k in 0..LANES {
+            let base = dims::BOUNCE_BASE + dims::BOUNCE_STRIDE * depth[k];
+            (sets_a[k], sets_b[k]) = ((base + dims::BSDF_DIR) / 4, (base + dims::LIGHT_POS) / 4);
+        }
+        let drawn = hit_bits.count_ones() >= 4
+            && crate::sampler::get_4d_pair_each_lanes(&lane_samplers, &sets_a, &sets_b, &mut u_bsdf, &mut u_light);
+        if !drawn {
+            for k in lanes_of(hit_bits) {
+                let (a, b) = lane_samplers[k].get_4d_pair(sets_a[k], sets_b[k]);
+                for i in 0..4 {
+                    u_bsdf[i][k] = a[i];
+                    u_light[i][k] = b[i];
                 }
             }
-            // The environment, seen by BSDF sampling (`Path::shade`'s escape): the escaped lanes'
-            // lookups in a loop of their own, so their cache misses (the map and its rows are
-            // megabytes) overlap rather than wait a whole lane's shading apart.
-            if let (true, Some(env)) = (escaped != 0, &scene.lights.environment) {
-                // Every escaped lane's map lines asked for first (`Environment::prefetch`).
-                let mut points = [MapPoint::default(); LANES];
-                for k in lanes_of(escaped) {
-                    points[k] = env.map_point(dirs[k]);
-                    env.prefetch(&points[k]);
+        }
+        // The environment, seen by BSDF sampling (`Path::shade`'s escape): the escaped lanes'
+        // lookups in a loop of their own, so their cache misses (the map and its rows are
+        // megabytes) overlap rather than wait a whole lane's shading apart.
+        if let (true, Some(env)) = (escaped != 0, &scene.lights.environment) {
+            // Every escaped lane's map lines asked for first (`Environment::prefetch`).
+            let mut points = [MapPoint::default(); LANES];
+            for k in lanes_of(escaped) {
+                points[k] = env.map_point(dirs[k]);
+                env.prefetch(&points[k]);
+            }
+            for k in lanes_of(escaped) {
+                if prev_bits & (1 << k) == 0 {
+                    emit[k] = env.eval_at(points[k]);
+                } else if let Some((le, light_pdf)) =
+                    scene.lights.environment_eval_pdf_at(points[k], prev_p[k], Some(prev_n[k]))
+                {
+                    emit[k] = le;
+                    emit_w[k] = crate::integrator::mis_weight(settings.mis_heuristic, prev_pdf[k], light_pdf);
                 }
-                for k in lanes_of(escaped) {
-                    if prev_bits & (1 << k) == 0 {
-                        emit[k] = env.eval_at(points[k]);
-                    } else if let Some((le, light_pdf)) =
-                        scene.lights.environment_eval_pdf_at(points[k], prev_p[k], Some(prev_n[k]))
-                    {
-                        emit[k] = le;
+            }
+        }
+        // Nothing hit (a background): no surface point to build, the path ends here.
+        if hit_bits == 0 {
+            l = add_emission(l, beta, &emit, emit_w);
+            alive = 0;
+            continue;
+        }
+        let sp = SurfacePoint8::new(
+            [v0, v1, v2].map(|v| V8::from_lanes(&v)),
+            (smooth != 0).then(|| [n0, n1, n2].map(|n| V8::from_lanes(&n))),
+            M8::from_bits(smooth),
+            F8::from_array(hb1),
+            F8::from_array(hb2),
+        );
+        let (sp_p, sp_ng) = (sp.p.to_lanes(), sp.ng.to_lanes());
+        for k in lanes_of(hit_bits) {
+            let material_id = scene.mesh.triangles[tri[k] as usize].material as usize;
+            let material = &scene.materials[material_id];
+            if material.is_emissive() {
+                // No emissive texture (`LaneMaterial::table`): no texture coordinates needed.
+                let le = crate::light::emitted(material, &scene.textures, sp_ng[k], Default::default(), -dirs[k]);
+                if le != Vec3::ZERO {
+                    emit[k] = le;
+                    if prev_bits & (1 << k) != 0 {
+                        let light_pdf = scene.lights.pdf(tri[k], prev_p[k], Some(prev_n[k]), sp_p[k], sp_ng[k]);
                         emit_w[k] = crate::integrator::mis_weight(settings.mis_heuristic, prev_pdf[k], light_pdf);
                     }
                 }
             }
-            // Nothing hit (a background): no surface point to build, the path ends here.
-            if hit_bits == 0 {
-                l = add_emission(l, beta, &emit, emit_w);
-                break 'bounce 0;
+            if depth[k] >= settings.max_depth {
+                continue;
             }
-            let sp = SurfacePoint8::new(
-                [v0, v1, v2].map(|v| V8::from_lanes(&v)),
-                (smooth != 0).then(|| [n0, n1, n2].map(|n| V8::from_lanes(&n))),
-                M8::from_bits(smooth),
-                F8::from_array(hb1),
-                F8::from_array(hb2),
-            );
-            let (sp_p, sp_ng) = (sp.p.to_lanes(), sp.ng.to_lanes());
-            for k in lanes_of(hit_bits) {
-                let material_id = scene.mesh.triangles[tri[k] as usize].material as usize;
-                let material = &scene.materials[material_id];
-                if material.is_emissive() {
-                    // No emissive texture (`LaneMaterial::table`): no texture coordinates needed.
-                    let le = crate::light::emitted(material, &scene.textures, sp_ng[k], Default::default(), -dirs[k]);
-                    if le != Vec3::ZERO {
-                        emit[k] = le;
-                        if prev_bits & (1 << k) != 0 {
-                            let light_pdf = scene.lights.pdf(tri[k], prev_p[k], Some(prev_n[k]), sp_p[k], sp_ng[k]);
-                            emit_w[k] = crate::integrator::mis_weight(settings.mis_heuristic, prev_pdf[k], light_pdf);
-                        }
-                    }
-                }
-                if depth[k] >= settings.max_depth {
-                    continue;
-                }
-                shading |= 1 << k;
-                let m = materials[material_id];
-                (albedo[k], mat_id[k]) = (m.base, material_id);
-                if m.nee {
-                    nee_bits |= 1 << k;
-                }
-                if m.glass {
-                    glass_bits |= 1 << k;
-                } else if !m.lambert {
-                    general |= 1 << k;
-                }
+            shading |= 1 << k;
+            let m = materials[material_id];
+            (albedo[k], mat_id[k]) = (m.base, material_id);
+            if m.nee {
+                nee_bits |= 1 << k;
             }
-            let p = sp_p;
-            l = add_emission(l, beta, &emit, emit_w);
-            if shading == 0 {
-                break 'bounce 0;
-            }
-
-            // Eight lanes: the frame, the BSDF's sample, the light's point, MIS, the next ray.
-            let act = M8::from_bits(shading);
-            let wo_world = rd.neg();
-            let (pv, mut ngv, mut nsv) = (sp.p, sp.ng, sp.ns);
-            // Seen from the back face: also where glass's relative index inverts.
-            let back_face = ngv.dot(wo_world).lt(zero);
-            ngv = V8::select(back_face, ngv.neg(), ngv);
-            let flip = nsv.dot(ngv).lt(zero);
-            nsv = V8::select(flip, nsv.neg(), nsv);
-            let ns_flipped = nsv.to_lanes();
-            let frame_s = Frame8::from_normal(nsv);
-            let wo_s = frame_s.to_local(wo_world);
-            let back = wo_s.z.le(zero);
-            let (frame, wo) = if back.any() {
-                let frame_g = Frame8::from_normal(ngv);
-                let wo_g = frame_g.to_local(wo_world);
-                (Frame8::select(back, frame_g, frame_s), V8::select(back, wo_g, wo_s))
-            } else {
-                (frame_s, wo_s)
-            };
-            let act = act.and_not(wo.z.le(zero));
-            let plane_error = sp.plane_error;
-            let origin = offset_ray_origin(pv.add(ngv.scale(plane_error)), ngv, scale);
-            // Glass: the other side's origin (`Scene::spawn_origin` with −ng), for transmission.
-            let glass = M8::from_bits(glass_bits);
-            let origin_below = (glass_bits != 0).then(|| {
-                let down = ngv.neg();
-                offset_ray_origin(pv.add(down.scale(plane_error)), down, scale)
-            });
-            let albedo = V8::from_lanes(&albedo);
-            let f_lambert = V8::zero().add(albedo.scale(F8::splat(INV_PI)));
-            // The lanes' materials, where some lane needs more than its albedo.
-            let m = (general | glass_bits != 0).then(|| mat_id.map(|i| materials[i]));
-            // Where some lane is not plain Lambert, every lane takes the general opaque BSDF (whose
-            // numbers are the Lambert shortcut's on a Lambert lane: `bsdf.rs`'s test).
-            let bsdf = m.filter(|_| general != 0).map(|m| OpaqueBsdf8 {
-                base: albedo,
-                metallic: F8::from_array(m.map(|m| m.metallic)),
-                specular: F8::from_array(m.map(|m| m.specular)),
-                f0: V8::from_lanes(&m.map(|m| m.f0)),
-                alpha: F8::from_array(m.map(|m| m.alpha)),
-            });
-
-            // BSDF sample, drawn before NEE as the scalar path does.
-            let u_dir = (
-                F8::from_array(u_bsdf[(dims::BSDF_DIR % 4) as usize]),
-                F8::from_array(u_bsdf[(dims::BSDF_DIR % 4 + 1) as usize]),
-            );
-            let u_lobe = F8::from_array(u_bsdf[(dims::BSDF_LOBE % 4) as usize]);
-            let cosine = sample_cosine_hemisphere(u_dir.0, u_dir.1);
-            let next = match &bsdf {
-                // Lambert: the cosine hemisphere.
-                None => {
-                    let pdf = cosine.z.max_finite(zero) * F8::splat(INV_PI);
-                    let ok = cosine.z.gt(zero) & pdf.gt(zero) & pdf.is_finite();
-                    Sample8 { wi: cosine, f: f_lambert, pdf, delta: M8::from_bits(0), ok }
-                }
-                Some(b) => b.sample(wo, u_lobe, u_dir.0, u_dir.1, cosine),
-            };
-            let glass8 = m.filter(|_| glass_bits != 0).map(|m| {
-                let eta = F8::from_array(m.map(|m| m.eta));
-                Glass8 {
-                    eta: select(back_face, one / eta, eta),
-                    alpha: F8::from_array(m.map(|m| m.alpha)),
-                    tint: albedo,
-                }
-            });
-            let next = match &glass8 {
-                None => next,
-                Some(g) => Sample8::select(glass, g.sample(wo, u_lobe, u_dir.0, u_dir.1), next),
-            };
-            let has_next = act & next.ok;
-
-            // Next-event estimation: the light chosen one lane at a time, the rest eight-wide.
-            let nee = act & M8::from_bits(nee_bits);
-            if nee.any() {
-                let u_sel = u_light[(dims::LIGHT_SELECT % 4) as usize];
-                let u_pos = (u_light[(dims::LIGHT_POS % 4) as usize], u_light[(dims::LIGHT_POS % 4 + 1) as usize]);
-                // An area light's triangle and emission, for the eight-wide sample.
-                let (mut lp0, mut le1, mut le2, mut lng) =
-                    ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
-                let (mut larea, mut lpmf) = ([1f32; LANES], [0f32; LANES]);
-                // Each lane's area light (`LightSample::light`), for `LightSet::shadow_tmax`.
-                let mut lidx = [crate::clear_box::NONE; LANES];
-                let mut lle = [Vec3::ZERO; LANES];
-                let mut two_sided = 0u32;
-                let mut area = 0u32;
-                // Any other light's sample (`LightSet::sample_selected`, one lane at a time): its
-                // direction, radiance, pdf and point; which are delta (punctual) and which at infinity.
-                let (mut owi, mut ole, mut op, mut opdf) =
-                    ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [1f32; LANES]);
-                let (mut other, mut delta, mut infinite) = (0u32, 0u32, 0u32);
-                // The lanes' light choices together (a light tree's walks interleaved), as
-                // `LightSet::sample` makes them: at the vertex, with its shading normal.
-                let (mut lane, mut count) = ([0u8; LANES], 0);
-                let (mut qp, mut qn, mut qu) = ([Vec3::ZERO; LANES], [None; LANES], [0f32; LANES]);
-                for k in lanes_of(nee.bits()) {
-                    (lane[count], qp[count], qn[count], qu[count]) = (k as u8, p[k], Some(ns_flipped[k]), u_sel[k]);
-                    count += 1;
-                }
-                let mut selected = [None; LANES];
-                scene.lights.select_batch(&qp[..count], &qn[..count], &qu[..count], &mut selected[..count]);
-                // The lanes that chose another kind of light, sampled together after the loop
-                // (`LightSet::sample_selected_batch`: an environment's samples overlap their misses).
-                let (mut olane, mut ocount) = ([0u8; LANES], 0);
-                let (mut oref, mut ochoice, mut ou) =
-                    ([Vec3::ZERO; LANES], [None; LANES], [crate::math::Vec2::ZERO; LANES]);
-                for (j, &choice) in selected[..count].iter().enumerate() {
-                    let k = lane[j] as usize;
-                    let Some((idx, pmf)) = choice else { continue };
-                    let Some(light) = scene.lights.lights.get(idx) else {
-                        let u = crate::math::Vec2::new(u_pos.0[k], u_pos.1[k]);
-                        (olane[ocount], oref[ocount], ochoice[ocount], ou[ocount]) = (k as u8, p[k], choice, u);
-                        ocount += 1;
-                        continue;
-                    };
-                    let Some(m) = scene.materials.get(light.material as usize) else { continue };
-                    area |= 1 << k;
-                    lidx[k] = idx as u32;
-                    (lp0[k], le1[k], le2[k], lng[k]) = (light.p0, light.e1, light.e2, light.ng);
-                    (larea[k], lle[k]) = (
-                        light.area,
-                        if m.is_emissive() { m.emission(&scene.textures, Default::default()) } else { Vec3::ZERO },
-                    );
-                    lpmf[k] = pmf;
-                    if m.double_sided {
-                        two_sided |= 1 << k;
-                    }
-                }
-                if ocount > 0 {
-                    let mut samples = [None; LANES];
-                    let (mesh, mats, textures) = (&scene.mesh, &scene.materials, &scene.textures);
-                    scene.lights.sample_selected_batch(
-                        mesh,
-                        mats,
-                        textures,
-                        &oref[..ocount],
-                        &ochoice[..ocount],
-                        &ou[..ocount],
-                        &mut samples[..ocount],
-                    );
-                    for (j, ls) in samples[..ocount].iter().enumerate() {
-                        let (Some(ls), k) = (ls, olane[j] as usize) else { continue };
-                        other |= 1 << k;
-                        (owi[k], ole[k], op[k], opdf[k]) = (ls.wi, ls.le, ls.p, ls.pdf);
-                        delta |= u32::from(ls.delta) << k;
-                        infinite |= u32::from(ls.dist.is_infinite()) << k;
-                    }
-                }
-                // `LightSet::sample_selected`'s area light: the point, the direction to it, its
-                // radiance and pdf, and the side it faces (None when no lane chose an area light).
-                let areas = (area != 0).then(|| {
-                    let (b1, b2) = sample_uniform_triangle(F8::from_array(u_pos.0), F8::from_array(u_pos.1));
-                    let lng = V8::from_lanes(&lng);
-                    let lp =
-                        V8::from_lanes(&lp0).add(V8::from_lanes(&le1).scale(b1)).add(V8::from_lanes(&le2).scale(b2));
-                    let to = lp.sub(pv);
-                    let dist2 = to.dot(to);
-                    let ok = nee & M8::from_bits(area) & dist2.gt(zero) & dist2.is_finite();
-                    let dist = dist2.sqrt();
-                    let lwi = to.div(dist);
-                    let cos_l = lng.dot(lwi.neg());
-                    let ok = ok & !cos_l.eq(zero);
-                    // `light::emitted`: one-sided emitters are dark from behind.
-                    let lit = M8::from_bits(two_sided) | cos_l.gt(zero);
-                    let lle = V8::select(lit, V8::from_lanes(&lle), V8::zero());
-                    let lpdf = F8::from_array(lpmf) * dist2 / (cos_l.abs() * F8::from_array(larea));
-                    let ok = ok & lpdf.gt(zero) & lpdf.is_finite();
-                    let ln = V8::select(cos_l.gt(zero), lng, lng.neg());
-                    (lp, ln, lwi, lle, lpdf, ok)
-                });
-                let (lwi, lle, lpdf, ok) = match areas {
-                    Some((_, _, lwi, lle, lpdf, ok)) => (lwi, lle, lpdf, ok),
-                    None => (V8::zero(), V8::zero(), one, M8::from_bits(0)),
-                };
-                // The other lights' samples in with the area lights'.
-                let others = other != 0;
-                let (other, delta, infinite) = (M8::from_bits(other), M8::from_bits(delta), M8::from_bits(infinite));
-                let point = delta.and_not(infinite);
-                let (lwi, lle, lpdf, ok) = if others {
-                    (
-                        V8::select(other, V8::from_lanes(&owi), lwi),
-                        V8::select(other, V8::from_lanes(&ole), lle),
-                        select(other, F8::from_array(opdf), lpdf),
-                        ok | other,
-                    )
-                } else {
-                    (lwi, lle, lpdf, ok)
-                };
-                // `Path::finish`: the light above the true surface (reflection) or, through glass,
-                // below it; f from the BSDF.
-                let wil = frame.to_local(lwi);
-                let above = wil.z.gt(zero) & lwi.dot(ngv).gt(zero);
-                let below = glass & wil.z.lt(zero) & lwi.dot(ngv).lt(zero);
-                let ok = ok & (above | below) & lle.ne_zero();
-                // `Bsdf::eval_pdf`. Its Lambert shortcut: wo.z > 0 on every shading lane and
-                // wil.z > 0 on every `above` one, so f is base/π and the pdf cos/π there.
-                let (f, f_pdf) = match &bsdf {
-                    None => (f_lambert, wil.z.max_finite(zero) * F8::splat(INV_PI)),
-                    Some(b) => b.eval_pdf(wo, wil),
-                };
-                let (f, f_pdf) = match &glass8 {
-                    None => (f, f_pdf),
-                    Some(g) => {
-                        let (gf, gp) = g.eval_pdf(wo, wil);
-                        (V8::select(glass, gf, f), select(glass, gp, f_pdf))
-                    }
-                };
-                let ok = ok & f.ne_zero();
-                if ok.any() {
-                    *rays += ok.bits().count_ones() as u64;
-                    // The shadow ray: to just off an area light's surface, stopping a relative
-                    // SHADOW_EPSILON short; to a point light, stopping 1e-5 short; to infinity along
-                    // the sample's direction.
-                    let origin = match origin_below {
-                        Some(o) => V8::select(below, o, origin),
-                        None => origin,
-                    };
-                    let target = match areas {
-                        Some((lp, ln, ..)) => offset_ray_origin(lp, ln, scale),
-                        None => V8::zero(),
-                    };
-                    let target = if others { V8::select(point, V8::from_lanes(&op), target) } else { target };
-                    let sto = target.sub(origin);
-                    let sdist = sto.dot(sto).sqrt();
-                    let sd = sto.div(sdist);
-                    let tmax = sdist * F8::splat(1.0 - SHADOW_EPSILON);
-                    let w = mis_weight(settings.mis_heuristic, lpdf, f_pdf);
-                    let (ok, sd, tmax, w) = if others {
-                        let short = select(point, F8::splat(1.0 - 1e-5), F8::splat(1.0 - SHADOW_EPSILON));
-                        (
-                            ok & (infinite | sdist.gt(zero)),
-                            V8::select(infinite, lwi, sd),
-                            select(infinite, F8::splat(f32::INFINITY), sdist * short),
-                            // Delta lights take no MIS weight.
-                            select(delta, one, w),
-                        )
-                    } else {
-                        (ok & sdist.gt(zero), sd, tmax, w)
-                    };
-                    let unshadowed = beta.mul(f).mul(lle);
-                    let sc = wil.z.abs() * w / lpdf;
-                    // The shadow rays together where the BVH batches them (`Scene::visibility_batch`).
-                    let (so, sdl, tm) = (origin.to_lanes(), sd.to_lanes(), tmax.to_array());
-                    let (mut lane, mut count) = ([0u8; LANES], 0);
-                    let (mut qo, mut qd, mut qt) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [0f32; LANES]);
-                    let mut qf = [0u32; LANES];
-                    for k in lanes_of(ok.bits()) {
-                        // An area light's ray may stop at its clear box (as the scalar path's).
-                        let t = scene.lights.shadow_tmax(lidx[k], so[k], sdl[k], tm[k]);
-                        (lane[count], qo[count], qd[count], qt[count], qf[count]) = (k as u8, so[k], sdl[k], t, tri[k]);
-                        count += 1;
-                    }
-                    let mut seen = [0f32; LANES];
-                    scene.visibility_batch(&qo[..count], &qd[..count], &qt[..count], &qf[..count], &mut seen[..count]);
-                    let mut visible = 0u32;
-                    for j in 0..count {
-                        if seen[j] != 0.0 {
-                            visible |= 1 << lane[j];
-                        }
-                    }
-                    let shadow = ok & M8::from_bits(visible);
-                    // `Path::add_direct`: β·f·Le, times visibility, times |cos|·w/pdf; the visibility
-                    // of an opaque scene is 1, and x·1 = x exactly, so it is left out.
-                    let add = unshadowed.scale(sc);
-                    l = V8::select(shadow, l.add(add), l);
-                }
-            }
-
-            // The step to the next vertex (`Path::finish`).
-            let wi_world = frame.to_world(next.wi);
-            let dn = wi_world.dot(ngv);
-            // A shading normal can send a direction to the wrong side of the true surface.
-            let transmitted = next.wi.z.lt(zero);
-            let go = has_next.and_not(dn.le(zero).xor(transmitted) | dn.eq(zero));
-            let nb = beta.mul(next.weight());
-            let go = go & nb.is_finite() & nb.ne_zero();
-            beta = V8::select(go, nb, beta);
-            let through = go & transmitted;
-            if let (true, Some(g)) = (through.any(), &glass8) {
-                eta_scale = select(through, eta_scale * (g.eta * g.eta), eta_scale);
-            }
-            (prev_p, prev_n, prev_pdf) = (p, ns_flipped, next.pdf.to_array());
-            prev_bits = (!next.delta).bits();
-            ro = match origin_below {
-                Some(o) => V8::select(transmitted, o, origin).to_lanes(),
-                None => origin.to_lanes(),
-            };
-            rd = wi_world;
-            let mut roulette = 0u32;
-            for (k, depth) in depth.iter_mut().enumerate() {
-                *depth += 1;
-                roulette |= u32::from(*depth >= settings.rr_depth) << k;
-            }
-            let mut go = go;
-            if roulette & go.bits() != 0 {
-                // β's largest channel times η² of the transmissions so far, in units of the threshold
-                // (`integrator::RR_THRESHOLD`; the scalar path's arithmetic, in its order).
-                let m = beta.max_element() * eta_scale * F8::splat(1.0 / crate::integrator::RR_THRESHOLD);
-                let low = M8::from_bits(roulette) & m.lt(one);
-                let q = (one - m).max_finite(zero);
-                let u_rr = F8::from_array(u_bsdf[(dims::RUSSIAN_ROULETTE % 4) as usize]);
-                let killed = low & u_rr.lt(q);
-                go = go.and_not(killed);
-                let kept = low.and_not(killed);
-                beta = V8::select(kept, beta.div(one - q), beta);
-            }
-            go.bits() & shading
-        };
-        // The paths that ended this bounce: their radiance out.
-        let ended = started & !alive;
-        if ended != 0 {
-            let lanes = l.to_lanes();
-            for k in lanes_of(ended) {
-                out[path[k]] = lanes[k];
+            if m.glass {
+                glass_bits |= 1 << k;
+            } else if !m.lambert {
+                general |= 1 << k;
             }
         }
+        let p = sp_p;
+        l = add_emission(l, beta, &emit, emit_w);
+        if shading == 0 {
+            alive = 0;
+            continue;
+        }
+
+        // Eight lanes: the frame, the BSDF's sample, the light's point, MIS, the next ray.
+        let act = M8::from_bits(shading);
+        let wo_world = rd.neg();
+        let (pv, mut ngv, mut nsv) = (sp.p, sp.ng, sp.ns);
+        // Seen from the back face: also where glass's relative index inverts.
+        let back_face = ngv.dot(wo_world).lt(zero);
+        ngv = V8::select(back_face, ngv.neg(), ngv);
+        let flip = nsv.dot(ngv).lt(zero);
+        nsv = V8::select(flip, nsv.neg(), nsv);
+        let ns_flipped = nsv.to_lanes();
+        let frame_s = Frame8::from_normal(nsv);
+        let wo_s = frame_s.to_local(wo_world);
+        let back = wo_s.z.le(zero);
+        let (frame, wo) = if back.any() {
+            let frame_g = Frame8::from_normal(ngv);
+            let wo_g = frame_g.to_local(wo_world);
+            (Frame8::select(back, frame_g, frame_s), V8::select(back, wo_g, wo_s))
+        } else {
+            (frame_s, wo_s)
+        };
+        let act = act.and_not(wo.z.le(zero));
+        let plane_error = sp.plane_error;
+        let origin = offset_ray_origin(pv.add(ngv.scale(plane_error)), ngv, scale);
+        // Glass: the other side's origin (`Scene::spawn_origin` with −ng), for transmission.
+        let glass = M8::from_bits(glass_bits);
+        let origin_below = (glass_bits != 0).then(|| {
+            let down = ngv.neg();
+            offset_ray_origin(pv.add(down.scale(plane_error)), down, scale)
+        });
+        let albedo = V8::from_lanes(&albedo);
+        let f_lambert = V8::zero().add(albedo.scale(F8::splat(INV_PI)));
+        // The lanes' materials, where some lane needs more than its albedo.
+        let m = (general | glass_bits != 0).then(|| mat_id.map(|i| materials[i]));
+        // Where some lane is not plain Lambert, every lane takes the general opaque BSDF (whose
+        // numbers are the Lambert shortcut's on a Lambert lane: `bsdf.rs`'s test).
+        let bsdf = m.filter(|_| general != 0).map(|m| OpaqueBsdf8 {
+            base: albedo,
+            metallic: F8::from_array(m.map(|m| m.metallic)),
+            specular: F8::from_array(m.map(|m| m.specular)),
+            f0: V8::from_lanes(&m.map(|m| m.f0)),
+            alpha: F8::from_array(m.map(|m| m.alpha)),
+        });
+
+        // BSDF sample, drawn before NEE as the scalar path does.
+        let u_dir = (
+            F8::from_array(u_bsdf[(dims::BSDF_DIR % 4) as usize]),
+            F8::from_array(u_bsdf[(dims::BSDF_DIR % 4 + 1) as usize]),
+        );
+        let u_lobe = F8::from_array(u_bsdf[(dims::BSDF_LOBE % 4) as usize]);
+        let cosine = sample_cosine_hemisphere(u_dir.0, u_dir.1);
+        let next = match &bsdf {
+            // Lambert: the cosine hemisphere.
+            None => {
+                let pdf = cosine.z.max_finite(zero) * F8::splat(INV_PI);
+                let ok = cosine.z.gt(zero) & pdf.gt(zero) & pdf.is_finite();
+                Sample8 { wi: cosine, f: f_lambert, pdf, delta: M8::from_bits(0), ok }
+            }
+            Some(b) => b.sample(wo, u_lobe, u_dir.0, u_dir.1, cosine),
+        };
+        let glass8 = m.filter(|_| glass_bits != 0).map(|m| {
+            let eta = F8::from_array(m.map(|m| m.eta));
+            Glass8 { eta: select(back_face, one / eta, eta), alpha: F8::from_array(m.map(|m| m.alpha)), tint: albedo }
+        });
+        let next = match &glass8 {
+            None => next,
+            Some(g) => Sample8::select(glass, g.sample(wo, u_lobe, u_dir.0, u_dir.1), next),
+        };
+        let has_next = act & next.ok;
+
+        // Next-event estimation: the light chosen one lane at a time, the rest eight-wide.
+        let nee = act & M8::from_bits(nee_bits);
+        if nee.any() {
+            let u_sel = u_light[(dims::LIGHT_SELECT % 4) as usize];
+            let u_pos = (u_light[(dims::LIGHT_POS % 4) as usize], u_light[(dims::LIGHT_POS % 4 + 1) as usize]);
+            // An area light's triangle and emission, for the eight-wide sample.
+            let (mut lp0, mut le1, mut le2, mut lng) =
+                ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
+            let (mut larea, mut lpmf) = ([1f32; LANES], [0f32; LANES]);
+            // Each lane's area light (`LightSample::light`), for `LightSet::shadow_tmax`.
+            let mut lidx = [crate::clear_box::NONE; LANES];
+            let mut lle = [Vec3::ZERO; LANES];
+            let mut two_sided = 0u32;
+            let mut area = 0u32;
+            // Any other light's sample (`LightSet::sample_selected`, one lane at a time): its
+            // direction, radiance, pdf and point; which are delta (punctual) and which at infinity.
+            let (mut owi, mut ole, mut op, mut opdf) =
+                ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [1f32; LANES]);
+            let (mut other, mut delta, mut infinite) = (0u32, 0u32, 0u32);
+            // The lanes' light choices together (a light tree's walks interleaved), as
+            // `LightSet::sample` makes them: at the vertex, with its shading normal.
+            let (mut lane, mut count) = ([0u8; LANES], 0);
+            let (mut qp, mut qn, mut qu) = ([Vec3::ZERO; LANES], [None; LANES], [0f32; LANES]);
+            for k in lanes_of(nee.bits()) {
+                (lane[count], qp[count], qn[count], qu[count]) = (k as u8, p[k], Some(ns_flipped[k]), u_sel[k]);
+                count += 1;
+            }
+            let mut selected = [None; LANES];
+            scene.lights.select_batch(&qp[..count], &qn[..count], &qu[..count], &mut selected[..count]);
+            // The lanes that chose another kind of light, sampled together after the loop
+            // (`LightSet::sample_selected_batch`: an environment's samples overlap their misses).
+            let (mut olane, mut ocount) = ([0u8; LANES], 0);
+            let (mut oref, mut ochoice, mut ou) =
+                ([Vec3::ZERO; LANES], [None; LANES], [crate::math::Vec2::ZERO; LANES]);
+            for (j, &choice) in selected[..count].iter().enumerate() {
+                let k = lane[j] as usize;
+                let Some((idx, pmf)) = choice else { continue };
+                let Some(light) = scene.lights.lights.get(idx) else {
+                    let u = crate::math::Vec2::new(u_pos.0[k], u_pos.1[k]);
+                    (olane[ocount], oref[ocount], ochoice[ocount], ou[ocount]) = (k as u8, p[k], choice, u);
+                    ocount += 1;
+                    continue;
+                };
+                let Some(m) = scene.materials.get(light.material as usize) else { continue };
+                area |= 1 << k;
+                lidx[k] = idx as u32;
+                (lp0[k], le1[k], le2[k], lng[k]) = (light.p0, light.e1, light.e2, light.ng);
+                (larea[k], lle[k]) = (
+                    light.area,
+                    if m.is_emissive() { m.emission(&scene.textures, Default::default()) } else { Vec3::ZERO },
+                );
+                lpmf[k] = pmf;
+                if m.double_sided {
+                    two_sided |= 1 << k;
+                }
+            }
+            if ocount > 0 {
+                let mut samples = [None; LANES];
+                let (mesh, mats, textures) = (&scene.mesh, &scene.materials, &scene.textures);
+                scene.lights.sample_selected_batch(
+                    mesh,
+                    mats,
+                    textures,
+                    &oref[..ocount],
+                    &ochoice[..ocount],
+                    &ou[..ocount],
+                    &mut samples[..ocount],
+                );
+                for (j, ls) in samples[..ocount].iter().enumerate() {
+                    let (Some(ls), k) = (ls, olane[j] as usize) else { continue };
+                    other |= 1 << k;
+                    (owi[k], ole[k], op[k], opdf[k]) = (ls.wi, ls.le, ls.p, ls.pdf);
+                    delta |= u32::from(ls.delta) << k;
+                    infinite |= u32::from(ls.dist.is_infinite()) << k;
+                }
+            }
+            // `LightSet::sample_selected`'s area light: the point, the direction to it, its
+            // radiance and pdf, and the side it faces (None when no lane chose an area light).
+            let areas = (area != 0).then(|| {
+                let (b1, b2) = sample_uniform_triangle(F8::from_array(u_pos.0), F8::from_array(u_pos.1));
+                let lng = V8::from_lanes(&lng);
+                let lp = V8::from_lanes(&lp0).add(V8::from_lanes(&le1).scale(b1)).add(V8::from_lanes(&le2).scale(b2));
+                let to = lp.sub(pv);
+                let dist2 = to.dot(to);
+                let ok = nee & M8::from_bits(area) & dist2.gt(zero) & dist2.is_finite();
+                let dist = dist2.sqrt();
+                let lwi = to.div(dist);
+                let cos_l = lng.dot(lwi.neg());
+                let ok = ok & !cos_l.eq(zero);
+                // `light::emitted`: one-sided emitters are dark from behind.
+                let lit = M8::from_bits(two_sided) | cos_l.gt(zero);
+                let lle = V8::select(lit, V8::from_lanes(&lle), V8::zero());
+                let lpdf = F8::from_array(lpmf) * dist2 / (cos_l.abs() * F8::from_array(larea));
+                let ok = ok & lpdf.gt(zero) & lpdf.is_finite();
+                let ln = V8::select(cos_l.gt(zero), lng, lng.neg());
+                (lp, ln, lwi, lle, lpdf, ok)
+            });
+            let (lwi, lle, lpdf, ok) = match areas {
+                Some((_, _, lwi, lle, lpdf, ok)) => (lwi, lle, lpdf, ok),
+                None => (V8::zero(), V8::zero(), one, M8::from_bits(0)),
+            };
+            // The other lights' samples in with the area lights'.
+            let others = other != 0;
+            let (other, delta, infinite) = (M8::from_bits(other), M8::from_bits(delta), M8::from_bits(infinite));
+            let point = delta.and_not(infinite);
+            let (lwi, lle, lpdf, ok) = if others {
+                (
+                    V8::select(other, V8::from_lanes(&owi), lwi),
+                    V8::select(other, V8::from_lanes(&ole), lle),
+                    select(other, F8::from_array(opdf), lpdf),
+                    ok | other,
+                )
+            } else {
+                (lwi, lle, lpdf, ok)
+            };
+            // `Path::finish`: the light above the true surface (reflection) or, through glass,
+            // below it; f from the BSDF.
+            let wil = frame.to_local(lwi);
+            let above = wil.z.gt(zero) & lwi.dot(ngv).gt(zero);
+            let below = glass & wil.z.lt(zero) & lwi.dot(ngv).lt(zero);
+            let ok = ok & (above | below) & lle.ne_zero();
+            // `Bsdf::eval_pdf`. Its Lambert shortcut: wo.z > 0 on every shading lane and
+            // wil.z > 0 on every `above` one, so f is base/π and the pdf cos/π there.
+            let (f, f_pdf) = match &bsdf {
+                None => (f_lambert, wil.z.max_finite(zero) * F8::splat(INV_PI)),
+                Some(b) => b.eval_pdf(wo, wil),
+            };
+            let (f, f_pdf) = match &glass8 {
+                None => (f, f_pdf),
+                Some(g) => {
+                    let (gf, gp) = g.eval_pdf(wo, wil);
+                    (V8::select(glass, gf, f), select(glass, gp, f_pdf))
+                }
+            };
+            let ok = ok & f.ne_zero();
+            if ok.any() {
+                *rays += ok.bits().count_ones() as u64;
+                // The shadow ray: to just off an area light's surface, stopping a relative
+                // SHADOW_EPSILON short; to a point light, stopping 1e-5 short; to infinity along
+                // the sample's direction.
+                let origin = match origin_below {
+                    Some(o) => V8::select(below, o, origin),
+                    None => origin,
+                };
+                let target = match areas {
+                    Some((lp, ln, ..)) => offset_ray_origin(lp, ln, scale),
+                    None => V8::zero(),
+                };
+                let target = if others { V8::select(point, V8::from_lanes(&op), target) } else { target };
+                let sto = target.sub(origin);
+                let sdist = sto.dot(sto).sqrt();
+                let sd = sto.div(sdist);
+                let tmax = sdist * F8::splat(1.0 - SHADOW_EPSILON);
+                let w = mis_weight(settings.mis_heuristic, lpdf, f_pdf);
+                let (ok, sd, tmax, w) = if others {
+                    let short = select(point, F8::splat(1.0 - 1e-5), F8::splat(1.0 - SHADOW_EPSILON));
+                    (
+                        ok & (infinite | sdist.gt(zero)),
+                        V8::select(infinite, lwi, sd),
+                        select(infinite, F8::splat(f32::INFINITY), sdist * short),
+                        // Delta lights take no MIS weight.
+                        select(delta, one, w),
+                    )
+                } else {
+                    (ok & sdist.gt(zero), sd, tmax, w)
+                };
+                let unshadowed = beta.mul(f).mul(lle);
+                let sc = wil.z.abs() * w / lpdf;
+                // The shadow rays together where the BVH batches them (`Scene::visibility_batch`).
+                let (so, sdl, tm) = (origin.to_lanes(), sd.to_lanes(), tmax.to_array());
+                let (mut lane, mut count) = ([0u8; LANES], 0);
+                let (mut qo, mut qd, mut qt) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [0f32; LANES]);
+                let mut qf = [0u32; LANES];
+                for k in lanes_of(ok.bits()) {
+                    // An area light's ray may stop at its clear box (as the scalar path's).
+                    let t = scene.lights.shadow_tmax(lidx[k], so[k], sdl[k], tm[k]);
+                    (lane[count], qo[count], qd[count], qt[count], qf[count]) = (k as u8, so[k], sdl[k], t, tri[k]);
+                    count += 1;
+                }
+                let mut seen = [0f32; LANES];
+                scene.visibility_batch(&qo[..count], &qd[..count], &qt[..count], &qf[..count], &mut seen[..count]);
+                let mut visible = 0u32;
+                for j in 0..count {
+                    if seen[j] != 0.0 {
+                        visible |= 1 << lane[j];
+                    }
+                }
+                let shadow = ok & M8::from_bits(visible);
+                // `Path::add_direct`: β·f·Le, times visibility, times |cos|·w/pdf; the visibility
+                // of an opaque scene is 1, and x·1 = x exactly, so it is left out.
+                let add = unshadowed.scale(sc);
+                l = V8::select(shadow, l.add(add), l);
+            }
+        }
+
+        // The step to the next vertex (`Path::finish`).
+        let wi_world = frame.to_world(next.wi);
+        let dn = wi_world.dot(ngv);
+        // A shading normal can send a direction to the wrong side of the true surface.
+        let transmitted = next.wi.z.lt(zero);
+        let go = has_next.and_not(dn.le(zero).xor(transmitted) | dn.eq(zero));
+        let nb = beta.mul(next.weight());
+        let go = go & nb.is_finite() & nb.ne_zero();
+        beta = V8::select(go, nb, beta);
+        let through = go & transmitted;
+        if let (true, Some(g)) = (through.any(), &glass8) {
+            eta_scale = select(through, eta_scale * (g.eta * g.eta), eta_scale);
+        }
+        (prev_p, prev_n, prev_pdf) = (p, ns_flipped, next.pdf.to_array());
+        prev_bits = (!next.delta).bits();
+        ro = match origin_below {
+            Some(o) => V8::select(transmitted, o, origin).to_lanes(),
+            None => origin.to_lanes(),
+        };
+        rd = wi_world;
+        let mut roulette = 0u32;
+        for (k, depth) in depth.iter_mut().enumerate() {
+            *depth += 1;
+            roulette |= u32::from(*depth >= settings.rr_depth) << k;
+        }
+        let mut go = go;
+        if roulette & go.bits() != 0 {
+            // β's largest channel times η² of the transmissions so far, in units of the threshold
+            // (`integrator::RR_THRESHOLD`; the scalar path's arithmetic, in its order).
+            let m = beta.max_element() * eta_scale * F8::splat(1.0 / crate::integrator::RR_THRESHOLD);
+            let low = M8::from_bits(roulette) & m.lt(one);
+            let q = (one - m).max_finite(zero);
+            let u_rr = F8::from_array(u_bsdf[(dims::RUSSIAN_ROULETTE % 4) as usize]);
+            let killed = low & u_rr.lt(q);
+            go = go.and_not(killed);
+            let kept = low.and_not(killed);
+            beta = V8::select(kept, beta.div(one - q), beta);
+        }
+        alive = go.bits() & shading;
     }
 }

@@ -75,9 +75,11 @@ fn eight_lanes_render_every_test_scene_they_take_bit_for_bit() {
 }
 
 /// The camera rays and sample sets drawn eight lanes at once (`render::camera_rays8`,
-/// `sampler::get_4d_pair_lanes`) are each sample's own: both pixel filters, both samplers, and
-/// sample ranges that cross a 2^16 block (where the lanes no longer share their Sobol seeds and
-/// the draws fall back to one sample at a time), some ending in a part-filled register.
+/// `sampler::get_4d_pair_each_lanes`) are each sample's own: both pixel filters, both samplers
+/// (the independent one draws one lane at a time), and sample ranges that cross a 2^16 block
+/// (where a pixel's camera rays no longer share their Sobol seed and fall back to one at a
+/// time, and the lanes' sets carry each sample's own block), some ending in a part-filled
+/// register.
 #[test]
 fn eight_lanes_draw_each_samples_own_numbers() {
     use renderer::sampler::SamplerKind;

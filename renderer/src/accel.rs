@@ -20,6 +20,8 @@ use obvhs::cwbvh::node::CwBvhNode;
 use obvhs::cwbvh::CwBvh;
 
 use crate::triangle::{RtTriangle, TriangleBlocks, WatertightRay, LANES, NO_HIT8};
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+use crate::triangle::RayLanes8;
 use std::mem::MaybeUninit;
 
 #[derive(Clone, Copy, Debug)]
@@ -1017,8 +1019,24 @@ impl Accel {
         }
         let groups = &mut groups[..count];
         groups.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
-        for (d, hit) in directions[..n].iter().zip(out.iter_mut()) {
-            *hit = match self.bundle_ray(groups, Vec3A::from(origin), Vec3A::from(*d)) {
+        let oa = Vec3A::from(origin);
+        let Some(&first) = directions[..n].first() else { return true };
+        let mut rays = [WatertightRay::new(oa, Vec3A::from(first)); LANES];
+        for (r, d) in rays.iter_mut().zip(&directions[..n]).skip(1) {
+            *r = WatertightRay::new(oa, Vec3A::from(*d));
+        }
+        let mut answers = [None; LANES];
+        match RayLanes8::new(&rays[..n]) {
+            // The rays' tests a triangle at a time, all rays at once (where they share their axes).
+            Some(lanes) => self.bundle_rays8(groups, &lanes, n, &mut answers),
+            None => {
+                for (r, a) in rays[..n].iter().zip(&mut answers) {
+                    *a = self.bundle_ray(groups, r);
+                }
+            }
+        }
+        for ((d, hit), answer) in directions[..n].iter().zip(out.iter_mut()).zip(answers) {
+            *hit = match answer {
                 Some(h) => h,
                 None => self.intersect(origin, *d, f32::INFINITY),
             };
@@ -1070,8 +1088,7 @@ impl Accel {
     /// None where that is not unique.
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[inline(always)]
-    fn bundle_ray(&self, groups: &[LeafGroup], oa: Vec3A, da: Vec3A) -> Option<Option<Hit>> {
-        let wray = WatertightRay::new(oa, da);
+    fn bundle_ray(&self, groups: &[LeafGroup], wray: &WatertightRay) -> Option<Option<Hit>> {
         let mut best: LeafHit = (f32::INFINITY, NO_LEAF, 0.0, 0.0);
         for &(near, base, prims) in groups {
             // Every hit in the group lies at `near` or beyond.
@@ -1082,7 +1099,7 @@ impl Accel {
             while mask != 0 {
                 let (start, lanes) = next_window(base as usize, &mut mask);
                 // Hits at the best distance too (t < the next float up), to see a tie.
-                let (t, slot, b1, b2) = self.tris.closest8_unique(&wray, start, lanes, best.0.next_up())?;
+                let (t, slot, b1, b2) = self.tris.closest8_unique(wray, start, lanes, best.0.next_up())?;
                 if t == best.0 && t != f32::INFINITY {
                     return None;
                 }
@@ -1092,6 +1109,114 @@ impl Accel {
             }
         }
         Some(self.leaf_hit(best))
+    }
+
+    /// [`Self::bundle_ray`] for the `n` rays of `rays` at once, ray l's answer into `answers[l]`:
+    /// the same groups in the same order, the same windows, each window's slots tested against
+    /// every ray still going (`TriangleBlocks::slot_rays8`, the numbers `closest8_unique` has
+    /// for that ray and slot), and each ray's choices as `bundle_ray` makes them: it gives up
+    /// (None) on a window with a lane on an edge, on two lanes of a window at its least t, and
+    /// on a window's least t equal to its best so far; it stops at the first group that begins
+    /// beyond its best.
+    ///
+    /// Why: a camera bundle's rays share their origin, so a triangle's vertices relative to it
+    /// are the same for all of them, and one eight-lane test answers eight rays instead of one
+    /// (a window of slots, which on a scene of large triangles holds two or three). The
+    /// answers are `bundle_ray`'s, bit for bit (`bundle_answers_are_the_walks`).
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    fn bundle_rays8(&self, groups: &[LeafGroup], rays: &RayLanes8, n: usize, answers: &mut [Option<Option<Hit>>; LANES]) {
+        use std::arch::x86_64::*;
+        // SAFETY: AVX2 is enabled at compile time; every slot the groups name exists (they are
+        // the BVH's own leaves).
+        unsafe {
+            let inf = _mm256_set1_ps(f32::INFINITY);
+            // The lanes of the rays in `bits`, as a mask.
+            let lane_mask = |bits: u32| {
+                let bit = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+                _mm256_castsi256_ps(_mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(bits as i32), bit), bit))
+            };
+            // The rays still going, and those that gave up (their walks answer them).
+            let lane_bits = (1u32 << n) - 1;
+            let (mut going, mut gave_up) = (lane_bits, 0u32);
+            let mut best_t = inf;
+            let (mut best_slot, mut best_b1, mut best_b2) = (_mm256_set1_epi32(-1), _mm256_setzero_ps(), _mm256_setzero_ps());
+            for &(near, base, prims) in groups {
+                // A ray stops at the first group beginning beyond its best.
+                going &= !(_mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(best_t, _mm256_set1_ps(near))) as u32);
+                if going == 0 {
+                    break;
+                }
+                let mut mask = prims;
+                while mask != 0 && going != 0 {
+                    let (start, lanes) = next_window(base as usize, &mut mask);
+                    // `best.0.next_up()`: hits at the best distance too, to see a tie (∞ stays ∞;
+                    // a best is a hit's t, positive).
+                    let up = _mm256_castsi256_ps(_mm256_add_epi32(_mm256_castps_si256(best_t), _mm256_set1_epi32(1)));
+                    let tmax = _mm256_blendv_ps(up, inf, _mm256_cmp_ps::<_CMP_EQ_OQ>(best_t, inf));
+                    // The window's least t per ray, how many of its slots have it, and the
+                    // first of them (a ray keeps it only where it is the only one).
+                    let (mut w_t, mut w_count) = (inf, _mm256_setzero_si256());
+                    let (mut w_slot, mut w_b1, mut w_b2) = (_mm256_set1_epi32(-1), _mm256_setzero_ps(), _mm256_setzero_ps());
+                    let mut edge = _mm256_setzero_ps();
+                    let mut bits = lanes;
+                    while bits != 0 {
+                        let l = bits.trailing_zeros() as usize;
+                        bits &= bits - 1;
+                        let slot = start + l;
+                        let r = self.tris.slot_rays8(rays, slot, tmax);
+                        edge = _mm256_or_ps(edge, r.on_edge);
+                        let less = _mm256_and_ps(r.hit, _mm256_cmp_ps::<_CMP_LT_OQ>(r.t, w_t));
+                        let same = _mm256_and_ps(r.hit, _mm256_cmp_ps::<_CMP_EQ_OQ>(r.t, w_t));
+                        // A count restarts at 1 on a lesser t and goes up by 1 on an equal one.
+                        let one = _mm256_set1_epi32(1);
+                        w_count = _mm256_castps_si256(_mm256_blendv_ps(
+                            _mm256_castsi256_ps(_mm256_add_epi32(w_count, _mm256_and_si256(_mm256_castps_si256(same), one))),
+                            _mm256_castsi256_ps(one),
+                            less,
+                        ));
+                        w_t = _mm256_blendv_ps(w_t, r.t, less);
+                        w_slot = _mm256_castps_si256(_mm256_blendv_ps(
+                            _mm256_castsi256_ps(w_slot),
+                            _mm256_castsi256_ps(_mm256_set1_epi32(slot as i32)),
+                            less,
+                        ));
+                        w_b1 = _mm256_blendv_ps(w_b1, r.b1, less);
+                        w_b2 = _mm256_blendv_ps(w_b2, r.b2, less);
+                    }
+                    let edge = _mm256_movemask_ps(edge) as u32;
+                    let shared = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(w_count, _mm256_set1_epi32(1)))) as u32;
+                    let ties = _mm256_movemask_ps(_mm256_and_ps(
+                        _mm256_cmp_ps::<_CMP_EQ_OQ>(w_t, best_t),
+                        _mm256_cmp_ps::<_CMP_NEQ_UQ>(w_t, inf),
+                    )) as u32;
+                    let quit = going & (edge | shared | ties);
+                    gave_up |= quit;
+                    going &= !quit;
+                    let take = _mm256_and_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(w_t, best_t), lane_mask(going));
+                    best_t = _mm256_blendv_ps(best_t, w_t, take);
+                    best_slot = _mm256_castps_si256(_mm256_blendv_ps(
+                        _mm256_castsi256_ps(best_slot),
+                        _mm256_castsi256_ps(w_slot),
+                        take,
+                    ));
+                    best_b1 = _mm256_blendv_ps(best_b1, w_b1, take);
+                    best_b2 = _mm256_blendv_ps(best_b2, w_b2, take);
+                }
+            }
+            let (mut t, mut slot, mut b1, mut b2) = ([0f32; LANES], [0i32; LANES], [0f32; LANES], [0f32; LANES]);
+            _mm256_storeu_ps(t.as_mut_ptr(), best_t);
+            _mm256_storeu_si256(slot.as_mut_ptr().cast(), best_slot);
+            _mm256_storeu_ps(b1.as_mut_ptr(), best_b1);
+            _mm256_storeu_ps(b2.as_mut_ptr(), best_b2);
+            for l in 0..n {
+                answers[l] = if gave_up & (1 << l) != 0 {
+                    None
+                } else {
+                    let slot = if slot[l] < 0 { NO_LEAF } else { slot[l] as usize };
+                    Some(self.leaf_hit((t[l], slot, b1[l], b2[l])))
+                };
+            }
+        }
     }
 
     /// Not built without AVX2 (the SPMD kernel, its one caller, needs it).
@@ -1969,18 +2094,34 @@ mod tests {
         assert!(s0.max(s1).max(s2) < 24, "four triangles, slots {s0} {s1} {s2}");
         let group = |slots: &[usize]| (0.0f32, 0u32, slots.iter().fold(0u32, |m, &s| m | 1 << s));
         let down = Vec3A::new(0.0, -1.0, 0.0);
+        // Each answer from `bundle_ray` and from `bundle_rays8`, which must agree: the ray alone
+        // in lane 0, and in lane 5 of eight rays that all give the same answer.
+        let answer = |groups: &[LeafGroup], o: Vec3A| {
+            let ray = WatertightRay::new(o, down);
+            let alone = accel.bundle_ray(groups, &ray);
+            let bits = |a: Option<Option<Hit>>| a.map(|h| h.map(|h| (h.t.to_bits(), h.triangle, h.b1.to_bits(), h.b2.to_bits())));
+            for n in [1, 8] {
+                let mut answers = [Some(None); LANES];
+                let lanes = RayLanes8::new(&[ray; LANES][..n]).expect("one ray's axes");
+                accel.bundle_rays8(groups, &lanes, n, &mut answers);
+                for a in &answers[..n] {
+                    assert_eq!(bits(*a), bits(alone), "{n} rays from {o:?}");
+                }
+            }
+            alone
+        };
         // Inside triangle 0 (and 2), off every edge: (0.5, 0, −0.5) lies below the diagonal.
         let o = Vec3A::new(0.5, 1.0, -0.5);
-        let alone = accel.bundle_ray(&[group(&[s0])], o, down).expect("a unique hit");
+        let alone = answer(&[group(&[s0])], o).expect("a unique hit");
         assert_eq!(alone.map(|h| h.triangle), Some(0));
-        assert!(accel.bundle_ray(&[group(&[s0]), group(&[s2])], o, down).is_none(), "a tie across groups");
+        assert!(answer(&[group(&[s0]), group(&[s2])], o).is_none(), "a tie across groups");
         if s0 / LANES == s2 / LANES {
-            assert!(accel.bundle_ray(&[group(&[s0, s2])], o, down).is_none(), "a tie in one window");
+            assert!(answer(&[group(&[s0, s2])], o).is_none(), "a tie in one window");
         }
         // On the quad's diagonal, the edge triangles 0 and 1 share: each edge function is 0 exactly.
         let on_edge = Vec3A::new(0.25, 1.0, 0.25);
-        assert!(accel.bundle_ray(&[group(&[s0])], on_edge, down).is_none(), "a ray through an edge");
-        assert!(accel.bundle_ray(&[group(&[s0, s1])], on_edge, down).is_none(), "a ray through a shared edge");
+        assert!(answer(&[group(&[s0])], on_edge).is_none(), "a ray through an edge");
+        assert!(answer(&[group(&[s0, s1])], on_edge).is_none(), "a ray through a shared edge");
     }
 
     /// `inner_child` (which `intersect_bundle` and the walks share) names the node obvhs' own walk

@@ -423,6 +423,106 @@ impl TriangleBlocks {
     }
 }
 
+/// Up to eight rays prepared for the watertight test that share an origin and their axes (a
+/// camera bundle's, as a rule): the triangle-major form of [`WatertightRay`], for testing one
+/// triangle against all of them at once ([`TriangleBlocks::slot_rays8`]). Where the rays share
+/// an origin and axes, a triangle's vertices relative to the origin are the same numbers for
+/// every ray, and only the shear differs from lane to lane.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[derive(Clone, Copy)]
+pub struct RayLanes8 {
+    o: [f32; 3],
+    k: [usize; 3],
+    /// Each lane's shear terms (a lane past the rays repeats the first ray's).
+    s: [std::arch::x86_64::__m256; 3],
+}
+
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+impl RayLanes8 {
+    /// The rays (one to eight), or None where they do not share the permuted origin and axes.
+    pub fn new(rays: &[WatertightRay]) -> Option<Self> {
+        let first = rays.first()?;
+        if rays.len() > LANES || rays.iter().any(|r| r.k != first.k || r.o.map(f32::to_bits) != first.o.map(f32::to_bits)) {
+            return None;
+        }
+        let mut s = [[0f32; LANES]; 3];
+        for l in 0..LANES {
+            let r = rays.get(l).unwrap_or(first);
+            for a in 0..3 {
+                s[a][l] = r.s[a];
+            }
+        }
+        // SAFETY: AVX is enabled at compile time; each row is eight floats.
+        let s = s.map(|row| unsafe { std::arch::x86_64::_mm256_loadu_ps(row.as_ptr()) });
+        Some(RayLanes8 { o: first.o, k: first.k, s })
+    }
+}
+
+impl TriangleBlocks {
+    /// The watertight test of slot `slot` against the eight rays of `r` (lane l: ray l), each
+    /// stopping at its own lane of `tmax`: lane by lane the numbers [`Self::lanes_avx2`] gives
+    /// ray l for that slot, operation for operation (a vertex's position relative to the
+    /// shared origin is one subtraction either way, and the products' operands are the same,
+    /// in either order). `hit` and `on_edge` are lane masks.
+    ///
+    /// # Safety
+    /// AVX2 must be available (it is enabled at compile time where this is compiled).
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[inline(always)]
+    pub unsafe fn slot_rays8(&self, r: &RayLanes8, slot: usize, tmax: std::arch::x86_64::__m256) -> SlotRays8 {
+        use std::arch::x86_64::*;
+        let [kx, ky, kz] = r.k;
+        let rows = &self.blocks[slot / LANES].rows;
+        let lane = slot % LANES;
+        let (sx, sy, sz) = (r.s[0], r.s[1], r.s[2]);
+        // `RtTriangle::intersect`'s `rel`: the subtractions once, the shear lane by lane.
+        let rel = |j: usize| {
+            let x = _mm256_set1_ps(rows[3 * j + kx][lane] - r.o[0]);
+            let y = _mm256_set1_ps(rows[3 * j + ky][lane] - r.o[1]);
+            let z = _mm256_set1_ps(rows[3 * j + kz][lane] - r.o[2]);
+            (_mm256_add_ps(x, _mm256_mul_ps(sx, z)), _mm256_add_ps(y, _mm256_mul_ps(sy, z)), z)
+        };
+        let (a, b, c) = (rel(0), rel(1), rel(2));
+        let cross =
+            |p: __m256, q: __m256, r: __m256, s: __m256| _mm256_sub_ps(_mm256_mul_ps(p, q), _mm256_mul_ps(r, s));
+        let e0 = cross(b.0, c.1, b.1, c.0);
+        let e1 = cross(c.0, a.1, c.1, a.0);
+        let e2 = cross(a.0, b.1, a.1, b.0);
+        let zero = _mm256_setzero_ps();
+        let eq0 = |e: __m256| _mm256_cmp_ps::<_CMP_EQ_OQ>(e, zero);
+        let on_edge = _mm256_or_ps(eq0(e0), _mm256_or_ps(eq0(e1), eq0(e2)));
+        let lt = |e: __m256| _mm256_cmp_ps::<_CMP_LT_OQ>(e, zero);
+        let gt = |e: __m256| _mm256_cmp_ps::<_CMP_GT_OQ>(e, zero);
+        let any_neg = _mm256_or_ps(lt(e0), _mm256_or_ps(lt(e1), lt(e2)));
+        let any_pos = _mm256_or_ps(gt(e0), _mm256_or_ps(gt(e1), gt(e2)));
+        let det = _mm256_add_ps(_mm256_add_ps(e0, e1), e2);
+        let t_scaled = _mm256_add_ps(
+            _mm256_add_ps(_mm256_mul_ps(e0, _mm256_mul_ps(sz, a.2)), _mm256_mul_ps(e1, _mm256_mul_ps(sz, b.2))),
+            _mm256_mul_ps(e2, _mm256_mul_ps(sz, c.2)),
+        );
+        let inv = _mm256_div_ps(_mm256_set1_ps(1.0), det);
+        let t = _mm256_mul_ps(t_scaled, inv);
+        let ok = _mm256_andnot_ps(_mm256_and_ps(any_neg, any_pos), _mm256_castsi256_ps(_mm256_set1_epi32(-1)));
+        let ok = _mm256_andnot_ps(eq0(det), ok);
+        let ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GT_OQ>(t, zero));
+        let hit = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(t, tmax));
+        SlotRays8 { hit, on_edge, t, b1: _mm256_mul_ps(e1, inv), b2: _mm256_mul_ps(e2, inv) }
+    }
+}
+
+/// What [`TriangleBlocks::slot_rays8`] found for each ray: whether it hits (all ones), whether
+/// an edge function rounded to 0 (all ones: the hit is then meaningless, the scalar test's f64
+/// recomputation would decide it), t and the barycentrics (e1 · 1/det and e2 · 1/det, as
+/// `nearest_lane` computes them).
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+pub struct SlotRays8 {
+    pub hit: std::arch::x86_64::__m256,
+    pub on_edge: std::arch::x86_64::__m256,
+    pub t: std::arch::x86_64::__m256,
+    pub b1: std::arch::x86_64::__m256,
+    pub b2: std::arch::x86_64::__m256,
+}
+
 /// What [`TriangleBlocks::lanes_avx2`] found: the lanes hit (meaningless where `on_edge` is set:
 /// those lanes need the scalar test's f64 recomputation), and per lane t, e1, e2 and 1/det.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]

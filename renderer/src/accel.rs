@@ -1020,18 +1020,13 @@ impl Accel {
         let groups = &mut groups[..count];
         groups.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
         let oa = Vec3A::from(origin);
-        let Some(&first) = directions[..n].first() else { return true };
-        let mut rays = [WatertightRay::new(oa, Vec3A::from(first)); LANES];
-        for (r, d) in rays.iter_mut().zip(&directions[..n]).skip(1) {
-            *r = WatertightRay::new(oa, Vec3A::from(*d));
-        }
         let mut answers = [None; LANES];
-        match RayLanes8::new(&rays[..n]) {
+        match RayLanes8::along(oa, &directions[..n]) {
             // The rays' tests a triangle at a time, all rays at once (where they share their axes).
             Some(lanes) => self.bundle_rays8(groups, &lanes, n, &mut answers),
             None => {
-                for (r, a) in rays[..n].iter().zip(&mut answers) {
-                    *a = self.bundle_ray(groups, r);
+                for (d, a) in directions[..n].iter().zip(&mut answers) {
+                    *a = self.bundle_ray(groups, &WatertightRay::new(oa, Vec3A::from(*d)));
                 }
             }
         }
@@ -2102,7 +2097,7 @@ mod tests {
             let bits = |a: Option<Option<Hit>>| a.map(|h| h.map(|h| (h.t.to_bits(), h.triangle, h.b1.to_bits(), h.b2.to_bits())));
             for n in [1, 8] {
                 let mut answers = [Some(None); LANES];
-                let lanes = RayLanes8::new(&[ray; LANES][..n]).expect("one ray's axes");
+                let lanes = RayLanes8::along(o, &[Vec3::from(down); LANES][..n]).expect("one ray's axes");
                 accel.bundle_rays8(groups, &lanes, n, &mut answers);
                 for a in &answers[..n] {
                     assert_eq!(bits(*a), bits(alone), "{n} rays from {o:?}");

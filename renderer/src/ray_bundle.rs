@@ -12,7 +12,7 @@
 
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use crate::lanes::{select, F8};
-use crate::math::Vec3;
+use crate::math::{Vec3, Vec3A};
 
 /// A bundle's origin and, per axis, what bounds its rays' distances to planes across that axis.
 #[derive(Clone, Copy, Debug)]
@@ -43,17 +43,23 @@ const WIDEN: f32 = 1e-4;
 
 impl RayBundle {
     /// The bundle of rays from `origin` along `directions`; None when it is empty or a value is
-    /// not finite (the one-ray walk's own answer for those is left to it).
+    /// not finite or NaN (the one-ray walk's own answer for those is left to it).
     pub fn new(origin: Vec3, directions: &[Vec3]) -> Option<Self> {
-        let first = *directions.first()?;
+        let first = Vec3A::from(*directions.first()?);
         let (mut lo, mut hi) = (first, first);
-        for &d in directions {
+        // On four-lane registers (`Vec3A`): a `Vec3`'s min and max are three scalar ones each.
+        // Of finite values the same numbers. A NaN now reaches `lo` or `hi` (MINPS passes its
+        // second operand on), where `f32::min` dropped it and built a bundle around the other
+        // rays, so a bundle with a NaN ray is refused as one with an infinity is.
+        for &d in &directions[1..] {
+            let d = Vec3A::from(d);
             lo = lo.min(d);
             hi = hi.max(d);
         }
         if !(origin.is_finite() && lo.is_finite() && hi.is_finite()) {
             return None;
         }
+        let (lo, hi) = (Vec3::from(lo), Vec3::from(hi));
         let axis = |a: usize| {
             // Components of both signs, or one the walk's safe inverse replaces by ±1/ε
             // (`node_ray::safe_inverse`), leave the axis unbounded.

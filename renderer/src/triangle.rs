@@ -30,6 +30,22 @@ pub struct WatertightRay {
     s: [f32; 3],
 }
 
+/// The axes (kx, ky, kz) of each [`axis_case`]: index 2·x_wins + y_wins; both cannot win, so
+/// the last row is never read.
+const AXES: [[usize; 3]; 4] = [[0, 1, 2], [2, 0, 1], [1, 2, 0], [1, 2, 0]];
+
+/// Which axis direction `d` points most along, as an index into [`AXES`]: kz is x where |x| beats
+/// |y| and |z|, else y where it beats |z|, else z (ties go to the later axis), as the comparisons
+/// `a.x > a.y`, `a.x > a.z`, `a.y > a.z` decide.
+#[inline(always)]
+fn axis_case(d: Vec3A) -> usize {
+    let a = d.abs();
+    let x_gt_y = a.x > a.y;
+    let x_wins = x_gt_y & (a.x > a.z);
+    let y_wins = !x_gt_y & (a.y > a.z);
+    2 * x_wins as usize + y_wins as usize
+}
+
 impl WatertightRay {
     /// The ray from `o` along `d`, prepared.
     ///
@@ -38,15 +54,7 @@ impl WatertightRay {
     /// Cornell render put 15 % of all mispredictions here).
     #[inline(always)]
     pub fn new(o: Vec3A, d: Vec3A) -> Self {
-        let a = d.abs();
-        // kz: x where |x| beats |y| and |z|, else y where it beats |z|, else z (ties go to the
-        // later axis), as the comparisons `a.x > a.y`, `a.x > a.z`, `a.y > a.z` decide.
-        let x_gt_y = a.x > a.y;
-        let x_wins = x_gt_y & (a.x > a.z);
-        let y_wins = !x_gt_y & (a.y > a.z);
-        // Index 2·x_wins + y_wins; both cannot win, so the last row is never read.
-        const AXES: [[usize; 3]; 4] = [[0, 1, 2], [2, 0, 1], [1, 2, 0], [1, 2, 0]];
-        let case = 2 * x_wins as usize + y_wins as usize;
+        let case = axis_case(d);
         let k = AXES[case];
         #[cfg(all(target_arch = "x86_64", target_feature = "avx"))]
         // SAFETY: AVX is enabled at compile time; each row of `ORDER` is four i32s.
@@ -439,22 +447,39 @@ pub struct RayLanes8 {
 
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 impl RayLanes8 {
-    /// The rays (one to eight), or None where they do not share the permuted origin and axes.
-    pub fn new(rays: &[WatertightRay]) -> Option<Self> {
-        let first = rays.first()?;
-        if rays.len() > LANES || rays.iter().any(|r| r.k != first.k || r.o.map(f32::to_bits) != first.o.map(f32::to_bits)) {
+    /// The rays from `o` along each of `d` (one to eight), or None where their directions do not
+    /// all point most along one axis. Each lane's shear is [`WatertightRay::new`]'s for its ray,
+    /// bit for bit: the same division of the same numbers, eight lanes at once.
+    #[inline(always)]
+    pub fn along(o: Vec3A, d: &[Vec3]) -> Option<Self> {
+        use std::arch::x86_64::*;
+        let first = Vec3A::from(*d.first()?);
+        let case = axis_case(first);
+        if d.len() > LANES || d[1..].iter().any(|&v| axis_case(Vec3A::from(v)) != case) {
             return None;
         }
-        let mut s = [[0f32; LANES]; 3];
+        let k = AXES[case];
+        // The directions' components in the permuted order, a row per axis (a lane past the rays
+        // repeats the first ray).
+        let mut rows = [[0f32; LANES]; 3];
         for l in 0..LANES {
-            let r = rays.get(l).unwrap_or(first);
+            let v = d.get(l).copied().unwrap_or(Vec3::from(first)).to_array();
             for a in 0..3 {
-                s[a][l] = r.s[a];
+                rows[a][l] = v[k[a]];
             }
         }
         // SAFETY: AVX is enabled at compile time; each row is eight floats.
-        let s = s.map(|row| unsafe { std::arch::x86_64::_mm256_loadu_ps(row.as_ptr()) });
-        Some(RayLanes8 { o: first.o, k: first.k, s })
+        unsafe {
+            let [dx, dy, dz] = rows.map(|row| _mm256_loadu_ps(row.as_ptr()));
+            let neg = _mm256_set1_ps(-0.0);
+            let s = [
+                _mm256_div_ps(_mm256_xor_ps(dx, neg), dz),
+                _mm256_div_ps(_mm256_xor_ps(dy, neg), dz),
+                _mm256_div_ps(_mm256_set1_ps(1.0), dz),
+            ];
+            let o = o.to_array();
+            Some(RayLanes8 { o: [o[k[0]], o[k[1]], o[k[2]]], k, s })
+        }
     }
 }
 
@@ -540,6 +565,53 @@ struct Lanes8 {
 mod tests {
     use super::*;
     use crate::sampler::hash_unit as u;
+
+    /// `RayLanes8::along` gives each lane its ray's `WatertightRay`, bit for bit (origin, axes
+    /// and shear), for one to eight rays whose directions share their axis, of either sign and
+    /// with zero components; rays that do not share it are refused.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[test]
+    fn ray_lanes_are_each_rays_own() {
+        let o = Vec3A::new(0.3, -2.0, 7.5);
+        let mut refused = 0;
+        for i in 0..4000u64 {
+            let n = 1 + (i % 8) as usize;
+            let axis = (i / 8 % 3) as usize;
+            let sign = if i % 5 == 0 { -1.0 } else { 1.0 };
+            let dirs: Vec<Vec3> = (0..n as u64)
+                .map(|l| {
+                    let mut v = [u(i * 64 + 3 * l) - 0.5, u(i * 64 + 3 * l + 1) - 0.5, u(i * 64 + 3 * l + 2) - 0.5];
+                    if i % 7 == 0 {
+                        v[(axis + 1) % 3] = 0.0;
+                    }
+                    // Mostly along `axis`; every ninth bundle's last ray along another.
+                    v[axis] = sign * (1.0 + u(i * 64 + 50 + l));
+                    if i % 9 == 0 && l + 1 == n as u64 && n > 1 {
+                        v[(axis + 2) % 3] = 9.0;
+                    }
+                    Vec3::from_array(v)
+                })
+                .collect();
+            let rays: Vec<WatertightRay> = dirs.iter().map(|&d| WatertightRay::new(o, Vec3A::from(d))).collect();
+            let shared = rays.iter().all(|r| r.k == rays[0].k);
+            let Some(lanes) = RayLanes8::along(o, &dirs) else {
+                assert!(!shared, "bundle {i}: refused rays that share axes {:?}", rays[0].k);
+                refused += 1;
+                continue;
+            };
+            assert!(shared, "bundle {i}: took rays of different axes");
+            assert_eq!((lanes.k, lanes.o.map(f32::to_bits)), (rays[0].k, rays[0].o.map(f32::to_bits)));
+            let mut s = [[0f32; LANES]; 3];
+            for a in 0..3 {
+                // SAFETY: AVX is enabled at compile time; each row is eight floats.
+                unsafe { std::arch::x86_64::_mm256_storeu_ps(s[a].as_mut_ptr(), lanes.s[a]) };
+            }
+            for (l, r) in rays.iter().enumerate() {
+                assert_eq!([s[0][l], s[1][l], s[2][l]].map(f32::to_bits), r.s.map(f32::to_bits), "bundle {i} ray {l}");
+            }
+        }
+        assert!(refused > 100, "{refused} bundles refused");
+    }
 
     /// The branch-free axis choice is pbrt-v4's `MaxComponentIndex(Abs(d))` (ties to the later
     /// axis), with kx and ky following cyclically, on directions with every sign, zeros and ties.

@@ -350,19 +350,11 @@ impl LightSet {
     /// Asked for all of a batch's picks first, the misses overlap.
     #[inline(always)]
     fn prefetch_light(&self, g: usize) {
-        #[cfg(target_arch = "x86_64")]
         if let Some(light) = self.lights.get(g) {
-            let first = light as *const AreaLight as *const i8;
-            // A record need not start on a line: its first and last bytes' lines.
-            // SAFETY: a prefetch is a hint; both addresses lie inside the record.
-            unsafe {
-                use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
-                _mm_prefetch::<_MM_HINT_T0>(first);
-                _mm_prefetch::<_MM_HINT_T0>(first.add(std::mem::size_of::<AreaLight>() - 1));
-                if let Some(b) = self.clear_of.get(g) {
-                    _mm_prefetch::<_MM_HINT_T0>(b as *const u32 as *const i8);
-                }
-            }
+            crate::accel::prefetch_record(light);
+        }
+        if let Some(b) = self.clear_of.get(g) {
+            crate::accel::prefetch_record(b);
         }
     }
 

@@ -457,28 +457,22 @@ pub fn radiance8(
                 hits[lane[j] as usize] = found[j];
             }
         }
-        // The hit triangles' vertices, gathered lane by lane; the surface points eight-wide.
-        let (mut v0, mut v1, mut v2) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
-        let (mut n0, mut n1, mut n2) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
-        let (mut hb1, mut hb2) = ([0f32; LANES], [0f32; LANES]);
-        let (mut hit_bits, mut smooth) = (0u32, 0u32);
-        let mut escaped = 0u32;
+        // The lanes that hit something (one that finds nothing, or stops here, is not shading:
+        // its path ends), and their triangles' records asked of the cache: they are read after
+        // the sample sets are drawn, so a miss has that long (a hit triangle is any of
+        // thousands: `perf annotate` of `scenes/sphere_lights` had 2.4 % of this kernel's samples
+        // waiting on the record's load).
+        let (mut hit_bits, mut escaped) = (0u32, 0u32);
         for k in lanes_of(alive) {
-            // A lane that finds nothing, or stops here, is not shading: its path ends.
-            let Some(hit) = hits[k] else {
-                escaped |= 1 << k;
-                continue;
-            };
-            hit_bits |= 1 << k;
-            let mesh = &scene.mesh;
-            let t = &mesh.triangles[hit.triangle as usize];
-            let [i0, i1, i2] = [t.v[0] as usize, t.v[1] as usize, t.v[2] as usize];
-            (v0[k], v1[k], v2[k]) = (mesh.positions[i0], mesh.positions[i1], mesh.positions[i2]);
-            if t.flags & flags::NORMALS != 0 {
-                smooth |= 1 << k;
-                (n0[k], n1[k], n2[k]) = (mesh.normals[i0], mesh.normals[i1], mesh.normals[i2]);
+            match hits[k] {
+                Some(hit) => {
+                    hit_bits |= 1 << k;
+                    if let Some(t) = scene.mesh.triangles.get(hit.triangle as usize) {
+                        crate::accel::prefetch_record(t);
+                    }
+                }
+                None => escaped |= 1 << k,
             }
-            (hb1[k], hb2[k], tri[k]) = (hit.b1, hit.b2, hit.triangle);
         }
         // The hit lanes' two sample sets (`Path::begin_bounce`), each at its own bounce: all
         // eight lanes at once where four or more want them and every sampler is Sobol
@@ -499,6 +493,23 @@ pub fn radiance8(
                     u_light[i][k] = b[i];
                 }
             }
+        }
+        // The hit triangles' vertices, gathered lane by lane; the surface points eight-wide.
+        let (mut v0, mut v1, mut v2) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
+        let (mut n0, mut n1, mut n2) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
+        let (mut hb1, mut hb2) = ([0f32; LANES], [0f32; LANES]);
+        let mut smooth = 0u32;
+        for k in lanes_of(hit_bits) {
+            let Some(hit) = hits[k] else { continue };
+            let mesh = &scene.mesh;
+            let t = &mesh.triangles[hit.triangle as usize];
+            let [i0, i1, i2] = [t.v[0] as usize, t.v[1] as usize, t.v[2] as usize];
+            (v0[k], v1[k], v2[k]) = (mesh.positions[i0], mesh.positions[i1], mesh.positions[i2]);
+            if t.flags & flags::NORMALS != 0 {
+                smooth |= 1 << k;
+                (n0[k], n1[k], n2[k]) = (mesh.normals[i0], mesh.normals[i1], mesh.normals[i2]);
+            }
+            (hb1[k], hb2[k], tri[k]) = (hit.b1, hit.b2, hit.triangle);
         }
         // The environment, seen by BSDF sampling (`Path::shade`'s escape): the escaped lanes'
         // lookups in a loop of their own, so their cache misses (the map and its rows are
@@ -614,6 +625,23 @@ pub fn radiance8(
             alpha: F8::from_array(m.map(|m| m.alpha)),
         });
 
+        // The NEE lanes' light choices together (a light tree's walks interleaved), as
+        // `LightSet::sample` makes them: at the vertex, with its shading normal. Made before the
+        // BSDF's sample, which does not read them, so the chosen lights' records (asked of the
+        // cache as they are chosen: `LightSet::select_batch`) arrive while it is computed.
+        let nee = act & M8::from_bits(nee_bits);
+        let (mut lane, mut count) = ([0u8; LANES], 0);
+        let mut selected = [None; LANES];
+        if nee.any() {
+            let u_sel = u_light[(dims::LIGHT_SELECT % 4) as usize];
+            let (mut qp, mut qn, mut qu) = ([Vec3::ZERO; LANES], [None; LANES], [0f32; LANES]);
+            for k in lanes_of(nee.bits()) {
+                (lane[count], qp[count], qn[count], qu[count]) = (k as u8, p[k], Some(ns_flipped[k]), u_sel[k]);
+                count += 1;
+            }
+            scene.lights.select_batch(&qp[..count], &qn[..count], &qu[..count], &mut selected[..count]);
+        }
+
         // BSDF sample, drawn before NEE as the scalar path does.
         let u_dir = (
             F8::from_array(u_bsdf[(dims::BSDF_DIR % 4) as usize]),
@@ -640,10 +668,8 @@ pub fn radiance8(
         };
         let has_next = act & next.ok;
 
-        // Next-event estimation: the light chosen one lane at a time, the rest eight-wide.
-        let nee = act & M8::from_bits(nee_bits);
+        // Next-event estimation: each chosen light read one lane at a time, the rest eight-wide.
         if nee.any() {
-            let u_sel = u_light[(dims::LIGHT_SELECT % 4) as usize];
             let u_pos = (u_light[(dims::LIGHT_POS % 4) as usize], u_light[(dims::LIGHT_POS % 4 + 1) as usize]);
             // An area light's triangle and emission, for the eight-wide sample.
             let (mut lp0, mut le1, mut le2, mut lng) =
@@ -659,16 +685,6 @@ pub fn radiance8(
             let (mut owi, mut ole, mut op, mut opdf) =
                 ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [1f32; LANES]);
             let (mut other, mut delta, mut infinite) = (0u32, 0u32, 0u32);
-            // The lanes' light choices together (a light tree's walks interleaved), as
-            // `LightSet::sample` makes them: at the vertex, with its shading normal.
-            let (mut lane, mut count) = ([0u8; LANES], 0);
-            let (mut qp, mut qn, mut qu) = ([Vec3::ZERO; LANES], [None; LANES], [0f32; LANES]);
-            for k in lanes_of(nee.bits()) {
-                (lane[count], qp[count], qn[count], qu[count]) = (k as u8, p[k], Some(ns_flipped[k]), u_sel[k]);
-                count += 1;
-            }
-            let mut selected = [None; LANES];
-            scene.lights.select_batch(&qp[..count], &qn[..count], &qu[..count], &mut selected[..count]);
             // The lanes that chose another kind of light, sampled together after the loop
             // (`LightSet::sample_selected_batch`: an environment's samples overlap their misses).
             let (mut olane, mut ocount) = ([0u8; LANES], 0);

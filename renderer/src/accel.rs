@@ -15,6 +15,8 @@ use crate::mesh::Mesh;
 use crate::node_ray::NodeRay;
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use crate::ray_bundle::RayBundle;
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+use crate::ray_bundle::Directions8;
 use crate::wide_node::WideNode;
 use obvhs::cwbvh::node::CwBvhNode;
 use obvhs::cwbvh::CwBvh;
@@ -1025,7 +1027,9 @@ impl Accel {
             return false;
         }
         let n = directions.len().min(out.len());
-        let Some(bundle) = RayBundle::new(origin, &directions[..n]) else { return false };
+        // The directions one register per axis, for the bundle's bounds and the rays' shears.
+        let Some(lanes) = Directions8::new(&directions[..n]) else { return false };
+        let Some(bundle) = RayBundle::from_lanes(origin, &lanes) else { return false };
         let mut groups = [(0f32, 0u32, 0u32); BUNDLE_GROUPS];
         let Some(count) = self.bundle_groups(&bundle, &mut groups) else { return false };
         // No leaf in reach (a background): no ray hits anything, which is each ray's walk's answer.
@@ -1037,7 +1041,7 @@ impl Accel {
         groups.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
         let oa = Vec3A::from(origin);
         let mut answers = [None; LANES];
-        match RayLanes8::along(oa, &directions[..n]) {
+        match RayLanes8::from_lanes(oa, &lanes) {
             // The rays' tests a triangle at a time, all rays at once (where they share their axes).
             Some(lanes) => self.bundle_rays8(groups, &lanes, n, &mut answers),
             None => {
@@ -1135,6 +1139,7 @@ impl Accel {
     /// (a window of slots, which on a scene of large triangles holds two or three). The
     /// answers are `bundle_ray`'s, bit for bit (`bundle_answers_are_the_walks`).
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[inline(always)]
     fn bundle_rays8(&self, groups: &[LeafGroup], rays: &RayLanes8, n: usize, answers: &mut [Option<Option<Hit>>; LANES]) {
         use std::arch::x86_64::*;
         // SAFETY: AVX2 is enabled at compile time; every slot the groups name exists (they are
@@ -2113,7 +2118,8 @@ mod tests {
             let bits = |a: Option<Option<Hit>>| a.map(|h| h.map(|h| (h.t.to_bits(), h.triangle, h.b1.to_bits(), h.b2.to_bits())));
             for n in [1, 8] {
                 let mut answers = [Some(None); LANES];
-                let lanes = RayLanes8::along(o, &[Vec3::from(down); LANES][..n]).expect("one ray's axes");
+                let dirs = Directions8::new(&[Vec3::from(down); LANES][..n]).expect("one to eight directions");
+                let lanes = RayLanes8::from_lanes(o, &dirs).expect("one ray's axes");
                 accel.bundle_rays8(groups, &lanes, n, &mut answers);
                 for a in &answers[..n] {
                     assert_eq!(bits(*a), bits(alone), "{n} rays from {o:?}");

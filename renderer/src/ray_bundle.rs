@@ -12,7 +12,35 @@
 
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use crate::lanes::{select, F8};
-use crate::math::{Vec3, Vec3A};
+use crate::math::Vec3;
+
+/// One to eight directions, one register per axis (lane l: direction l; lanes past them repeat
+/// the first): a pixel's camera rays as [`RayBundle::from_lanes`] and
+/// [`crate::triangle::RayLanes8::from_lanes`] read them, transposed once for both.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[derive(Clone, Copy)]
+pub struct Directions8 {
+    pub xyz: [std::arch::x86_64::__m256; 3],
+}
+
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+impl Directions8 {
+    /// None for no directions or more than eight.
+    #[inline(always)]
+    pub fn new(d: &[Vec3]) -> Option<Self> {
+        let first = *d.first()?;
+        if d.len() > 8 {
+            return None;
+        }
+        let mut rows = [[0f32; 8]; 3];
+        for l in 0..8 {
+            let v = d.get(l).copied().unwrap_or(first);
+            (rows[0][l], rows[1][l], rows[2][l]) = (v.x, v.y, v.z);
+        }
+        // SAFETY: AVX is enabled at compile time; each row is eight floats.
+        Some(Directions8 { xyz: rows.map(|r| unsafe { std::arch::x86_64::_mm256_loadu_ps(r.as_ptr()) }) })
+    }
+}
 
 /// A bundle's origin and, per axis, what bounds its rays' distances to planes across that axis.
 #[derive(Clone, Copy, Debug)]
@@ -43,23 +71,53 @@ const WIDEN: f32 = 1e-4;
 
 impl RayBundle {
     /// The bundle of rays from `origin` along `directions`; None when it is empty or a value is
-    /// not finite or NaN (the one-ray walk's own answer for those is left to it).
+    /// not finite (the one-ray walk's own answer for those is left to it).
     pub fn new(origin: Vec3, directions: &[Vec3]) -> Option<Self> {
-        let first = Vec3A::from(*directions.first()?);
+        let first = *directions.first()?;
+        if !directions.iter().all(|d| d.is_finite()) {
+            return None;
+        }
         let (mut lo, mut hi) = (first, first);
-        // On four-lane registers (`Vec3A`): a `Vec3`'s min and max are three scalar ones each.
-        // Of finite values the same numbers. A NaN now reaches `lo` or `hi` (MINPS passes its
-        // second operand on), where `f32::min` dropped it and built a bundle around the other
-        // rays, so a bundle with a NaN ray is refused as one with an infinity is.
-        for &d in &directions[1..] {
-            let d = Vec3A::from(d);
+        for &d in directions {
             lo = lo.min(d);
             hi = hi.max(d);
         }
-        if !(origin.is_finite() && lo.is_finite() && hi.is_finite()) {
+        Self::from_range(origin, lo, hi)
+    }
+
+    /// [`Self::new`] for up to eight directions held one register per axis: the same bundle (the
+    /// least and greatest of finite numbers do not depend on the order they are taken in; of a
+    /// +0 and a −0 either may come out, and both leave the axis unbounded alike).
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[inline(always)]
+    pub fn from_lanes(origin: Vec3, d: &Directions8) -> Option<Self> {
+        use std::arch::x86_64::*;
+        // SAFETY: AVX is enabled at compile time.
+        unsafe {
+            let inf = _mm256_set1_ps(f32::INFINITY);
+            let abs = |x: __m256| _mm256_andnot_ps(_mm256_set1_ps(-0.0), x);
+            let finite = |x: __m256| _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(abs(x), inf)) == 0xff;
+            if !d.xyz.iter().all(|&x| finite(x)) {
+                return None;
+            }
+            // The least and greatest lane: halves, then pairs, then neighbours.
+            let reduce = |x: __m256, f: unsafe fn(__m256, __m256) -> __m256| {
+                let x = f(x, _mm256_permute2f128_ps::<1>(x, x));
+                let x = f(x, _mm256_permute_ps::<0b01_00_11_10>(x));
+                _mm256_cvtss_f32(f(x, _mm256_permute_ps::<0b10_11_00_01>(x)))
+            };
+            let [x, y, z] = d.xyz;
+            let lo = Vec3::new(reduce(x, _mm256_min_ps), reduce(y, _mm256_min_ps), reduce(z, _mm256_min_ps));
+            let hi = Vec3::new(reduce(x, _mm256_max_ps), reduce(y, _mm256_max_ps), reduce(z, _mm256_max_ps));
+            Self::from_range(origin, lo, hi)
+        }
+    }
+
+    /// The bundle whose directions' components lie in `lo`..`hi` (finite).
+    fn from_range(origin: Vec3, lo: Vec3, hi: Vec3) -> Option<Self> {
+        if !origin.is_finite() {
             return None;
         }
-        let (lo, hi) = (Vec3::from(lo), Vec3::from(hi));
         let axis = |a: usize| {
             // Components of both signs, or one the walk's safe inverse replaces by ±1/ε
             // (`node_ray::safe_inverse`), leave the axis unbounded.
@@ -200,5 +258,46 @@ mod tests {
         let b = RayBundle::new(Vec3::ZERO, &[Vec3::from([1.0, 0.01, 0.01])]).expect("finite");
         assert!(!b.may_enter([-3.0, -1.0, -1.0], [-2.0, 1.0, 1.0]));
         assert!(b.may_enter([2.0, -1.0, -1.0], [3.0, 1.0, 1.0]));
+    }
+
+    /// `from_lanes` builds `new`'s bundle, bit for bit, from one to eight directions held a
+    /// register per axis: every sign, zero and tiny components, near-ties; and refuses a NaN or
+    /// an infinity in any lane, or an origin that is not finite, as `new` does.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[test]
+    fn lanes_bundle_is_the_slice_bundle() {
+        let u = |k: u64| hash_unit(k);
+        let bits = |b: Option<RayBundle>| {
+            b.map(|b| {
+                b.axes.map(|a| {
+                    a.map(|a| [a.origin, a.sign, a.inv_least, a.inv_most, a.origin_margin].map(f32::to_bits))
+                })
+            })
+        };
+        let mut built = 0;
+        for i in 0..20_000u64 {
+            let n = 1 + (i % 8) as usize;
+            let origin = Vec3::new(u(i * 40) * 20.0 - 10.0, u(i * 40 + 1) * 4.0, -u(i * 40 + 2) * 8.0);
+            let mut dirs: Vec<Vec3> = (0..n as u64)
+                .map(|l| {
+                    let c = |j: u64| match (i + j) % 9 {
+                        0 => 0.0,
+                        1 => -0.0,
+                        2 => 1e-9,
+                        _ => u(i * 40 + 3 + 3 * l + j) * 2.0 - 0.9,
+                    };
+                    Vec3::new(c(0), c(1), c(2))
+                })
+                .collect();
+            let origin = if i % 211 == 0 { Vec3::new(f32::INFINITY, 0.0, 0.0) } else { origin };
+            if i % 101 == 0 {
+                dirs[n - 1].y = if i % 2 == 0 { f32::NAN } else { f32::NEG_INFINITY };
+            }
+            let want = RayBundle::new(origin, &dirs);
+            let got = Directions8::new(&dirs).and_then(|d| RayBundle::from_lanes(origin, &d));
+            assert_eq!(bits(got), bits(want), "bundle {i}: {dirs:?} from {origin:?}");
+            built += want.is_some() as usize;
+        }
+        assert!(built > 15_000, "{built} bundles built");
     }
 }

@@ -447,30 +447,30 @@ pub struct RayLanes8 {
 
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 impl RayLanes8 {
-    /// The rays from `o` along each of `d` (one to eight), or None where their directions do not
-    /// all point most along one axis. Each lane's shear is [`WatertightRay::new`]'s for its ray,
-    /// bit for bit: the same division of the same numbers, eight lanes at once.
+    /// The rays from `o` along the directions `d` (lanes past them repeat the first), or None
+    /// where they do not all point most along one axis. Each lane's axes and shear are
+    /// [`WatertightRay::new`]'s for its ray, bit for bit: `axis_case`'s comparisons and the same
+    /// division of the same numbers, eight lanes at once.
     #[inline(always)]
-    pub fn along(o: Vec3A, d: &[Vec3]) -> Option<Self> {
+    pub fn from_lanes(o: Vec3A, d: &crate::ray_bundle::Directions8) -> Option<Self> {
         use std::arch::x86_64::*;
-        let first = Vec3A::from(*d.first()?);
-        let case = axis_case(first);
-        if d.len() > LANES || d[1..].iter().any(|&v| axis_case(Vec3A::from(v)) != case) {
-            return None;
-        }
-        let k = AXES[case];
-        // The directions' components in the permuted order, a row per axis (a lane past the rays
-        // repeats the first ray).
-        let mut rows = [[0f32; LANES]; 3];
-        for l in 0..LANES {
-            let v = d.get(l).copied().unwrap_or(Vec3::from(first)).to_array();
-            for a in 0..3 {
-                rows[a][l] = v[k[a]];
-            }
-        }
-        // SAFETY: AVX is enabled at compile time; each row is eight floats.
+        // SAFETY: AVX is enabled at compile time.
         unsafe {
-            let [dx, dy, dz] = rows.map(|row| _mm256_loadu_ps(row.as_ptr()));
+            let abs = |x: __m256| _mm256_andnot_ps(_mm256_set1_ps(-0.0), x);
+            let [ax, ay, az] = d.xyz.map(abs);
+            let gt = |a: __m256, b: __m256| _mm256_cmp_ps::<_CMP_GT_OQ>(a, b);
+            let x_gt_y = gt(ax, ay);
+            let x_wins = _mm256_movemask_ps(_mm256_and_ps(x_gt_y, gt(ax, az)));
+            let y_wins = _mm256_movemask_ps(_mm256_andnot_ps(x_gt_y, gt(ay, az)));
+            // Every lane the same case of `axis_case`.
+            let case = match (x_wins, y_wins) {
+                (0xff, 0) => 2,
+                (0, 0xff) => 1,
+                (0, 0) => 0,
+                _ => return None,
+            };
+            let k = AXES[case];
+            let [dx, dy, dz] = k.map(|a| d.xyz[a]);
             let neg = _mm256_set1_ps(-0.0);
             let s = [
                 _mm256_div_ps(_mm256_xor_ps(dx, neg), dz),
@@ -566,7 +566,7 @@ mod tests {
     use super::*;
     use crate::sampler::hash_unit as u;
 
-    /// `RayLanes8::along` gives each lane its ray's `WatertightRay`, bit for bit (origin, axes
+    /// `RayLanes8::from_lanes` gives each lane its ray's `WatertightRay`, bit for bit (origin, axes
     /// and shear), for one to eight rays whose directions share their axis, of either sign and
     /// with zero components; rays that do not share it are refused.
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
@@ -594,7 +594,8 @@ mod tests {
                 .collect();
             let rays: Vec<WatertightRay> = dirs.iter().map(|&d| WatertightRay::new(o, Vec3A::from(d))).collect();
             let shared = rays.iter().all(|r| r.k == rays[0].k);
-            let Some(lanes) = RayLanes8::along(o, &dirs) else {
+            let lanes = crate::ray_bundle::Directions8::new(&dirs).and_then(|d| RayLanes8::from_lanes(o, &d));
+            let Some(lanes) = lanes else {
                 assert!(!shared, "bundle {i}: refused rays that share axes {:?}", rays[0].k);
                 refused += 1;
                 continue;

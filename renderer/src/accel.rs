@@ -14,16 +14,16 @@ use crate::math::{Vec3, Vec3A};
 use crate::mesh::Mesh;
 use crate::node_ray::NodeRay;
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-use crate::ray_bundle::RayBundle;
-#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use crate::ray_bundle::Directions8;
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+use crate::ray_bundle::RayBundle;
 use crate::wide_node::WideNode;
 use obvhs::cwbvh::node::CwBvhNode;
 use obvhs::cwbvh::CwBvh;
 
-use crate::triangle::{RtTriangle, TriangleBlocks, WatertightRay, LANES, NO_HIT8};
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use crate::triangle::RayLanes8;
+use crate::triangle::{RtTriangle, TriangleBlocks, WatertightRay, LANES, NO_HIT8};
 use std::mem::MaybeUninit;
 
 #[derive(Clone, Copy, Debug)]
@@ -1140,7 +1140,13 @@ impl Accel {
     /// answers are `bundle_ray`'s, bit for bit (`bundle_answers_are_the_walks`).
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[inline(always)]
-    fn bundle_rays8(&self, groups: &[LeafGroup], rays: &RayLanes8, n: usize, answers: &mut [Option<Option<Hit>>; LANES]) {
+    fn bundle_rays8(
+        &self,
+        groups: &[LeafGroup],
+        rays: &RayLanes8,
+        n: usize,
+        answers: &mut [Option<Option<Hit>>; LANES],
+    ) {
         use std::arch::x86_64::*;
         // SAFETY: AVX2 is enabled at compile time; every slot the groups name exists (they are
         // the BVH's own leaves).
@@ -1155,7 +1161,8 @@ impl Accel {
             let lane_bits = (1u32 << n) - 1;
             let (mut going, mut gave_up) = (lane_bits, 0u32);
             let mut best_t = inf;
-            let (mut best_slot, mut best_b1, mut best_b2) = (_mm256_set1_epi32(-1), _mm256_setzero_ps(), _mm256_setzero_ps());
+            let (mut best_slot, mut best_b1, mut best_b2) =
+                (_mm256_set1_epi32(-1), _mm256_setzero_ps(), _mm256_setzero_ps());
             for &(near, base, prims) in groups {
                 // A ray stops at the first group beginning beyond its best.
                 going &= !(_mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(best_t, _mm256_set1_ps(near))) as u32);
@@ -1172,7 +1179,8 @@ impl Accel {
                     // The window's least t per ray, how many of its slots have it, and the
                     // first of them (a ray keeps it only where it is the only one).
                     let (mut w_t, mut w_count) = (inf, _mm256_setzero_si256());
-                    let (mut w_slot, mut w_b1, mut w_b2) = (_mm256_set1_epi32(-1), _mm256_setzero_ps(), _mm256_setzero_ps());
+                    let (mut w_slot, mut w_b1, mut w_b2) =
+                        (_mm256_set1_epi32(-1), _mm256_setzero_ps(), _mm256_setzero_ps());
                     let mut edge = _mm256_setzero_ps();
                     let mut bits = lanes;
                     while bits != 0 {
@@ -1186,7 +1194,10 @@ impl Accel {
                         // A count restarts at 1 on a lesser t and goes up by 1 on an equal one.
                         let one = _mm256_set1_epi32(1);
                         w_count = _mm256_castps_si256(_mm256_blendv_ps(
-                            _mm256_castsi256_ps(_mm256_add_epi32(w_count, _mm256_and_si256(_mm256_castps_si256(same), one))),
+                            _mm256_castsi256_ps(_mm256_add_epi32(
+                                w_count,
+                                _mm256_and_si256(_mm256_castps_si256(same), one),
+                            )),
                             _mm256_castsi256_ps(one),
                             less,
                         ));
@@ -1200,7 +1211,9 @@ impl Accel {
                         w_b2 = _mm256_blendv_ps(w_b2, r.b2, less);
                     }
                     let edge = _mm256_movemask_ps(edge) as u32;
-                    let shared = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(w_count, _mm256_set1_epi32(1)))) as u32;
+                    let shared =
+                        _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(w_count, _mm256_set1_epi32(1))))
+                            as u32;
                     let ties = _mm256_movemask_ps(_mm256_and_ps(
                         _mm256_cmp_ps::<_CMP_EQ_OQ>(w_t, best_t),
                         _mm256_cmp_ps::<_CMP_NEQ_UQ>(w_t, inf),
@@ -2115,7 +2128,9 @@ mod tests {
         let answer = |groups: &[LeafGroup], o: Vec3A| {
             let ray = WatertightRay::new(o, down);
             let alone = accel.bundle_ray(groups, &ray);
-            let bits = |a: Option<Option<Hit>>| a.map(|h| h.map(|h| (h.t.to_bits(), h.triangle, h.b1.to_bits(), h.b2.to_bits())));
+            let bits = |a: Option<Option<Hit>>| {
+                a.map(|h| h.map(|h| (h.t.to_bits(), h.triangle, h.b1.to_bits(), h.b2.to_bits())))
+            };
             for n in [1, 8] {
                 let mut answers = [Some(None); LANES];
                 let dirs = Directions8::new(&[Vec3::from(down); LANES][..n]).expect("one to eight directions");

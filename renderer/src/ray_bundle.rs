@@ -33,9 +33,10 @@ impl Directions8 {
             return None;
         }
         let mut rows = [[0f32; 8]; 3];
-        for l in 0..8 {
+        let [xs, ys, zs] = &mut rows;
+        for (l, ((x, y), z)) in xs.iter_mut().zip(ys.iter_mut()).zip(zs.iter_mut()).enumerate() {
             let v = d.get(l).copied().unwrap_or(first);
-            (rows[0][l], rows[1][l], rows[2][l]) = (v.x, v.y, v.z);
+            (*x, *y, *z) = (v.x, v.y, v.z);
         }
         // SAFETY: AVX is enabled at compile time; each row is eight floats.
         Some(Directions8 { xyz: rows.map(|r| unsafe { std::arch::x86_64::_mm256_loadu_ps(r.as_ptr()) }) })
@@ -269,9 +270,8 @@ mod tests {
         let u = |k: u64| hash_unit(k);
         let bits = |b: Option<RayBundle>| {
             b.map(|b| {
-                b.axes.map(|a| {
-                    a.map(|a| [a.origin, a.sign, a.inv_least, a.inv_most, a.origin_margin].map(f32::to_bits))
-                })
+                b.axes
+                    .map(|a| a.map(|a| [a.origin, a.sign, a.inv_least, a.inv_most, a.origin_margin].map(f32::to_bits)))
             })
         };
         let mut built = 0;

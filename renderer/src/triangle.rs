@@ -603,9 +603,9 @@ mod tests {
             assert!(shared, "bundle {i}: took rays of different axes");
             assert_eq!((lanes.k, lanes.o.map(f32::to_bits)), (rays[0].k, rays[0].o.map(f32::to_bits)));
             let mut s = [[0f32; LANES]; 3];
-            for a in 0..3 {
+            for (row, lane) in s.iter_mut().zip(lanes.s) {
                 // SAFETY: AVX is enabled at compile time; each row is eight floats.
-                unsafe { std::arch::x86_64::_mm256_storeu_ps(s[a].as_mut_ptr(), lanes.s[a]) };
+                unsafe { std::arch::x86_64::_mm256_storeu_ps(row.as_mut_ptr(), lane) };
             }
             for (l, r) in rays.iter().enumerate() {
                 assert_eq!([s[0][l], s[1][l], s[2][l]].map(f32::to_bits), r.s.map(f32::to_bits), "bundle {i} ray {l}");

@@ -16,6 +16,8 @@
 //! reference a test holds the SIMD one to.
 
 use crate::math::{Vec3, Vec3A};
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+use std::arch::x86_64::__m256;
 
 /// A ray prepared for the watertight test: the axis it points most along becomes z (`kz`), the
 /// other two follow cyclically (`kx`, `ky`), and the shear (sx, sy, sz) maps the direction to
@@ -398,36 +400,12 @@ impl TriangleBlocks {
             let z = _mm256_sub_ps(load(j, kz), oz);
             (_mm256_add_ps(x, _mm256_mul_ps(sx, z)), _mm256_add_ps(y, _mm256_mul_ps(sy, z)), z)
         };
-        let (a, b, c) = (rel(0), rel(1), rel(2));
-        let cross =
-            |p: __m256, q: __m256, r: __m256, s: __m256| _mm256_sub_ps(_mm256_mul_ps(p, q), _mm256_mul_ps(r, s));
-        let e0 = cross(b.0, c.1, b.1, c.0);
-        let e1 = cross(c.0, a.1, c.1, a.0);
-        let e2 = cross(a.0, b.1, a.1, b.0);
-        let zero = _mm256_setzero_ps();
         let bit = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
         let active =
             _mm256_castsi256_ps(_mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(lanes as i32), bit), bit));
-        let eq0 = |e: __m256| _mm256_cmp_ps::<_CMP_EQ_OQ>(e, zero);
-        let on_edge = _mm256_or_ps(eq0(e0), _mm256_or_ps(eq0(e1), eq0(e2)));
-        let on_edge = _mm256_movemask_ps(_mm256_and_ps(on_edge, active)) as u32;
-        let lt = |e: __m256| _mm256_cmp_ps::<_CMP_LT_OQ>(e, zero);
-        let gt = |e: __m256| _mm256_cmp_ps::<_CMP_GT_OQ>(e, zero);
-        let any_neg = _mm256_or_ps(lt(e0), _mm256_or_ps(lt(e1), lt(e2)));
-        let any_pos = _mm256_or_ps(gt(e0), _mm256_or_ps(gt(e1), gt(e2)));
-        let det = _mm256_add_ps(_mm256_add_ps(e0, e1), e2);
-        let sz = _mm256_set1_ps(r.s[2]);
-        let t_scaled = _mm256_add_ps(
-            _mm256_add_ps(_mm256_mul_ps(e0, _mm256_mul_ps(sz, a.2)), _mm256_mul_ps(e1, _mm256_mul_ps(sz, b.2))),
-            _mm256_mul_ps(e2, _mm256_mul_ps(sz, c.2)),
-        );
-        let inv = _mm256_div_ps(_mm256_set1_ps(1.0), det);
-        let t = _mm256_mul_ps(t_scaled, inv);
-        let ok = _mm256_andnot_ps(_mm256_and_ps(any_neg, any_pos), active);
-        let ok = _mm256_andnot_ps(eq0(det), ok);
-        let ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GT_OQ>(t, zero));
-        let ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(t, _mm256_set1_ps(tmax)));
-        Lanes8 { hit: ok, on_edge, t, e1, e2, inv }
+        let w = watertight8((rel(0), rel(1), rel(2)), _mm256_set1_ps(r.s[2]), _mm256_set1_ps(tmax));
+        let on_edge = _mm256_movemask_ps(_mm256_and_ps(w.on_edge, active)) as u32;
+        Lanes8 { hit: _mm256_and_ps(w.hit, active), on_edge, t: w.t, e1: w.e1, e2: w.e2, inv: w.inv }
     }
 }
 
@@ -507,31 +485,14 @@ impl TriangleBlocks {
             let z = _mm256_set1_ps(rows[3 * j + kz][lane] - r.o[2]);
             (_mm256_add_ps(x, _mm256_mul_ps(sx, z)), _mm256_add_ps(y, _mm256_mul_ps(sy, z)), z)
         };
-        let (a, b, c) = (rel(0), rel(1), rel(2));
-        let cross =
-            |p: __m256, q: __m256, r: __m256, s: __m256| _mm256_sub_ps(_mm256_mul_ps(p, q), _mm256_mul_ps(r, s));
-        let e0 = cross(b.0, c.1, b.1, c.0);
-        let e1 = cross(c.0, a.1, c.1, a.0);
-        let e2 = cross(a.0, b.1, a.1, b.0);
-        let zero = _mm256_setzero_ps();
-        let eq0 = |e: __m256| _mm256_cmp_ps::<_CMP_EQ_OQ>(e, zero);
-        let on_edge = _mm256_or_ps(eq0(e0), _mm256_or_ps(eq0(e1), eq0(e2)));
-        let lt = |e: __m256| _mm256_cmp_ps::<_CMP_LT_OQ>(e, zero);
-        let gt = |e: __m256| _mm256_cmp_ps::<_CMP_GT_OQ>(e, zero);
-        let any_neg = _mm256_or_ps(lt(e0), _mm256_or_ps(lt(e1), lt(e2)));
-        let any_pos = _mm256_or_ps(gt(e0), _mm256_or_ps(gt(e1), gt(e2)));
-        let det = _mm256_add_ps(_mm256_add_ps(e0, e1), e2);
-        let t_scaled = _mm256_add_ps(
-            _mm256_add_ps(_mm256_mul_ps(e0, _mm256_mul_ps(sz, a.2)), _mm256_mul_ps(e1, _mm256_mul_ps(sz, b.2))),
-            _mm256_mul_ps(e2, _mm256_mul_ps(sz, c.2)),
-        );
-        let inv = _mm256_div_ps(_mm256_set1_ps(1.0), det);
-        let t = _mm256_mul_ps(t_scaled, inv);
-        let ok = _mm256_andnot_ps(_mm256_and_ps(any_neg, any_pos), _mm256_castsi256_ps(_mm256_set1_epi32(-1)));
-        let ok = _mm256_andnot_ps(eq0(det), ok);
-        let ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GT_OQ>(t, zero));
-        let hit = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(t, tmax));
-        SlotRays8 { hit, on_edge, t, b1: _mm256_mul_ps(e1, inv), b2: _mm256_mul_ps(e2, inv) }
+        let w = watertight8((rel(0), rel(1), rel(2)), sz, tmax);
+        SlotRays8 {
+            hit: w.hit,
+            on_edge: w.on_edge,
+            t: w.t,
+            b1: _mm256_mul_ps(w.e1, w.inv),
+            b2: _mm256_mul_ps(w.e2, w.inv),
+        }
     }
 }
 
@@ -546,6 +507,57 @@ pub struct SlotRays8 {
     pub t: std::arch::x86_64::__m256,
     pub b1: std::arch::x86_64::__m256,
     pub b2: std::arch::x86_64::__m256,
+}
+
+/// A vertex moved into the rays' frame (`RtTriangle::intersect`'s `rel`), eight lanes: x, y, z.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+type Vertex8 = (__m256, __m256, __m256);
+
+/// Eight lanes of `RtTriangle::intersect` from the transformed vertices on: the edge functions,
+/// the inside test, distance and 1/det, operation for operation (multiply then subtract, no fused
+/// multiply-add), each lane stopping at its lane of `tmax`. `hit` and `on_edge` are lane masks,
+/// for every lane (the callers mask the lanes they test); `hit` is meaningless where `on_edge`.
+///
+/// # Safety
+/// AVX2 must be available (it is enabled at compile time where this is compiled).
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[inline(always)]
+unsafe fn watertight8((a, b, c): (Vertex8, Vertex8, Vertex8), sz: __m256, tmax: __m256) -> Watertight8 {
+    use std::arch::x86_64::*;
+    let cross = |p: __m256, q: __m256, r: __m256, s: __m256| _mm256_sub_ps(_mm256_mul_ps(p, q), _mm256_mul_ps(r, s));
+    let e0 = cross(b.0, c.1, b.1, c.0);
+    let e1 = cross(c.0, a.1, c.1, a.0);
+    let e2 = cross(a.0, b.1, a.1, b.0);
+    let zero = _mm256_setzero_ps();
+    let eq0 = |e: __m256| _mm256_cmp_ps::<_CMP_EQ_OQ>(e, zero);
+    let on_edge = _mm256_or_ps(eq0(e0), _mm256_or_ps(eq0(e1), eq0(e2)));
+    let lt = |e: __m256| _mm256_cmp_ps::<_CMP_LT_OQ>(e, zero);
+    let gt = |e: __m256| _mm256_cmp_ps::<_CMP_GT_OQ>(e, zero);
+    let any_neg = _mm256_or_ps(lt(e0), _mm256_or_ps(lt(e1), lt(e2)));
+    let any_pos = _mm256_or_ps(gt(e0), _mm256_or_ps(gt(e1), gt(e2)));
+    let det = _mm256_add_ps(_mm256_add_ps(e0, e1), e2);
+    let t_scaled = _mm256_add_ps(
+        _mm256_add_ps(_mm256_mul_ps(e0, _mm256_mul_ps(sz, a.2)), _mm256_mul_ps(e1, _mm256_mul_ps(sz, b.2))),
+        _mm256_mul_ps(e2, _mm256_mul_ps(sz, c.2)),
+    );
+    let inv = _mm256_div_ps(_mm256_set1_ps(1.0), det);
+    let t = _mm256_mul_ps(t_scaled, inv);
+    let ok = _mm256_andnot_ps(_mm256_and_ps(any_neg, any_pos), _mm256_castsi256_ps(_mm256_set1_epi32(-1)));
+    let ok = _mm256_andnot_ps(eq0(det), ok);
+    let ok = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_GT_OQ>(t, zero));
+    let hit = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LT_OQ>(t, tmax));
+    Watertight8 { hit, on_edge, t, e1, e2, inv }
+}
+
+/// What [`watertight8`] found, lane by lane.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+struct Watertight8 {
+    hit: __m256,
+    on_edge: __m256,
+    t: __m256,
+    e1: __m256,
+    e2: __m256,
+    inv: __m256,
 }
 
 /// What [`TriangleBlocks::lanes_avx2`] found: the lanes hit (meaningless where `on_edge` is set:

@@ -1152,11 +1152,6 @@ impl Accel {
         // the BVH's own leaves).
         unsafe {
             let inf = _mm256_set1_ps(f32::INFINITY);
-            // The lanes of the rays in `bits`, as a mask.
-            let lane_mask = |bits: u32| {
-                let bit = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
-                _mm256_castsi256_ps(_mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(bits as i32), bit), bit))
-            };
             // The rays still going, and those that gave up (their walks answer them).
             let lane_bits = (1u32 << n) - 1;
             let (mut going, mut gave_up) = (lane_bits, 0u32);
@@ -1221,7 +1216,8 @@ impl Accel {
                     let quit = going & (edge | shared | ties);
                     gave_up |= quit;
                     going &= !quit;
-                    let take = _mm256_and_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(w_t, best_t), lane_mask(going));
+                    let take =
+                        _mm256_and_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(w_t, best_t), crate::lanes::M8::from_bits(going).0);
                     best_t = _mm256_blendv_ps(best_t, w_t, take);
                     best_slot = _mm256_castps_si256(_mm256_blendv_ps(
                         _mm256_castsi256_ps(best_slot),
@@ -2124,7 +2120,7 @@ mod tests {
         let group = |slots: &[usize]| (0.0f32, 0u32, slots.iter().fold(0u32, |m, &s| m | 1 << s));
         let down = Vec3A::new(0.0, -1.0, 0.0);
         // Each answer from `bundle_ray` and from `bundle_rays8`, which must agree: the ray alone
-        // in lane 0, and in lane 5 of eight rays that all give the same answer.
+        // in lane 0, and in every lane of eight copies of it.
         let answer = |groups: &[LeafGroup], o: Vec3A| {
             let ray = WatertightRay::new(o, down);
             let alone = accel.bundle_ray(groups, &ray);

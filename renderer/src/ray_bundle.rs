@@ -72,7 +72,8 @@ const WIDEN: f32 = 1e-4;
 
 impl RayBundle {
     /// The bundle of rays from `origin` along `directions`; None when it is empty or a value is
-    /// not finite (the one-ray walk's own answer for those is left to it).
+    /// not finite (the one-ray walk's own answer for those is left to it). The reference
+    /// [`Self::from_lanes`], the form `Accel::intersect_bundle` builds, is held to.
     pub fn new(origin: Vec3, directions: &[Vec3]) -> Option<Self> {
         let first = *directions.first()?;
         if !directions.iter().all(|d| d.is_finite()) {

@@ -630,16 +630,17 @@ pub fn radiance8(
         // BSDF's sample, which does not read them, so the chosen lights' records (asked of the
         // cache as they are chosen: `LightSet::select_batch`) arrive while it is computed.
         let nee = act & M8::from_bits(nee_bits);
-        let (mut lane, mut count) = ([0u8; LANES], 0);
+        // The NEE lanes in order, and the light each chose (`selected[..chose]`).
+        let (mut nee_lane, mut chose) = ([0u8; LANES], 0);
         let mut selected = [None; LANES];
         if nee.any() {
             let u_sel = u_light[(dims::LIGHT_SELECT % 4) as usize];
             let (mut qp, mut qn, mut qu) = ([Vec3::ZERO; LANES], [None; LANES], [0f32; LANES]);
             for k in lanes_of(nee.bits()) {
-                (lane[count], qp[count], qn[count], qu[count]) = (k as u8, p[k], Some(ns_flipped[k]), u_sel[k]);
-                count += 1;
+                (nee_lane[chose], qp[chose], qn[chose], qu[chose]) = (k as u8, p[k], Some(ns_flipped[k]), u_sel[k]);
+                chose += 1;
             }
-            scene.lights.select_batch(&qp[..count], &qn[..count], &qu[..count], &mut selected[..count]);
+            scene.lights.select_batch(&qp[..chose], &qn[..chose], &qu[..chose], &mut selected[..chose]);
         }
 
         // BSDF sample, drawn before NEE as the scalar path does.
@@ -690,8 +691,8 @@ pub fn radiance8(
             let (mut olane, mut ocount) = ([0u8; LANES], 0);
             let (mut oref, mut ochoice, mut ou) =
                 ([Vec3::ZERO; LANES], [None; LANES], [crate::math::Vec2::ZERO; LANES]);
-            for (j, &choice) in selected[..count].iter().enumerate() {
-                let k = lane[j] as usize;
+            for (j, &choice) in selected[..chose].iter().enumerate() {
+                let k = nee_lane[j] as usize;
                 let Some((idx, pmf)) = choice else { continue };
                 let Some(light) = scene.lights.lights.get(idx) else {
                     let u = crate::math::Vec2::new(u_pos.0[k], u_pos.1[k]);

@@ -400,9 +400,7 @@ impl TriangleBlocks {
             let z = _mm256_sub_ps(load(j, kz), oz);
             (_mm256_add_ps(x, _mm256_mul_ps(sx, z)), _mm256_add_ps(y, _mm256_mul_ps(sy, z)), z)
         };
-        let bit = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
-        let active =
-            _mm256_castsi256_ps(_mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(lanes as i32), bit), bit));
+        let active = crate::lanes::M8::from_bits(lanes).0;
         let w = watertight8((rel(0), rel(1), rel(2)), _mm256_set1_ps(r.s[2]), _mm256_set1_ps(tmax));
         let on_edge = _mm256_movemask_ps(_mm256_and_ps(w.on_edge, active)) as u32;
         Lanes8 { hit: _mm256_and_ps(w.hit, active), on_edge, t: w.t, e1: w.e1, e2: w.e2, inv: w.inv }

@@ -167,7 +167,8 @@ struct Family {
     cos_o: [f32; 8],
     sin_o: [f32; 8],
     cos_e: [f32; 8],
-    /// All bits set in a two-sided lane.
+    /// The sign bit (−0.0) in a two-sided lane, 0 in a one-sided one: AND-NOT with it is the
+    /// reference's `abs()` of w·v where the bounds are two-sided, in one operation.
     two_sided: [u32; 8],
 }
 
@@ -188,7 +189,7 @@ impl Family {
             f.cos_o[l] = x.cos_theta_o;
             f.sin_o[l] = safe_sqrt(1.0 - x.cos_theta_o * x.cos_theta_o);
             f.cos_e[l] = x.cos_theta_e;
-            f.two_sided[l] = if x.two_sided { u32::MAX } else { 0 };
+            f.two_sided[l] = if x.two_sided { (-0.0f32).to_bits() } else { 0 };
         }
         f
     }
@@ -233,7 +234,7 @@ impl Family {
         let phi_d2 = _mm256_mul_ps(ld(&self.phi), _mm256_min_ps(inv_dist2, ld(&self.inv_half_diag)));
         let cos_w = dot(ld(&self.w[0]), ld(&self.w[1]), ld(&self.w[2]), vx, vy, vz);
         let two_sided = _mm256_castsi256_ps(_mm256_load_si256(self.two_sided.as_ptr() as *const __m256i));
-        let cos_w = select(two_sided, abs(cos_w), cos_w);
+        let cos_w = _mm256_andnot_ps(two_sided, cos_w);
         // −(a·b) + c rounded once (VFNMADD) is (−a).mul_add(b, c).
         let sin_w = safe_sqrt(_mm256_fnmadd_ps(cos_w, cos_w, dist2));
         let cos_b2 = _mm256_fnmadd_ps(half_diag, half_diag, dist2);
@@ -256,7 +257,9 @@ impl Family {
             let sin_i = safe_sqrt(_mm256_fnmadd_ps(cos_i, cos_i, dist2));
             imp = _mm256_mul_ps(imp, cos_sub(sin_i, cos_i, inside));
         }
-        let finite = _mm256_cmp_ps::<_CMP_LT_OQ>(abs(imp), splat(f32::INFINITY));
+        // `is_finite` then max(·, 0): below +∞ (false for a NaN), and VMAXPS returns its second
+        // operand, 0, for a NaN; −∞ is below +∞ and its max with 0 is 0, as the reference's.
+        let finite = _mm256_cmp_ps::<_CMP_LT_OQ>(imp, splat(f32::INFINITY));
         _mm256_and_ps(_mm256_and_ps(lit, finite), _mm256_max_ps(imp, zero))
     }
 }

@@ -573,41 +573,57 @@ impl LightTree {
     #[inline(always)]
     unsafe fn walks(&self, p: &[Vec3], n: &[Option<Vec3>], u: &[f32], out: &mut [Option<(usize, f32)>]) {
         use std::arch::x86_64::{__m256, _mm256_setzero_ps};
-        let count = p.len().min(MAX_WALKS);
+        let count = p.len().min(n.len()).min(u.len()).min(out.len()).min(MAX_WALKS);
+        // The walks' state in arrays of MAX_WALKS, indexed by `k & LAST` (k < count ≤
+        // MAX_WALKS, so the mask changes nothing): the compiler sees every index in bounds
+        // and drops the checks a level's two passes paid for each walk.
+        const LAST: usize = MAX_WALKS - 1;
         let (mut at, mut pmf, mut rest) = ([0usize; MAX_WALKS], [1.0f32; MAX_WALKS], [0f32; MAX_WALKS]);
+        let (mut points, mut normals) = ([Vec3::ZERO; MAX_WALKS], [Vec3::ZERO; MAX_WALKS]);
+        let mut found = [None; MAX_WALKS];
         let mut live = [0u8; MAX_WALKS];
         for k in 0..count {
-            rest[k] = u[k];
+            (rest[k], points[k], normals[k]) = (u[k], p[k], n[k].unwrap_or(Vec3::ZERO));
             live[k] = k as u8;
         }
+        // Shading points have normals: then the family's evaluation is the one with a normal,
+        // chosen once for the batch rather than asked at every level of every walk.
+        let with_normals = n[..count].iter().all(Option::is_some);
         let mut imp: [__m256; MAX_WALKS] = [_mm256_setzero_ps(); MAX_WALKS];
         let mut alive = count;
         while alive > 0 {
             for j in 0..alive {
-                let k = live[j] as usize;
+                let k = live[j & LAST] as usize & LAST;
+                let family = &self.nodes[at[k]].family;
                 // SAFETY: AVX2 (the caller's contract); the family's loads are 32-byte aligned.
-                imp[j] = unsafe { self.nodes[at[k]].family.importance_avx(p[k], n[k]) };
+                imp[j & LAST] = unsafe {
+                    match with_normals {
+                        true => family.importance_avx(points[k], Some(normals[k])),
+                        false => family.importance_avx(points[k], n.get(k).copied().flatten()),
+                    }
+                };
             }
             let mut still = 0;
             for j in 0..alive {
-                let k = live[j] as usize;
+                let k = live[j & LAST] as usize & LAST;
                 // SAFETY: as above.
-                let Some((slot, prob, r)) = (unsafe { choose_avx(imp[j], rest[k]) }) else {
-                    out[k] = None;
+                let Some((slot, prob, r)) = (unsafe { choose_avx(imp[j & LAST], rest[k]) }) else {
+                    found[k] = None;
                     continue;
                 };
                 rest[k] = r;
                 match self.descend(at[k], slot, prob, &mut pmf[k]) {
-                    Err(found) => out[k] = found,
+                    Err(answer) => found[k] = answer,
                     Ok(child) => {
                         at[k] = child;
-                        live[still] = k as u8;
+                        live[still & LAST] = k as u8;
                         still += 1;
                     }
                 }
             }
             alive = still;
         }
+        out[..count].copy_from_slice(&found[..count]);
     }
 
     /// The walk from the root: `pick(node, u)` chooses a slot of `node` (slot, probability,

@@ -810,7 +810,8 @@ mod tests {
     }
 
     /// `sample_batch` gives each point `sample`'s answer, bit for bit: batches of 1 to 40 (more
-    /// than `MAX_WALKS`, so walks go in groups), points with and without a normal, points every
+    /// than `MAX_WALKS`, so walks go in groups), points with and without a normal (and every
+    /// batch again with a normal at each point, the form the kernel's batches take), points every
     /// light faces away from (None) among the rest, and trees deep enough for walks to end at
     /// different levels.
     #[test]
@@ -840,19 +841,24 @@ mod tests {
             let p: Vec<_> = pts.iter().map(|x| x.0).collect();
             let n: Vec<_> = pts.iter().map(|x| x.1).collect();
             let u: Vec<_> = pts.iter().map(|x| x.2).collect();
-            let mut out = vec![Some((usize::MAX, -1.0)); count];
-            tree.sample_batch(&p, &n, &u, &mut out);
-            for k in 0..count {
-                let alone = tree.sample(p[k], n[k], u[k]);
-                assert_eq!(
-                    out[k].map(|(l, pmf)| (l, pmf.to_bits())),
-                    alone.map(|(l, pmf)| (l, pmf.to_bits())),
-                    "batch of {count}, point {k}"
-                );
-                if alone.is_some() {
-                    some += 1
-                } else {
-                    none += 1
+            // Each batch as drawn (some points without a normal: the walks ask per point) and with
+            // a normal at every point (the kernel's batches: the evaluation chosen once).
+            let n_all: Vec<_> = n.iter().map(|x| Some(x.unwrap_or(Vec3::Y))).collect();
+            for n in [&n, &n_all] {
+                let mut out = vec![Some((usize::MAX, -1.0)); count];
+                tree.sample_batch(&p, n, &u, &mut out);
+                for k in 0..count {
+                    let alone = tree.sample(p[k], n[k], u[k]);
+                    assert_eq!(
+                        out[k].map(|(l, pmf)| (l, pmf.to_bits())),
+                        alone.map(|(l, pmf)| (l, pmf.to_bits())),
+                        "batch of {count}, point {k}"
+                    );
+                    if alone.is_some() {
+                        some += 1
+                    } else {
+                        none += 1
+                    }
                 }
             }
         }

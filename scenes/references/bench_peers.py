@@ -6,6 +6,7 @@
     python3 scenes/references/bench_peers.py [--spp 64] [--runs 3] [--variants scalar_rgb llvm_ad_rgb] [scenes...]
     python3 scenes/references/bench_peers.py --before /tmp/tessera-before ...   # before and after in one command
     python3 scenes/references/bench_peers.py --threads 1 ...   # per core: one thread for every renderer
+    python3 scenes/references/bench_peers.py --equal-strategy ...   # the same paths: light choice by power, no roulette
 
 For each scene with a Mitsuba reference (make_references.py) it renders, at the reference's resolution
 and `--spp`, with `tessera render` (default settings: mis, Sobol; the render time Tessera reports,
@@ -80,8 +81,22 @@ def main():
                          "that bounce (Tessera only below a throughput of 1/4, Mitsuba below 0.95), so their "
                          "paths differ in length; 65 or more turns it off for both, and paths/s then compares "
                          "paths ended by the same rule (escape, absorption, the depth limit)")
+    ap.add_argument("--equal-strategy", action="store_true",
+                    help="every renderer traces the same paths by the same rules, so paths/s compares the "
+                         "cost of a path alone: Tessera picks NEE's light in proportion to power, as Mitsuba "
+                         "does (--light-sampler power; its default, auto, may pick the light tree), and "
+                         "Russian roulette is off for both (--rr-depth 65 unless --rr-depth is given), so "
+                         "paths end where they escape, are absorbed or reach the depth limit. Tessera's "
+                         "defaults trade paths/s for efficiency (longer paths, the tree); this measures "
+                         "the per-path speed those choices spend")
     ap.add_argument("scenes", nargs="*", default=list(mr.SCENES))
     a = ap.parse_args()
+    if a.equal_strategy:
+        if "--light-sampler" in a.tessera_args.split():
+            ap.error("--equal-strategy sets Tessera's --light-sampler itself")
+        a.tessera_args = f"{a.tessera_args} --light-sampler power"
+        if a.rr_depth is None:
+            a.rr_depth = 65
     if a.rr_depth is not None:
         if a.rr_depth < 0:
             ap.error("--rr-depth must be at least 0")
@@ -177,6 +192,7 @@ def main():
         base_raw = 1.0 / (rows[0][1] * rows[0][2])
         threads = f", {a.threads} thread{'s' if a.threads > 1 else ''}" if a.threads else ""
         threads += f", roulette from bounce {a.rr_depth}" if a.rr_depth is not None else ""
+        threads += ", equal strategy (Tessera: --light-sampler power)" if a.equal_strategy else ""
         print(f"\n{name} ({w}x{h}, {a.spp} spp{threads}, median of {a.runs} runs; the reference's own relMSE "
               f"{own:.2e}, subtracted)")
         print(f"{'renderer':<22} {'seconds':>8} {'Mpaths/s':>9} {'raw relMSE':>10} {'relMSE':>10} {'efficiency':>11} "

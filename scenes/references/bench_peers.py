@@ -92,7 +92,7 @@ def main():
     ap.add_argument("scenes", nargs="*", default=list(mr.SCENES))
     a = ap.parse_args()
     if a.equal_strategy:
-        if "--light-sampler" in a.tessera_args.split():
+        if any(arg.split("=")[0] == "--light-sampler" for arg in a.tessera_args.split()):
             ap.error("--equal-strategy sets Tessera's --light-sampler itself")
         a.tessera_args = f"{a.tessera_args} --light-sampler power"
         if a.rr_depth is None:

@@ -70,18 +70,24 @@ impl ClearBox {
         if inside {
             return tmax;
         }
+        match self.entry(o, d) {
+            Some(near) if near < tmax => near,
+            _ => tmax,
+        }
+    }
+
+    /// Where a ray from `o` (outside the box) along `d` enters the box; None when it misses it
+    /// or starts inside or on it.
+    #[inline]
+    pub fn entry(&self, o: Vec3, d: Vec3) -> Option<f32> {
         // The slab test (Kay and Kajiya 1986): the entry is the latest of the three axes' nearer
         // plane crossings. An axis the ray runs parallel to gives ±∞ (or NaN for an origin on
-        // its plane, which `max` passes over); a ray that misses the box keeps its tmax.
+        // its plane, which `max` passes over).
         let inv = d.recip();
         let (a, b) = ((self.lo - o) * inv, (self.hi - o) * inv);
         let near = a.min(b).max_element();
         let far = a.max(b).min_element();
-        if near > 0.0 && near <= far && near < tmax {
-            near
-        } else {
-            tmax
-        }
+        (near > 0.0 && near <= far).then_some(near)
     }
 }
 

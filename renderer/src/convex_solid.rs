@@ -265,7 +265,7 @@ pub(crate) fn key(v: Vec3) -> [u32; 3] {
 }
 
 /// Whether every edge of `tris` (by vertex positions) belongs to exactly two of them.
-fn closed(mesh: &Mesh, tris: &[u32]) -> bool {
+pub(crate) fn closed(mesh: &Mesh, tris: &[u32]) -> bool {
     let mut edges: HashMap<([u32; 3], [u32; 3]), u32> = HashMap::with_capacity(tris.len() * 3 / 2);
     for &t in tris {
         let v = mesh.vertices(t).map(key);

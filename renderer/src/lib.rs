@@ -30,6 +30,7 @@ pub mod animation;
 pub mod bsdf;
 pub mod bsdf8;
 pub mod budget;
+pub mod bulb;
 pub mod bundle;
 pub mod bvh;
 pub mod camera;

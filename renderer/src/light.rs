@@ -1,8 +1,10 @@
 //! Emissive triangles as area lights. A light is chosen in proportion to its power with an alias
 //! table, then a point is sampled uniformly by area and the area pdf is converted to solid angle
-//! (pbrt-v4 §12.2 and §12.5; Veach 1997 §9).
+//! (pbrt-v4 §12.2 and §12.5; Veach 1997 §9). Closed convex emitters are one light each, a
+//! [`Bulb`], sampled by the cone of directions their ball subtends (`bulb`).
 
 use crate::alias::AliasTable;
+use crate::bulb::{Bulb, BulbHit};
 use crate::environment::{Environment, MapPoint};
 use crate::light_tree::{LightBounds, LightTree, MAX_WALKS};
 use crate::material::Material;
@@ -53,12 +55,19 @@ pub struct LightSample {
 
 #[derive(Default)]
 pub struct LightSet {
+    /// Every emissive triangle NEE may sample: the first `area_count` are lights of their own,
+    /// the rest the bulbs' triangles, each bulb's together in its `triangles` order.
     pub lights: Vec<AreaLight>,
+    area_count: usize,
+    /// Closed convex emitters, one light each: entries `area_count .. area_count + bulbs.len()`
+    /// of the selection table...
+    bulbs: Vec<Bulb>,
+    /// ...and, for each record from `area_count` on, its bulb.
+    bulb_of: Vec<u32>,
     selection: AliasTable,
     /// For each scene triangle, its light index or `u32::MAX`.
     triangle_light: Vec<u32>,
-    /// Punctual (delta) lights: entries `lights.len() .. lights.len() + punctual.len()` of the
-    /// selection table.
+    /// Punctual (delta) lights: the selection table's entries after the bulbs'.
     pub punctual: Vec<PunctualLight>,
     /// The environment, if the scene has one. When it is importance-sampled it is the last entry of
     /// the selection table.
@@ -149,8 +158,8 @@ impl LightSet {
         environment: Option<Environment>,
         scene_radius: f32,
     ) -> Self {
-        let mut lights = Vec::new();
-        let mut power = Vec::new();
+        let mut records = Vec::new();
+        let mut record_power = Vec::new();
         let mut triangle_light = vec![u32::MAX; mesh.triangles.len()];
         for (i, t) in mesh.triangles.iter().enumerate() {
             let m = &materials[t.material as usize];
@@ -167,10 +176,10 @@ impl LightSet {
             if !(p > 0.0) {
                 continue;
             }
-            triangle_light[i] = lights.len() as u32;
+            triangle_light[i] = records.len() as u32;
             let [p0, p1, p2] = mesh.vertices(i as u32);
             let (e1, e2) = (p1 - p0, p2 - p0);
-            lights.push(AreaLight {
+            records.push(AreaLight {
                 p0,
                 e1,
                 e2,
@@ -182,7 +191,35 @@ impl LightSet {
                 two_sided: m.double_sided,
                 material: t.material,
             });
-            power.push(p);
+            record_power.push(p);
+        }
+        // The bulbs among them (untextured emission: a cone sample reads no texture
+        // coordinates); the other triangles stay lights of their own, in scene order, first.
+        let candidates: Vec<(u32, f32)> = records.iter().map(|l| (l.triangle, l.area)).collect();
+        let bulbs =
+            Bulb::find(mesh, &candidates, |m| materials.get(m as usize).is_some_and(|m| m.emissive_texture.is_none()));
+        let mut member = vec![false; records.len()];
+        for bulb in &bulbs {
+            for &t in &bulb.triangles {
+                member[triangle_light[t as usize] as usize] = true;
+            }
+        }
+        let mut lights: Vec<AreaLight> = records.iter().zip(&member).filter(|(_, &m)| !m).map(|(l, _)| *l).collect();
+        let mut power: Vec<f32> = record_power.iter().zip(&member).filter(|(_, &m)| !m).map(|(p, _)| *p).collect();
+        let area_count = lights.len();
+        let mut bulb_of = Vec::new();
+        for (b, bulb) in bulbs.iter().enumerate() {
+            let mut sum = 0.0f64;
+            for &t in &bulb.triangles {
+                let r = triangle_light[t as usize] as usize;
+                lights.push(records[r]);
+                bulb_of.push(b as u32);
+                sum += record_power[r] as f64;
+            }
+            power.push(sum as f32);
+        }
+        for (r, l) in lights.iter().enumerate() {
+            triangle_light[l.triangle as usize] = r as u32;
         }
         let punctual: Vec<PunctualLight> =
             punctual.into_iter().filter(|p| p.power(scene_radius.max(1e-3)) > 0.0).collect();
@@ -195,10 +232,24 @@ impl LightSet {
         }
         let selection = AliasTable::new(&power).unwrap_or_default();
         let (clear_boxes, clear_of) = crate::clear_box::find(mesh, &lights);
+        // A bulb whose triangles all have one clear box is isolated: its sure directions' shadow
+        // rays end at that box.
+        let mut bulbs = bulbs;
+        let mut first = area_count;
+        for bulb in &mut bulbs {
+            let of = &clear_of[first..first + bulb.triangles.len()];
+            if let Some(&b) = of.first().filter(|&&b| b != crate::clear_box::NONE && of.iter().all(|&o| o == b)) {
+                bulb.clear = clear_boxes.get(b as usize).copied();
+            }
+            first += bulb.triangles.len();
+        }
         LightSet {
             clear_boxes,
             clear_of,
             lights,
+            area_count,
+            bulbs,
+            bulb_of,
             selection,
             triangle_light,
             punctual,
@@ -222,9 +273,31 @@ impl LightSet {
         }
     }
 
-    /// Finite lights (area lights, point and spot lights): what a tree would be built over.
+    /// Finite lights (area lights, bulbs, point and spot lights): what a tree would be built over.
     pub fn finite_count(&self) -> usize {
-        self.lights.len() + self.punctual.iter().filter(|p| p.kind != PunctualKind::Directional).count()
+        self.bulbs_end() + self.punctual.iter().filter(|p| p.kind != PunctualKind::Directional).count()
+    }
+
+    /// The selection index after the last bulb's (the first punctual light's).
+    #[inline(always)]
+    fn bulbs_end(&self) -> usize {
+        self.area_count + self.bulbs.len()
+    }
+
+    /// The area light of selection index `idx`, if it is one (a triangle that is a light of its
+    /// own, not a bulb's).
+    #[inline(always)]
+    pub fn area_light(&self, idx: usize) -> Option<&AreaLight> {
+        if idx < self.area_count {
+            self.lights.get(idx)
+        } else {
+            None
+        }
+    }
+
+    /// How many bulbs (closed convex emitters sampled as one light) the set holds.
+    pub fn bulb_count(&self) -> usize {
+        self.bulbs.len()
     }
 
     /// Switches the selection strategy; `Tree` builds the light BVH (only when there are at least
@@ -243,7 +316,7 @@ impl LightSet {
         self.infinite.clear();
         let mut bounds = Vec::new();
         for g in 0..n {
-            let b = if g < self.lights.len() {
+            let b = if g < self.area_count {
                 let l = &self.lights[g];
                 let [a, b, c] = mesh.vertices(l.triangle);
                 let ng = (b - a).cross(c - a).normalize_or_zero();
@@ -256,8 +329,20 @@ impl LightSet {
                     cos_theta_e: 0.0,
                     two_sided: l.two_sided,
                 })
+            } else if g < self.bulbs_end() {
+                // A bulb emits every way from within its box, as a point light does from its point.
+                let bulb = &self.bulbs[g - self.area_count];
+                Some(LightBounds {
+                    min: bulb.lo,
+                    max: bulb.hi,
+                    phi: self.selection.pmf(g),
+                    w: Vec3::Y,
+                    cos_theta_o: -1.0,
+                    cos_theta_e: 0.0,
+                    two_sided: false,
+                })
             } else if g < self.environment_index() {
-                let p = &self.punctual[g - self.lights.len()];
+                let p = &self.punctual[g - self.bulbs_end()];
                 match p.kind {
                     PunctualKind::Directional => None,
                     PunctualKind::Point => Some(LightBounds {
@@ -350,11 +435,11 @@ impl LightSet {
     /// Asked for all of a batch's picks first, the misses overlap.
     #[inline(always)]
     fn prefetch_light(&self, g: usize) {
-        if let Some(light) = self.lights.get(g) {
+        if let Some(light) = self.area_light(g) {
             crate::accel::prefetch_record(light);
-        }
-        if let Some(b) = self.clear_of.get(g) {
-            crate::accel::prefetch_record(b);
+            if let Some(b) = self.clear_of.get(g) {
+                crate::accel::prefetch_record(b);
+            }
         }
     }
 
@@ -467,7 +552,7 @@ impl LightSet {
     }
 
     fn environment_index(&self) -> usize {
-        self.lights.len() + self.punctual.len()
+        self.bulbs_end() + self.punctual.len()
     }
 
     /// True when next-event estimation has nothing to sample.
@@ -525,8 +610,38 @@ impl LightSet {
         u: Vec2,
     ) -> Option<LightSample> {
         let (idx, pmf) = selected?;
-        if idx >= self.lights.len() && idx < self.environment_index() {
-            let (wi, dist, e) = self.punctual[idx - self.lights.len()].illuminate(reference)?;
+        if idx >= self.area_count && idx < self.bulbs_end() {
+            let bulb = &self.bulbs[idx - self.area_count];
+            let at = match bulb.sample(reference, u)? {
+                BulbHit::Point(at) => at,
+                BulbHit::Along { d, t } => {
+                    // The near side of a uniform, isolated bulb: its radiance, and a shadow ray
+                    // that stops where the direction enters the bulb's box (aimed at the point
+                    // there, its normal facing back, as at an area light's surface).
+                    let m = materials.get(bulb.material as usize)?;
+                    let pdf = pmf * bulb.pdf(reference, reference, Vec3::ZERO);
+                    return (pdf > 0.0 && pdf.is_finite()).then(|| LightSample {
+                        p: reference + d * t,
+                        n: -d,
+                        wi: d,
+                        dist: t,
+                        // Untextured (`Bulb::find`): the emission is the factor.
+                        le: m.emissive,
+                        pdf,
+                        delta: false,
+                        light: crate::clear_box::NONE,
+                    });
+                }
+            };
+            let r = *self.triangle_light.get(at.triangle as usize)? as usize;
+            let light = self.lights.get(r)?;
+            let p = light.p0 + light.e1 * at.b1 + light.e2 * at.b2;
+            return self.surface_sample(materials, textures, reference, r, p, Default::default(), |_, _| {
+                pmf * bulb.pdf(reference, p, light.ng)
+            });
+        }
+        if idx >= self.bulbs_end() && idx < self.environment_index() {
+            let (wi, dist, e) = self.punctual[idx - self.bulbs_end()].illuminate(reference)?;
             return Some(LightSample {
                 p: reference + wi * dist.min(1e30),
                 n: -wi,
@@ -543,7 +658,35 @@ impl LightSet {
         }
         let light = &self.lights[idx];
         let b = sample_uniform_triangle(u);
-        let (p, ng) = (light.p0 + light.e1 * b.y + light.e2 * b.z, light.ng);
+        let p = light.p0 + light.e1 * b.y + light.e2 * b.z;
+        let m = &materials[light.material as usize];
+        // Texture coordinates only matter to a textured emitter; they are the one thing read from the mesh.
+        let uv = match m.emissive_texture {
+            Some(_) => mesh.position_normal_uv(light.triangle, b.y, b.z).2,
+            None => Default::default(),
+        };
+        self.surface_sample(materials, textures, reference, idx, p, uv, |dist2, cos_l| {
+            pmf * dist2 / (cos_l.abs() * light.area)
+        })
+    }
+
+    /// The light sample of point `p` (texture coordinates `uv`) on record `r`'s triangle seen
+    /// from `reference`, with the solid-angle pdf `pdf(dist², cos at the light)`; None where the
+    /// geometry or the pdf is degenerate.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn surface_sample(
+        &self,
+        materials: &[Material],
+        textures: &[Texture],
+        reference: Vec3,
+        r: usize,
+        p: Vec3,
+        uv: crate::texture::TexCoords,
+        pdf: impl FnOnce(f32, f32) -> f32,
+    ) -> Option<LightSample> {
+        let light = &self.lights[r];
+        let ng = light.ng;
         let to = p - reference;
         let dist2 = to.length_squared();
         if !(dist2 > 0.0) || !dist2.is_finite() {
@@ -556,18 +699,13 @@ impl LightSet {
             return None;
         }
         let m = &materials[light.material as usize];
-        // Texture coordinates only matter to a textured emitter; they are the one thing read from the mesh.
-        let uv = match m.emissive_texture {
-            Some(_) => mesh.position_normal_uv(light.triangle, b.y, b.z).2,
-            None => Default::default(),
-        };
         let le = emitted(m, textures, ng, uv, -wi);
-        let pdf = pmf * dist2 / (cos_l.abs() * light.area);
+        let pdf = pdf(dist2, cos_l);
         if !(pdf > 0.0) || !pdf.is_finite() {
             return None;
         }
         let n = if cos_l > 0.0 { ng } else { -ng };
-        Some(LightSample { p, n, wi, dist, le, pdf, delta: false, light: idx as u32 })
+        Some(LightSample { p, n, wi, dist, le, pdf, delta: false, light: r as u32 })
     }
 
     /// Solid-angle pdf with which `sample()` from `reference` would have produced the point `p` on
@@ -578,6 +716,10 @@ impl LightSet {
         };
         if li == u32::MAX {
             return 0.0;
+        }
+        if let Some(&b) = (li as usize).checked_sub(self.area_count).and_then(|i| self.bulb_of.get(i)) {
+            let pmf = self.select_pmf(self.area_count + b as usize, reference, normal);
+            return pmf * self.bulbs[b as usize].pdf(reference, p, ng);
         }
         let light = &self.lights[li as usize];
         let to = p - reference;

@@ -686,6 +686,9 @@ pub fn radiance8(
             let (mut owi, mut ole, mut op, mut opdf) =
                 ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [1f32; LANES]);
             let (mut other, mut delta, mut infinite) = (0u32, 0u32, 0u32);
+            // Of those, the ones on a surface (a bulb's): their shadow rays aim just off it, as an
+            // area light's do (`op` then holds that offset point) and may stop at its clear box.
+            let mut surface = 0u32;
             // The lanes that chose another kind of light, sampled together after the loop
             // (`LightSet::sample_selected_batch`: an environment's samples overlap their misses).
             let (mut olane, mut ocount) = ([0u8; LANES], 0);
@@ -694,7 +697,7 @@ pub fn radiance8(
             for (j, &choice) in selected[..chose].iter().enumerate() {
                 let k = nee_lane[j] as usize;
                 let Some((idx, pmf)) = choice else { continue };
-                let Some(light) = scene.lights.lights.get(idx) else {
+                let Some(light) = scene.lights.area_light(idx) else {
                     let u = crate::math::Vec2::new(u_pos.0[k], u_pos.1[k]);
                     (olane[ocount], oref[ocount], ochoice[ocount], ou[ocount]) = (k as u8, p[k], choice, u);
                     ocount += 1;
@@ -731,6 +734,12 @@ pub fn radiance8(
                     (owi[k], ole[k], op[k], opdf[k]) = (ls.wi, ls.le, ls.p, ls.pdf);
                     delta |= u32::from(ls.delta) << k;
                     infinite |= u32::from(ls.dist.is_infinite()) << k;
+                    if !ls.delta && ls.dist.is_finite() {
+                        // `Path::finish`'s area-light target, in its scalar arithmetic.
+                        surface |= 1 << k;
+                        op[k] = scene.offset_ray_origin(ls.p, ls.n);
+                        lidx[k] = ls.light;
+                    }
                 }
             }
             // `LightSet::sample_selected`'s area light: the point, the direction to it, its
@@ -762,6 +771,7 @@ pub fn radiance8(
             let others = other != 0;
             let (other, delta, infinite) = (M8::from_bits(other), M8::from_bits(delta), M8::from_bits(infinite));
             let point = delta.and_not(infinite);
+            let surface = M8::from_bits(surface);
             let (lwi, lle, lpdf, ok) = if others {
                 (
                     V8::select(other, V8::from_lanes(&owi), lwi),
@@ -805,7 +815,7 @@ pub fn radiance8(
                     Some((lp, ln, ..)) => offset_ray_origin(lp, ln, scale),
                     None => V8::zero(),
                 };
-                let target = if others { V8::select(point, V8::from_lanes(&op), target) } else { target };
+                let target = if others { V8::select(point | surface, V8::from_lanes(&op), target) } else { target };
                 let sto = target.sub(origin);
                 let sdist = sto.dot(sto).sqrt();
                 let sd = sto.div(sdist);

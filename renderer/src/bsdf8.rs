@@ -63,7 +63,7 @@ pub(crate) fn sample_cosine_hemisphere(ux: F8, uy: F8) -> V8 {
 
 /// `math::sin_cos_azimuth`: reduced to the nearest multiple of π/2, then turned by its quadrant.
 #[inline(always)]
-fn sin_cos_azimuth(x: F8) -> (F8, F8) {
+pub(crate) fn sin_cos_azimuth(x: F8) -> (F8, F8) {
     let k = (x * F8::splat(2.0 / PI)).round();
     let (s, c) = sin_cos_quarter(x - k * F8::splat(PI / 2.0));
     // Quadrant 0: (s, c); 1: (c, −s); 2: (−s, −c); 3: (−c, s).

@@ -76,6 +76,11 @@ impl ClearBox {
         }
     }
 
+    /// The box's corners.
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        (self.lo, self.hi)
+    }
+
     /// Where a ray from `o` (outside the box) along `d` enters the box; None when it misses it
     /// or starts inside or on it.
     #[inline]

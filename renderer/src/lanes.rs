@@ -84,6 +84,17 @@ impl F8 {
         let m = F8(unsafe { _mm256_min_ps(other.0, self.0) });
         select(self.ne(self), other, m)
     }
+    /// glam's `Vec3::min` per coordinate, `if self < other { self } else { other }` (a NaN gives
+    /// `other`): vminps exactly.
+    #[inline(always)]
+    pub fn glam_min(self, other: F8) -> F8 {
+        F8(unsafe { _mm256_min_ps(self.0, other.0) })
+    }
+    /// glam's `Vec3::max` per coordinate, `if self > other { self } else { other }`: vmaxps.
+    #[inline(always)]
+    pub fn glam_max(self, other: F8) -> F8 {
+        F8(unsafe { _mm256_max_ps(self.0, other.0) })
+    }
     /// `f32::clamp(self, lo, hi)`: `lo` where `self < lo`, then `hi` where `self > hi`; a NaN
     /// stays NaN. vmaxps(lo, x) is `lo > x ? lo : x`, vminps(hi, x) is `hi < x ? hi : x`.
     #[inline(always)]
@@ -361,6 +372,20 @@ impl V8 {
     #[inline(always)]
     pub fn max_element(self) -> F8 {
         F8(unsafe { _mm256_max_ps(self.x.0, _mm256_max_ps(self.y.0, self.z.0)) })
+    }
+    /// glam's `min_element`: `min(x, min(y, z))` with its `a < b ? a : b`.
+    #[inline(always)]
+    pub fn min_element(self) -> F8 {
+        self.x.glam_min(self.y.glam_min(self.z))
+    }
+    /// glam's `Vec3::min` and `Vec3::max`, coordinate by coordinate.
+    #[inline(always)]
+    pub fn glam_min(self, o: V8) -> V8 {
+        V8 { x: self.x.glam_min(o.x), y: self.y.glam_min(o.y), z: self.z.glam_min(o.z) }
+    }
+    #[inline(always)]
+    pub fn glam_max(self, o: V8) -> V8 {
+        V8 { x: self.x.glam_max(o.x), y: self.y.glam_max(o.y), z: self.z.glam_max(o.z) }
     }
     #[inline(always)]
     pub fn select(m: M8, a: V8, b: V8) -> V8 {

@@ -295,6 +295,13 @@ impl LightSet {
         }
     }
 
+    /// Selection index `idx`'s bulb as the kernel draws it, if it is an isolated bulb.
+    #[inline(always)]
+    pub fn bulb_lane(&self, idx: usize, materials: &[Material]) -> Option<crate::bulb::BulbLane> {
+        let bulb = self.bulbs.get(idx.checked_sub(self.area_count)?)?;
+        bulb.lane(materials.get(bulb.material as usize)?.emissive)
+    }
+
     /// How many bulbs (closed convex emitters sampled as one light) the set holds.
     pub fn bulb_count(&self) -> usize {
         self.bulbs.len()

@@ -686,6 +686,8 @@ pub fn radiance8(
             let (mut owi, mut ole, mut op, mut opdf) =
                 ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [1f32; LANES]);
             let (mut other, mut delta, mut infinite) = (0u32, 0u32, 0u32);
+            // The lanes that chose an isolated bulb (`bulb::BulbLane`).
+            let mut bulb = 0u32;
             // Of those, the ones on a surface (a bulb's): their shadow rays aim just off it, as an
             // area light's do (`op` then holds that offset point) and may stop at its clear box.
             let mut surface = 0u32;
@@ -698,6 +700,12 @@ pub fn radiance8(
                 let k = nee_lane[j] as usize;
                 let Some((idx, pmf)) = choice else { continue };
                 let Some(light) = scene.lights.area_light(idx) else {
+                    // An isolated bulb: its sure directions eight-wide below, the rest with the
+                    // other lights.
+                    if scene.lights.bulb_lane(idx, &scene.materials).is_some() {
+                        bulb |= 1 << k;
+                        continue;
+                    }
                     let u = crate::math::Vec2::new(u_pos.0[k], u_pos.1[k]);
                     (olane[ocount], oref[ocount], ochoice[ocount], ou[ocount]) = (k as u8, p[k], choice, u);
                     ocount += 1;
@@ -714,6 +722,65 @@ pub fn radiance8(
                 lpmf[k] = pmf;
                 if m.double_sided {
                     two_sided |= 1 << k;
+                }
+            }
+            // `Bulb::sample`'s cone and `LightSet::sample_selected`'s sure direction, eight-wide
+            // in the same arithmetic: (the lanes that took one, the direction, the shadow ray's
+            // target, the radiance and the pdf). A lane whose direction is not sure (inside the
+            // ball, near the silhouette, beyond the range) goes to the other lights' samples.
+            let bulbs = (bulb != 0).then(|| {
+                // Each bulb lane's ball, inner ball, clear box, radiance and choice probability
+                // (gathered here, so that a scene without bulbs does not fill these).
+                let (mut bc, mut blo, mut bhi, mut ble) =
+                    ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
+                let (mut br2, mut bi2, mut bpmf) = ([1f32; LANES], [0f32; LANES], [0f32; LANES]);
+                for (j, &choice) in selected[..chose].iter().enumerate() {
+                    let k = nee_lane[j] as usize;
+                    let (true, Some((idx, pmf))) = (bulb & (1 << k) != 0, choice) else { continue };
+                    let Some(b) = scene.lights.bulb_lane(idx, &scene.materials) else { continue };
+                    (bc[k], blo[k], bhi[k], ble[k]) = (b.center, b.lo, b.hi, b.le);
+                    (br2[k], bi2[k], bpmf[k]) = (b.radius2, b.inner2, pmf);
+                }
+                let (one, two) = (one, F8::splat(2.0));
+                let to = V8::from_lanes(&bc).sub(pv);
+                let d2 = to.dot(to);
+                let r2 = F8::from_array(br2);
+                let outside = M8::from_bits(bulb) & d2.gt(r2) & d2.is_finite();
+                let sin2 = r2 / d2;
+                let cos_max = (one - sin2).max(zero).sqrt();
+                let omc = sin2 / (one + cos_max);
+                let one_minus_cos = F8::from_array(u_pos.0) * omc;
+                let cos = one - one_minus_cos;
+                let sin = (one_minus_cos * (two - one_minus_cos)).max(zero).sqrt();
+                let (s, c) = crate::bsdf8::sin_cos_azimuth(F8::splat(2.0 * crate::math::PI) * F8::from_array(u_pos.1));
+                let frame = Frame8::from_normal(to.div(d2.sqrt()));
+                let d = frame.to_world(V8 { x: sin * c, y: sin * s, z: cos });
+                let cr = to.cross(d);
+                let inner2 = F8::from_array(bi2);
+                let sure = outside & cr.dot(cr).lt(inner2) & d2.lt(F8::splat(crate::bulb::SURE_RANGE2) * inner2);
+                // `ClearBox::entry`: the slab test, glam's min and max.
+                let inv = V8 { x: one / d.x, y: one / d.y, z: one / d.z };
+                let (a, b) = (V8::from_lanes(&blo).sub(pv).mul(inv), V8::from_lanes(&bhi).sub(pv).mul(inv));
+                let near = a.glam_min(b).max_element();
+                let far = a.glam_max(b).min_element();
+                let sure = sure & near.gt(zero) & near.le(far);
+                // `Bulb::pdf` (the cone's, zero where not positive and finite) times the choice's.
+                let pc = one / (F8::splat(2.0 * crate::math::PI) * omc);
+                let pc = select(pc.gt(zero) & pc.is_finite(), pc, zero);
+                let pdf = F8::from_array(bpmf) * pc;
+                let sure = sure & pdf.gt(zero) & pdf.is_finite();
+                let target = offset_ray_origin(pv.add(d.scale(near)), d.neg(), scale);
+                (sure, d, target, V8::from_lanes(&ble), pdf)
+            });
+            if let Some((sure, ..)) = bulbs {
+                let unsure = bulb & !sure.bits();
+                for (j, &choice) in selected[..chose].iter().enumerate() {
+                    let k = nee_lane[j] as usize;
+                    if unsure & (1 << k) != 0 {
+                        let u = crate::math::Vec2::new(u_pos.0[k], u_pos.1[k]);
+                        (olane[ocount], oref[ocount], ochoice[ocount], ou[ocount]) = (k as u8, p[k], choice, u);
+                        ocount += 1;
+                    }
                 }
             }
             if ocount > 0 {
@@ -782,6 +849,13 @@ pub fn radiance8(
             } else {
                 (lwi, lle, lpdf, ok)
             };
+            // The bulbs' sure directions in with them.
+            let (lwi, lle, lpdf, ok) = match bulbs {
+                Some((sure, d, _, le, pdf)) => {
+                    (V8::select(sure, d, lwi), V8::select(sure, le, lle), select(sure, pdf, lpdf), ok | sure)
+                }
+                None => (lwi, lle, lpdf, ok),
+            };
             // `Path::finish`: the light above the true surface (reflection) or, through glass,
             // below it; f from the BSDF.
             let wil = frame.to_local(lwi);
@@ -816,6 +890,10 @@ pub fn radiance8(
                     None => V8::zero(),
                 };
                 let target = if others { V8::select(point | surface, V8::from_lanes(&op), target) } else { target };
+                let target = match bulbs {
+                    Some((sure, _, bulb_target, ..)) => V8::select(sure, bulb_target, target),
+                    None => target,
+                };
                 let sto = target.sub(origin);
                 let sdist = sto.dot(sto).sqrt();
                 let sd = sto.div(sdist);

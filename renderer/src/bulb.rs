@@ -331,14 +331,23 @@ mod tests {
         // A facet's centre pushed out half way to the ball: inside the ball, outside the bulb.
         let f = mesh.surface_point(100, 1.0 / 3.0, 1.0 / 3.0);
         let between = c + (f.p - c) * (1.0 + 0.5 * (0.5 / (f.p - c).length() - 1.0));
-        for (case, x) in [("near", Vec3::ZERO), ("far", c + Vec3::new(-6.0, -3.0, 2.0)), ("between", between)] {
+        // Each case's (θ, φ) bins and midpoint subdivision. The far bulb spans about 4°: finer
+        // bins than 2.8° leave silhouette cells where a sample lands but no midpoint sees the
+        // bulb, which the helper counts as certain failure. The inside technique's directions
+        // fill a hemisphere: coarse bins keep its cells above five expected samples.
+        let cases = [
+            ("near", Vec3::ZERO, (64, 128, 12)),
+            ("far", c + Vec3::new(-6.0, -3.0, 2.0), (64, 128, 16)),
+            ("between", between, (16, 32, 24)),
+        ];
+        for (case, x, (theta_bins, phi_bins, sub)) in cases {
             let (mut along, mut points) = (0, 0);
             let n = 60_000;
             let chi = crate::stats::chi2_directions(
                 n,
-                64,
-                128,
-                12,
+                theta_bins,
+                phi_bins,
+                sub,
                 |i| {
                     let ls = scene.lights.sample(mesh, mats, tex, x, None, 0.5, u2(i as u64))?;
                     let (tri, p, _) = first_bulb_hit(&scene, x, ls.wi)?;

@@ -90,11 +90,6 @@ impl F8 {
     pub fn glam_min(self, other: F8) -> F8 {
         F8(unsafe { _mm256_min_ps(self.0, other.0) })
     }
-    /// glam's `Vec3::max` per coordinate, `if self > other { self } else { other }`: vmaxps.
-    #[inline(always)]
-    pub fn glam_max(self, other: F8) -> F8 {
-        F8(unsafe { _mm256_max_ps(self.0, other.0) })
-    }
     /// `f32::clamp(self, lo, hi)`: `lo` where `self < lo`, then `hi` where `self > hi`; a NaN
     /// stays NaN. vmaxps(lo, x) is `lo > x ? lo : x`, vminps(hi, x) is `hi < x ? hi : x`.
     #[inline(always)]
@@ -383,9 +378,10 @@ impl V8 {
     pub fn glam_min(self, o: V8) -> V8 {
         V8 { x: self.x.glam_min(o.x), y: self.y.glam_min(o.y), z: self.z.glam_min(o.z) }
     }
+    /// (glam's max, `if self > other { self } else { other }`, is vmaxps: [`F8::max_finite`].)
     #[inline(always)]
     pub fn glam_max(self, o: V8) -> V8 {
-        V8 { x: self.x.glam_max(o.x), y: self.y.glam_max(o.y), z: self.z.glam_max(o.z) }
+        V8 { x: self.x.max_finite(o.x), y: self.y.max_finite(o.y), z: self.z.max_finite(o.z) }
     }
     #[inline(always)]
     pub fn select(m: M8, a: V8, b: V8) -> V8 {

@@ -541,7 +541,7 @@ impl LightTree {
     pub fn sample_batch(&self, p: &[Vec3], n: &[Option<Vec3>], u: &[f32], out: &mut [Option<(usize, f32)>]) {
         let count = p.len().min(n.len()).min(u.len()).min(out.len());
         #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
-        if !self.scalar_reference {
+        if !self.scalar_reference && self.nodes.len() > 1 {
             for s in (0..count).step_by(MAX_WALKS) {
                 let e = (s + MAX_WALKS).min(count);
                 // SAFETY: AVX2 is enabled at compile time; the families' loads are 32-byte aligned.
@@ -549,6 +549,8 @@ impl LightTree {
             }
             return;
         }
+        // One node (eight lights or fewer: a scene's few bulbs) is one level: the walks have no
+        // chain to interleave, and the batch's state would cost more than the walk.
         for k in 0..count {
             out[k] = self.sample(p[k], n[k], u[k]);
         }

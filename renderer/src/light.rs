@@ -400,7 +400,9 @@ impl LightSet {
         out: &mut [Option<(usize, f32)>],
     ) {
         let count = reference.len().min(normal.len()).min(u.len()).min(out.len());
-        let (LightSamplerKind::Tree, Some(tree)) = (self.kind, &self.tree) else {
+        // Without a tree, or with a tree of one node (a few bulbs), one at a time: there is no
+        // chain of levels for the batch to interleave.
+        let (LightSamplerKind::Tree, Some(tree)) = (self.kind, self.tree.as_ref().filter(|t| !t.is_one_node())) else {
             for k in 0..count {
                 out[k] = self.select(reference[k], normal[k], u[k]);
             }

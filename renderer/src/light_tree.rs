@@ -538,10 +538,15 @@ impl LightTree {
     /// node) overlaps the others' instead of waiting alone. A walk is a chain of latencies, not
     /// of work: `scenes/sphere_light`'s profile had `sample` at 22 % of the render. Each walk
     /// takes the steps it takes alone, so each answer is [`Self::sample`]'s bit for bit.
+    /// Whether the tree is a single node (eight lights or fewer): a walk is then one level.
+    pub fn is_one_node(&self) -> bool {
+        self.nodes.len() == 1
+    }
+
     pub fn sample_batch(&self, p: &[Vec3], n: &[Option<Vec3>], u: &[f32], out: &mut [Option<(usize, f32)>]) {
         let count = p.len().min(n.len()).min(u.len()).min(out.len());
         #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
-        if !self.scalar_reference && self.nodes.len() > 1 {
+        if !self.scalar_reference && !self.is_one_node() {
             for s in (0..count).step_by(MAX_WALKS) {
                 let e = (s + MAX_WALKS).min(count);
                 // SAFETY: AVX2 is enabled at compile time; the families' loads are 32-byte aligned.

@@ -11,8 +11,9 @@
 //! bulbs over a floor) the tree was 1.3× better than uniform and 2.4× better than power (issue 10,
 //! `tessera bench convergence --switches light_sampler`).
 //! (Since closed convex emitters became one light each, `bulb`, those scenes have four lights,
-//! sampled by their cones; the three choices then measure within 14 % of each other there, and
-//! the pilot picks uniform on `sphere_lights` and power on `veach`: `tests/light_choice.rs`.)
+//! sampled by their cones; the three choices then measure within 14 % of each other there. The
+//! pilot picks power on `veach`, and on `sphere_lights` the tree through its camera, uniform
+//! without one: `tests/light_choice.rs`.)
 //!
 //! The pilot: the first surfaces hit by `PILOT_POINTS` camera rays (stratified over the image; for a
 //! scene seen by no camera ray, area-weighted points on its non-emissive surfaces), and at each

@@ -29,10 +29,11 @@
 //! bulb is also isolated (nothing else reaches into its clear box, `clear_box`), the shadow ray
 //! needs to go only as far as the box: the sample aims there (`BulbHit::Along`), and the kernel
 //! draws such directions eight lanes at once (`spmd::radiance8`). Only the other directions,
-//! near the silhouette, search the bulb's own BVH for the point (`BulbHit::Point`): 2.3 % of
+//! near the silhouette, search the bulb's own BVH for the point (`BulbHit::Point`): 2.4 % of
 //! those that meet the test's 24 × 12 UV sphere (`bulb_samples_follow_the_density_mis_uses`
-//! prints the counts), 5.4 % of `scenes/sphere_lights`' bulb samples at about 525 instructions
-//! a search (callgrind, 64×48, 16 spp: 1 949 of 36 177).
+//! prints the counts), 5.5 % of `scenes/sphere_lights`' bulb samples at about 515 instructions
+//! a search (callgrind, 64×48, 16 spp: 2 005 `Accel::intersect_from` calls for 36 177 light
+//! choices).
 
 use crate::accel::Accel;
 use crate::clear_box::ClearBox;
@@ -105,8 +106,14 @@ pub struct BulbLane {
 /// A sure direction is taken without a search only from within a thousand inner radii of the
 /// centre (this, squared): the test's cross product is off by a few units in the last place of
 /// the distance (6·10⁻⁸ of it, so 6·10⁻⁵ of the inner radius at that range), which stays far
-/// below the inner ball's margin (10⁻³ of its radius).
+/// below the inner ball's margin (`INNER_MARGIN2`: 10⁻³ of its radius). (An estimate from the
+/// operations' rounding, not a measurement.)
 pub const SURE_RANGE2: f32 = 1e6;
+
+/// The solids' inner ball (`convex_solid::inner_ball`, a part in 10⁴ inside every facet plane)
+/// shrunk by a further part in 10³ of its radius (this is the factor on its square), the margin
+/// the sure test's rounding stays below out to `SURE_RANGE2`.
+const INNER_MARGIN2: f32 = 0.998;
 
 impl Bulb {
     /// The bulbs among `candidates` (emissive triangles NEE may sample, with their areas): groups
@@ -129,30 +136,25 @@ impl Bulb {
             .filter_map(|c| {
                 let areas: Vec<f32> = c.members.iter().map(|&i| candidates[i].1).collect();
                 let m = material(c.tris[0]);
-                Bulb::new(mesh, c.tris, &areas, &c.hull, m)
+                let ball = convex_solid::inner_ball(mesh, &c.tris, &c.hull)?;
+                Bulb::new(mesh, c.tris, &areas, &c.hull, ball, m)
             })
             .collect()
     }
 
-    fn new(mesh: &Mesh, triangles: Vec<u32>, areas: &[f32], hull: &convex_solid::Hull, material: u32) -> Option<Bulb> {
-        let (lo, hi) = (hull.lo, hull.hi);
-        let center = ((lo.as_dvec3() + hi.as_dvec3()) * 0.5).as_vec3();
-        let c = center.as_dvec3();
-        let farthest = hull.verts.iter().map(|v| (v.as_dvec3() - c).length()).fold(0.0, f64::max);
-        // A part in 10⁴ over the farthest vertex: every point of every triangle lies in the
-        // ball, so every direction towards one lies in the cone.
-        let radius = farthest * (1.0 + 1e-4) + 8.0 * hull.tol;
-        let radius2 = ((radius * radius) as f32).next_up();
-        // The least depth of the centre behind a facet's plane, less a part in 10³ and the hull
-        // test's allowance: a line through this ball crosses the bulb (it is inside every plane).
-        let mut least = f64::INFINITY;
-        for &t in &triangles {
-            let [a, b, v] = mesh.vertices(t).map(|v| v.as_dvec3());
-            let n = (b - a).cross(v - a).normalize_or_zero();
-            least = least.min(if n == glam::DVec3::ZERO { 0.0 } else { n.dot(a - c) });
-        }
-        let inner = least * (1.0 - 1e-3) - 8.0 * hull.tol;
-        let inner2 = if inner > 0.0 { ((inner * inner) as f32).next_down().max(0.0) } else { 0.0 };
+    /// The bulb of `triangles` (with their `areas`), whose balls are the solids' (`ball`: the
+    /// outer one holds every vertex with margins, so every direction towards the bulb lies in
+    /// its cone; a line through the inner one crosses the bulb, being inside every facet plane).
+    fn new(
+        mesh: &Mesh,
+        triangles: Vec<u32>,
+        areas: &[f32],
+        hull: &convex_solid::Hull,
+        ball: convex_solid::Solid,
+        material: u32,
+    ) -> Option<Bulb> {
+        let (lo, hi, center, radius2) = (hull.lo, hull.hi, ball.center32, ball.outer_sq);
+        let inner2 = ball.inner_sq * INNER_MARGIN2;
         let mut cdf = Vec::with_capacity(areas.len());
         let mut sum = 0.0f64;
         for &a in areas {
@@ -242,20 +244,34 @@ impl Bulb {
     /// area technique's dist²/(|cos|·area) from inside. 0 where it is not positive and finite.
     #[inline]
     pub fn pdf(&self, reference: Vec3, p: Vec3, ng: Vec3) -> f32 {
-        let pdf = match self.cone(reference) {
-            Some((omc, ..)) => 1.0 / (2.0 * PI * omc),
-            None => {
-                let to = p - reference;
-                let dist2 = to.length_squared();
-                let cos = ng.dot(to).abs() / dist2.sqrt();
-                dist2 / (cos * self.area)
-            }
-        };
+        self.density(reference, || {
+            let to = p - reference;
+            let dist2 = to.length_squared();
+            (dist2, ng.dot(to) / dist2.sqrt())
+        })
+    }
+
+    /// [`Self::pdf`] with the point given by its squared distance and the cosine at the bulb
+    /// (`at`, asked only from inside the ball, where the area technique needs them): what a
+    /// sample that has worked them out already passes.
+    #[inline]
+    pub fn density(&self, reference: Vec3, at: impl FnOnce() -> (f32, f32)) -> f32 {
+        let pdf = self.cone_pdf(reference).unwrap_or_else(|| {
+            let (dist2, cos) = at();
+            dist2 / (cos.abs() * self.area)
+        });
         if pdf > 0.0 && pdf.is_finite() {
             pdf
         } else {
             0.0
         }
+    }
+
+    /// The cone technique's density, uniform over the cone, from `reference` outside the ball
+    /// (None from inside); not yet checked for being positive and finite.
+    #[inline]
+    pub fn cone_pdf(&self, reference: Vec3) -> Option<f32> {
+        self.cone(reference).map(|(omc, ..)| 1.0 / (2.0 * PI * omc))
     }
 }
 

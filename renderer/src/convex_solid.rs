@@ -281,15 +281,15 @@ pub(crate) fn closed(mesh: &Mesh, tris: &[u32]) -> bool {
 
 /// One solid: the ball inside it and the ball around it.
 #[derive(Clone, Copy, Debug)]
-struct Solid {
+pub(crate) struct Solid {
     center: DVec3,
     /// The ball's radius, a little under the least distance from the centre to a facet plane.
     radius: f64,
     /// The same in f32 for the occlusion test: the inner radius squared (rounded down) and the
     /// outer radius squared (a little over the farthest vertex's distance, rounded up).
-    center32: Vec3,
-    inner_sq: f32,
-    outer_sq: f32,
+    pub(crate) center32: Vec3,
+    pub(crate) inner_sq: f32,
+    pub(crate) outer_sq: f32,
     /// +1 when the solid's winding normals point out of it, −1 when in ([`Hull::outward`]).
     outward: f64,
 }
@@ -549,7 +549,7 @@ impl Solid {
 
 /// The ball about the mean of the hull's vertices, of radius a little under the least distance
 /// from there to a facet plane; None when that centre is not well inside.
-fn inner_ball(mesh: &Mesh, tris: &[u32], hull: &Hull) -> Option<Solid> {
+pub(crate) fn inner_ball(mesh: &Mesh, tris: &[u32], hull: &Hull) -> Option<Solid> {
     let center = hull.verts.iter().fold(DVec3::ZERO, |s, v| s + v.as_dvec3()) / hull.verts.len().max(1) as f64;
     let mut least = f64::INFINITY;
     for &t in tris {

@@ -196,7 +196,7 @@ impl LightSet {
         // The bulbs among them (untextured emission: a cone sample reads no texture
         // coordinates); the other triangles stay lights of their own, in scene order, first.
         let candidates: Vec<(u32, f32)> = records.iter().map(|l| (l.triangle, l.area)).collect();
-        let bulbs =
+        let mut bulbs =
             Bulb::find(mesh, &candidates, |m| materials.get(m as usize).is_some_and(|m| m.emissive_texture.is_none()));
         let mut member = vec![false; records.len()];
         for bulb in &bulbs {
@@ -234,7 +234,6 @@ impl LightSet {
         let (clear_boxes, clear_of) = crate::clear_box::find(mesh, &lights);
         // A bulb whose triangles all have one clear box is isolated: its sure directions' shadow
         // rays end at that box.
-        let mut bulbs = bulbs;
         let mut first = area_count;
         for bulb in &mut bulbs {
             let of = &clear_of[first..first + bulb.triangles.len()];
@@ -293,6 +292,12 @@ impl LightSet {
         } else {
             None
         }
+    }
+
+    /// Whether selection index `idx` is a bulb.
+    #[inline(always)]
+    pub fn is_bulb(&self, idx: usize) -> bool {
+        (self.area_count..self.bulbs_end()).contains(&idx)
     }
 
     /// Selection index `idx`'s bulb as the kernel draws it, if it is an isolated bulb.
@@ -628,7 +633,8 @@ impl LightSet {
                     // that stops where the direction enters the bulb's box (aimed at the point
                     // there, its normal facing back, as at an area light's surface).
                     let m = materials.get(bulb.material as usize)?;
-                    let pdf = pmf * bulb.pdf(reference, reference, Vec3::ZERO);
+                    // A sure direction comes from outside the ball: the cone's density.
+                    let pdf = pmf * bulb.cone_pdf(reference)?;
                     return (pdf > 0.0 && pdf.is_finite()).then(|| LightSample {
                         p: reference + d * t,
                         n: -d,
@@ -645,8 +651,8 @@ impl LightSet {
             let r = *self.triangle_light.get(at.triangle as usize)? as usize;
             let light = self.lights.get(r)?;
             let p = light.p0 + light.e1 * at.b1 + light.e2 * at.b2;
-            return self.surface_sample(materials, textures, reference, r, p, Default::default(), |_, _| {
-                pmf * bulb.pdf(reference, p, light.ng)
+            return self.surface_sample(materials, textures, reference, r, p, Default::default(), |dist2, cos_l| {
+                pmf * bulb.density(reference, || (dist2, cos_l))
             });
         }
         if idx >= self.bulbs_end() && idx < self.environment_index() {

@@ -532,17 +532,17 @@ impl LightTree {
         self.walk(u, |at, u| choose(&self.importances(at, p, n), u))
     }
 
+    /// Whether the tree is a single node (eight lights or fewer): a walk is then one level.
+    pub fn is_one_node(&self) -> bool {
+        self.nodes.len() == 1
+    }
+
     /// [`Self::sample`] for up to [`MAX_WALKS`] shading points at once (point `k` is `p[k]`, `n[k]`,
     /// `u[k]`, its light into `out[k]`): the walks go down a level each in turn, so one walk's
     /// chain of dependent steps (a level's importances, the running sums, the slot, the next
     /// node) overlaps the others' instead of waiting alone. A walk is a chain of latencies, not
     /// of work: `scenes/sphere_light`'s profile had `sample` at 22 % of the render. Each walk
     /// takes the steps it takes alone, so each answer is [`Self::sample`]'s bit for bit.
-    /// Whether the tree is a single node (eight lights or fewer): a walk is then one level.
-    pub fn is_one_node(&self) -> bool {
-        self.nodes.len() == 1
-    }
-
     pub fn sample_batch(&self, p: &[Vec3], n: &[Option<Vec3>], u: &[f32], out: &mut [Option<(usize, f32)>]) {
         let count = p.len().min(n.len()).min(u.len()).min(out.len());
         #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]

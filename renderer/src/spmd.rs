@@ -686,7 +686,7 @@ pub fn radiance8(
             let (mut owi, mut ole, mut op, mut opdf) =
                 ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [1f32; LANES]);
             let (mut other, mut delta, mut infinite) = (0u32, 0u32, 0u32);
-            // The lanes that chose an isolated bulb (`bulb::BulbLane`).
+            // The lanes that chose a bulb (its sure directions eight-wide where it is isolated).
             let mut bulb = 0u32;
             // Of those, the ones on a surface (a bulb's): their shadow rays aim just off it, as an
             // area light's do (`op` then holds that offset point) and may stop at its clear box.
@@ -700,9 +700,8 @@ pub fn radiance8(
                 let k = nee_lane[j] as usize;
                 let Some((idx, pmf)) = choice else { continue };
                 let Some(light) = scene.lights.area_light(idx) else {
-                    // An isolated bulb: its sure directions eight-wide below, the rest with the
-                    // other lights.
-                    if scene.lights.bulb_lane(idx, &scene.materials).is_some() {
+                    // A bulb: its sure directions eight-wide below, the rest with the other lights.
+                    if scene.lights.is_bulb(idx) {
                         bulb |= 1 << k;
                         continue;
                     }
@@ -729,15 +728,17 @@ pub fn radiance8(
             // target, the radiance and the pdf). A lane whose direction is not sure (inside the
             // ball, near the silhouette, beyond the range) goes to the other lights' samples.
             let bulbs = (bulb != 0).then(|| {
-                // Each bulb lane's ball, inner ball, clear box, radiance and choice probability
-                // (gathered here, so that a scene without bulbs does not fill these).
+                // Each isolated bulb lane's ball, inner ball, clear box, radiance and choice
+                // probability (gathered here, so that a scene without bulbs does not fill these).
                 let (mut bc, mut blo, mut bhi, mut ble) =
                     ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
                 let (mut br2, mut bi2, mut bpmf) = ([1f32; LANES], [0f32; LANES], [0f32; LANES]);
+                let mut isolated = 0u32;
                 for (j, &choice) in selected[..chose].iter().enumerate() {
                     let k = nee_lane[j] as usize;
                     let (true, Some((idx, pmf))) = (bulb & (1 << k) != 0, choice) else { continue };
                     let Some(b) = scene.lights.bulb_lane(idx, &scene.materials) else { continue };
+                    isolated |= 1 << k;
                     (bc[k], blo[k], bhi[k], ble[k]) = (b.center, b.lo, b.hi, b.le);
                     (br2[k], bi2[k], bpmf[k]) = (b.radius2, b.inner2, pmf);
                 }
@@ -745,7 +746,7 @@ pub fn radiance8(
                 let to = V8::from_lanes(&bc).sub(pv);
                 let d2 = to.dot(to);
                 let r2 = F8::from_array(br2);
-                let outside = M8::from_bits(bulb) & d2.gt(r2) & d2.is_finite();
+                let outside = M8::from_bits(isolated) & d2.gt(r2) & d2.is_finite();
                 let sin2 = r2 / d2;
                 let cos_max = (one - sin2).max(zero).sqrt();
                 let omc = sin2 / (one + cos_max);
@@ -764,10 +765,9 @@ pub fn radiance8(
                 let near = a.glam_min(b).max_element();
                 let far = a.glam_max(b).min_element();
                 let sure = sure & near.gt(zero) & near.le(far);
-                // `Bulb::pdf` (the cone's, zero where not positive and finite) times the choice's.
-                let pc = one / (F8::splat(2.0 * crate::math::PI) * omc);
-                let pc = select(pc.gt(zero) & pc.is_finite(), pc, zero);
-                let pdf = F8::from_array(bpmf) * pc;
+                // `Bulb::cone_pdf` times the choice's (a lane where that is not positive and
+                // finite goes to the scalar path, which drops the sample).
+                let pdf = F8::from_array(bpmf) * (one / (F8::splat(2.0 * crate::math::PI) * omc));
                 let sure = sure & pdf.gt(zero) & pdf.is_finite();
                 let target = offset_ray_origin(pv.add(d.scale(near)), d.neg(), scale);
                 (sure, d, target, V8::from_lanes(&ble), pdf)

@@ -306,6 +306,29 @@ impl V8 {
         }
     }
 
+    /// Eight vectors side by side from registers that each hold one as (x, y, z, ·)
+    /// ([`xyz_register`]): four lane pairs joined, then unpacked and shuffled into coordinates
+    /// (eleven shuffles, no memory). Why not [`Self::from_lanes`] on an array of `Vec3` filled
+    /// lane by lane: its 16-byte loads each span two lanes' 12-byte stores, which the core cannot
+    /// forward from the store buffer, so each waited for its stores to reach the cache; a
+    /// register per lane, stored and loaded whole, forwards.
+    #[inline(always)]
+    pub fn from_registers(v: &[__m128; LANES]) -> V8 {
+        unsafe {
+            let pair = |a: usize| _mm256_insertf128_ps::<1>(_mm256_castps128_ps256(v[a]), v[a + 4]);
+            // [x0 y0 z0 · | x4 y4 z4 ·] and so on.
+            let (v04, v15, v26, v37) = (pair(0), pair(1), pair(2), pair(3));
+            // [x0 x1 y0 y1 | x4 x5 y4 y5], [z0 z1 · · | z4 z5 · ·], the same for lanes 2, 3, 6, 7.
+            let (lo01, hi01) = (_mm256_unpacklo_ps(v04, v15), _mm256_unpackhi_ps(v04, v15));
+            let (lo23, hi23) = (_mm256_unpacklo_ps(v26, v37), _mm256_unpackhi_ps(v26, v37));
+            V8 {
+                x: F8(_mm256_shuffle_ps::<0b01_00_01_00>(lo01, lo23)),
+                y: F8(_mm256_shuffle_ps::<0b11_10_11_10>(lo01, lo23)),
+                z: F8(_mm256_shuffle_ps::<0b01_00_01_00>(hi01, hi23)),
+            }
+        }
+    }
+
     /// [`Self::from_lanes`] a coordinate at a time: the reference.
     pub fn from_lanes_scalar(v: &[Vec3; LANES]) -> V8 {
         V8 { x: F8::from_array(v.map(|v| v.x)), y: F8::from_array(v.map(|v| v.y)), z: F8::from_array(v.map(|v| v.z)) }
@@ -429,12 +452,24 @@ impl Neg for V8 {
     }
 }
 
+/// `v` as (x, y, z, 0) in an SSE register: an 8-byte and a 4-byte load and an insert, reading
+/// exactly `v`'s 12 bytes (a 16-byte load would read past the last vector of an array).
+#[inline(always)]
+pub fn xyz_register(v: &Vec3) -> __m128 {
+    unsafe {
+        // `_mm_loadl_epi64` reads unaligned (a `Vec3` is 4-byte aligned).
+        let xy = _mm_castsi128_ps(_mm_loadl_epi64((v as *const Vec3).cast()));
+        // z into element 2; element 3 zeroed.
+        _mm_insert_ps::<0b00_10_1000>(xy, _mm_load_ss(&v.z))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     /// The transposes move every float to its place: distinct bit patterns (NaNs, ±0, ∞ among
-    /// them) in every position, through both directions and back.
+    /// them) in every position, through both directions and back, and from one register a lane.
     #[test]
     fn transposes_are_the_coordinate_at_a_time_ones() {
         let specials = [f32::NAN, -0.0, 0.0, f32::INFINITY, f32::NEG_INFINITY, f32::MIN_POSITIVE, -1.5];
@@ -450,7 +485,11 @@ mod tests {
                 Vec3::new(c(0), c(1), c(2))
             });
             let (fast, slow) = (V8::from_lanes(&v), V8::from_lanes_scalar(&v));
+            let regs = V8::from_registers(&v.each_ref().map(xyz_register));
             for (a, b) in [(fast.x, slow.x), (fast.y, slow.y), (fast.z, slow.z)] {
+                assert_eq!(a.to_array().map(f32::to_bits), b.to_array().map(f32::to_bits), "round {round}");
+            }
+            for (a, b) in [(regs.x, slow.x), (regs.y, slow.y), (regs.z, slow.z)] {
                 assert_eq!(a.to_array().map(f32::to_bits), b.to_array().map(f32::to_bits), "round {round}");
             }
             let bits = |a: [Vec3; LANES]| a.map(|v| v.to_array().map(f32::to_bits));

@@ -495,8 +495,10 @@ pub fn radiance8(
             }
         }
         // The hit triangles' vertices, gathered lane by lane; the surface points eight-wide.
-        let (mut v0, mut v1, mut v2) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
-        let (mut n0, mut n1, mut n2) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
+        // One register a vertex (`lanes::xyz_register`), so the transposes read what was stored whole.
+        let none3 = [crate::lanes::xyz_register(&Vec3::ZERO); LANES];
+        let (mut v0, mut v1, mut v2) = (none3, none3, none3);
+        let (mut n0, mut n1, mut n2) = (none3, none3, none3);
         let (mut hb1, mut hb2) = ([0f32; LANES], [0f32; LANES]);
         let mut smooth = 0u32;
         for k in lanes_of(hit_bits) {
@@ -504,10 +506,11 @@ pub fn radiance8(
             let mesh = &scene.mesh;
             let t = &mesh.triangles[hit.triangle as usize];
             let [i0, i1, i2] = [t.v[0] as usize, t.v[1] as usize, t.v[2] as usize];
-            (v0[k], v1[k], v2[k]) = (mesh.positions[i0], mesh.positions[i1], mesh.positions[i2]);
+            let xyz = crate::lanes::xyz_register;
+            (v0[k], v1[k], v2[k]) = (xyz(&mesh.positions[i0]), xyz(&mesh.positions[i1]), xyz(&mesh.positions[i2]));
             if t.flags & flags::NORMALS != 0 {
                 smooth |= 1 << k;
-                (n0[k], n1[k], n2[k]) = (mesh.normals[i0], mesh.normals[i1], mesh.normals[i2]);
+                (n0[k], n1[k], n2[k]) = (xyz(&mesh.normals[i0]), xyz(&mesh.normals[i1]), xyz(&mesh.normals[i2]));
             }
             (hb1[k], hb2[k], tri[k]) = (hit.b1, hit.b2, hit.triangle);
         }
@@ -539,8 +542,8 @@ pub fn radiance8(
             continue;
         }
         let sp = SurfacePoint8::new(
-            [v0, v1, v2].map(|v| V8::from_lanes(&v)),
-            (smooth != 0).then(|| [n0, n1, n2].map(|n| V8::from_lanes(&n))),
+            [v0, v1, v2].map(|v| V8::from_registers(&v)),
+            (smooth != 0).then(|| [n0, n1, n2].map(|n| V8::from_registers(&n))),
             M8::from_bits(smooth),
             F8::from_array(hb1),
             F8::from_array(hb2),

@@ -321,10 +321,23 @@ impl TriangleBlocks {
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[inline(always)]
     unsafe fn closest8_avx2(&self, r: &WatertightRay, start: usize, lanes: u32, tmax: f32) -> (f32, usize, f32, f32) {
+        use std::arch::x86_64::*;
         let l = self.lanes_avx2(r, start, lanes, tmax);
         if l.on_edge != 0 {
             // Rare (a ray within rounding of an edge): the reference answer for the whole group.
             return self.intersect8_scalar(r, start, lanes, tmax).unwrap_or(NO_HIT8);
+        }
+        let hits = _mm256_movemask_ps(l.hit) as u32;
+        if hits & hits.wrapping_sub(1) == 0 {
+            // No lane or one lane hit (nearly every block: a ray rarely crosses two of a block's
+            // triangles): that lane is the nearest, without `nearest_lane`'s reduction, whose
+            // chain of shuffles and minima the walk's next step waited on. Lane 0 when none
+            // (tzcnt of 0 is 32), whose t is then ∞: `nearest_lane`'s answer either way.
+            let k = hits.trailing_zeros() & 7;
+            let pick = |v: __m256| _mm256_cvtss_f32(_mm256_permutevar8x32_ps(v, _mm256_set1_epi32(k as i32)));
+            let t = _mm256_blendv_ps(_mm256_set1_ps(f32::INFINITY), l.t, l.hit);
+            let inv = pick(l.inv);
+            return (pick(t), start + k as usize, pick(l.e1) * inv, pick(l.e2) * inv);
         }
         Self::nearest_lane(&l, start).0
     }

@@ -81,6 +81,11 @@ def main():
                          "that bounce (Tessera only below a throughput of 1/4, Mitsuba below 0.95), so their "
                          "paths differ in length; 65 or more turns it off for both, and paths/s then compares "
                          "paths ended by the same rule (escape, absorption, the depth limit)")
+    ap.add_argument("--max-depth", type=int, metavar="N",
+                    help="the bounce limit for every renderer (Tessera's --max-depth: 0 emission only, 1 direct "
+                         "light; Mitsuba's max_depth N + 1; default 64): paths/s of the paths' first N bounces, "
+                         "where a short path's fixed costs show. The references are of full depth, so the relMSE "
+                         "and efficiency columns then measure the missing light, not noise")
     ap.add_argument("--equal-strategy", action="store_true",
                     help="every renderer traces the same paths by the same rules, so paths/s compares the "
                          "cost of a path alone: Tessera picks NEE's light in proportion to power, as Mitsuba "
@@ -101,6 +106,10 @@ def main():
         if a.rr_depth < 0:
             ap.error("--rr-depth must be at least 0")
         a.tessera_args = f"{a.tessera_args} --rr-depth {a.rr_depth}"
+    if a.max_depth is not None:
+        if a.max_depth < 0:
+            ap.error("--max-depth must be at least 0")
+        a.tessera_args = f"{a.tessera_args} --max-depth {a.max_depth}"
     if a.threads is not None:
         if a.threads < 1:
             ap.error("--threads must be at least 1")
@@ -154,7 +163,8 @@ def main():
                         width = set_vector_width(dr, a.vector_width)
                         print(f"{name}: {variant} with Dr.Jit vector width {width}", file=sys.stderr)
                     scene = mi.load_dict(mr.build_scene(os.path.join(mr.ROOT, rel), w, h, 1, tmp, env,
-                                                         5 if a.rr_depth is None else a.rr_depth))
+                                                         5 if a.rr_depth is None else a.rr_depth,
+                                                         mr.TESSERA_MAX_DEPTH if a.max_depth is None else a.max_depth))
                     peer_render(scene, 999)  # warm-up (JIT compilation for llvm)
                     peers.append((variant, scene, [], []))
                 except Exception as e:  # a missing libLLVM says so and the others still run
@@ -193,6 +203,7 @@ def main():
         threads = f", {a.threads} thread{'s' if a.threads > 1 else ''}" if a.threads else ""
         threads += f", roulette from bounce {a.rr_depth}" if a.rr_depth is not None else ""
         threads += ", equal strategy (Tessera: --light-sampler power)" if a.equal_strategy else ""
+        threads += f", at most {a.max_depth} bounces (relMSE: the light left out)" if a.max_depth is not None else ""
         print(f"\n{name} ({w}x{h}, {a.spp} spp{threads}, median of {a.runs} runs; the reference's own relMSE "
               f"{own:.2e}, subtracted)")
         print(f"{'renderer':<22} {'seconds':>8} {'Mpaths/s':>9} {'raw relMSE':>10} {'relMSE':>10} {'efficiency':>11} "

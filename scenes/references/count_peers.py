@@ -60,7 +60,8 @@ mi.set_variant("llvm_ad_rgb")
 print("width", set_vector_width(dr, None), flush=True)
 rel, w, h = {rel!r}, {w}, {h}
 with tempfile.TemporaryDirectory() as tmp:
-    scene = mi.load_dict(mr.build_scene(os.path.join(mr.ROOT, rel), w, h, {spp}, tmp, {env!r}))
+    scene = mi.load_dict(mr.build_scene(os.path.join(mr.ROOT, rel), w, h, {spp}, tmp, {env!r},
+                                        max_depth={max_depth}))
     # After loading: with one thread set before it, Mitsuba's EXR reading (the environment map)
     # hangs (bench_peers.py).
     dr.set_thread_count(1)
@@ -105,14 +106,14 @@ def pick(rows, name):
     return max((v for k, v in rows.items() if k.split(":", 1)[-1].startswith(name + " [")), default=0)
 
 
-def tessera(name, w, h, spp):
+def tessera(name, w, h, spp, max_depth=mr.TESSERA_MAX_DEPTH):
     rel = mr.SCENES[name][0]
     env = mr.ENVIRONMENTS.get(name)
     env_args = ["--env", os.path.join(mr.ROOT, env[0]), "--env-rotate", str(env[1])] if env else []
     with tempfile.TemporaryDirectory() as tmp:
         listing, _ = callgrind([TESSERA, "render", os.path.join(mr.ROOT, rel), "-o", os.path.join(tmp, "t.exr"),
                                 "--spp", str(spp), "--width", str(w), "--height", str(h), "--threads", "1",
-                                *env_args])
+                                "--max-depth", str(max_depth), *env_args])
     rows = functions(listing)
     total = pick(rows, "renderer::render::render_tile_counted")
     if total == 0:
@@ -127,14 +128,14 @@ def tessera(name, w, h, spp):
     return {"total": total, "tracing": tracing, "light choice": light, "rest": total - tracing - light}
 
 
-def mitsuba(name, w, h, spp):
+def mitsuba(name, w, h, spp, max_depth=mr.TESSERA_MAX_DEPTH):
     rel = mr.SCENES[name][0]
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
     env.setdefault("DRJIT_LIBLLVM_PATH", LLVM)
 
     def run(renders):
         code = MITSUBA_RUN.format(here=HERE, rel=rel, w=w, h=h, spp=spp, env=mr.ENVIRONMENTS.get(name),
-                                  renders=renders)
+                                  renders=renders, max_depth=max_depth)
         cmd = [sys.executable, "-c", code]
         listing, stdout = callgrind(cmd, env, inclusive=False)
         if "width 8" not in stdout:
@@ -166,9 +167,14 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--scale", type=float, default=0.5, help="of each reference's resolution")
     ap.add_argument("--spp", type=int, default=16)
+    ap.add_argument("--max-depth", type=int, default=mr.TESSERA_MAX_DEPTH,
+                    help="bounces for both renderers (Tessera's --max-depth; Mitsuba's max_depth less one): "
+                         "0 counts a path's fixed costs (camera ray, first hit, film), 1 adds one bounce's "
+                         "shading, light sample and two rays (default 64)")
     ap.add_argument("scenes", nargs="*", default=list(mr.SCENES))
     a = ap.parse_args()
-    print(f"instructions per render (millions), both renderers eight lanes wide under valgrind, one thread; "
+    depth = "" if a.max_depth == mr.TESSERA_MAX_DEPTH else f", at most {a.max_depth} bounces"
+    print(f"instructions per render (millions), both renderers eight lanes wide under valgrind, one thread{depth}; "
           f"Tessera: {TESSERA}")
     print(f"{'scene':<14} {'size':>9} {'tessera':>8} {'tracing':>8} {'lights':>7} {'rest':>7}   "
           f"{'mitsuba':>8} {'embree':>7} {'jit':>7} {'other':>6}   {'ours/theirs':>11} {'tracing':>8} "
@@ -176,8 +182,8 @@ def main():
     for name in a.scenes:
         _, rw, rh = mr.SCENES[name]
         w, h = max(8, round(rw * a.scale)), max(8, round(rh * a.scale))
-        t = tessera(name, w, h, a.spp)
-        m = mitsuba(name, w, h, a.spp)
+        t = tessera(name, w, h, a.spp, a.max_depth)
+        m = mitsuba(name, w, h, a.spp, a.max_depth)
         core = m["embree"] + m["jit"]
         M = 1e6
         print(f"{name:<14} {f'{w}x{h}x{a.spp}':>9} {t['total'] / M:>8.1f} {t['tracing'] / M:>8.1f} "

@@ -131,14 +131,16 @@ def _material_dict(m):
     sys.exit(f"material {m.get('name')}: not in the subset this script maps to Mitsuba")
 
 
-def build_scene(gltf_path, width, height, spp, tmp, env=None, rr_depth=5):
+def build_scene(gltf_path, width, height, spp, tmp, env=None, rr_depth=5, max_depth=TESSERA_MAX_DEPTH):
     """The Mitsuba scene of a suite glTF. `rr_depth`: the bounce from which Russian roulette may end
-    paths (Tessera's `--rr-depth`; 5, both renderers' default; `TESSERA_MAX_DEPTH + 1` or more: none)."""
+    paths (Tessera's `--rr-depth`; 5, both renderers' default; `TESSERA_MAX_DEPTH + 1` or more: none).
+    `max_depth`: Tessera's `--max-depth` (bounces: 0 emission only, 1 direct light), Mitsuba's
+    max_depth less one (its 1 is emission only)."""
     with open(gltf_path) as f:
         doc = json.load(f)
     buffers = load_buffers(doc, os.path.dirname(gltf_path))
     scene = {"type": "scene",
-             "integrator": {"type": "path", "max_depth": TESSERA_MAX_DEPTH + 1, "rr_depth": rr_depth,
+             "integrator": {"type": "path", "max_depth": max_depth + 1, "rr_depth": rr_depth,
                             "hide_emitters": False}}
     if env is not None:
         import mitsuba as mi

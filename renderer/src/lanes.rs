@@ -459,8 +459,8 @@ pub fn xyz_register(v: &Vec3) -> __m128 {
     unsafe {
         // `_mm_loadl_epi64` reads unaligned (a `Vec3` is 4-byte aligned).
         let xy = _mm_castsi128_ps(_mm_loadl_epi64((v as *const Vec3).cast()));
-        // z into element 2; element 3 zeroed.
-        _mm_insert_ps::<0b00_10_1000>(xy, _mm_load_ss(&v.z))
+        // z (source element 0, bits 7–6) into element 2 (bits 5–4); element 3 zeroed (bit 3).
+        _mm_insert_ps::<0b0010_1000>(xy, _mm_load_ss(&v.z))
     }
 }
 

@@ -408,6 +408,19 @@ impl LightSet {
         // Without a tree, or with a tree of one node (a few bulbs), one at a time: there is no
         // chain of levels for the batch to interleave.
         let (LightSamplerKind::Tree, Some(tree)) = (self.kind, self.tree.as_ref().filter(|t| !t.is_one_node())) else {
+            #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+            if self.chooses_by_table() {
+                // The power table's choices eight at a time (`AliasTable::sample_lanes`).
+                let mut chosen = [(0usize, 0f32); 8];
+                for s in (0..count).step_by(8) {
+                    let e = (s + 8).min(count);
+                    self.selection.sample_lanes(&u[s..e], &mut chosen[..e - s]);
+                    for k in s..e {
+                        out[k] = Some(chosen[k - s]);
+                    }
+                }
+                return;
+            }
             for k in 0..count {
                 out[k] = self.select(reference[k], normal[k], u[k]);
             }
@@ -460,6 +473,14 @@ impl LightSet {
     /// Whether lights are chosen by walking a light tree.
     pub fn walks_tree(&self) -> bool {
         matches!((self.kind, &self.tree), (LightSamplerKind::Tree, Some(_)))
+    }
+
+    /// Whether [`Self::select`] draws from the power table (`selection`) alone: not uniform, no
+    /// tree to walk, and some light to choose. Its choice then reads only the number `u`, not
+    /// the shading point.
+    fn chooses_by_table(&self) -> bool {
+        self.count() > 0
+            && !matches!((self.kind, &self.tree), (LightSamplerKind::Uniform, _) | (LightSamplerKind::Tree, Some(_)))
     }
 
     /// Chooses a light for a shading point: (global index, probability).

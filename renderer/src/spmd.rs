@@ -639,9 +639,17 @@ pub fn radiance8(
         if nee.any() {
             let u_sel = u_light[(dims::LIGHT_SELECT % 4) as usize];
             let (mut qp, mut qn, mut qu) = ([Vec3::ZERO; LANES], [None; LANES], [0f32; LANES]);
-            for k in lanes_of(nee.bits()) {
-                (nee_lane[chose], qp[chose], qn[chose], qu[chose]) = (k as u8, p[k], Some(ns_flipped[k]), u_sel[k]);
-                chose += 1;
+            if scene.lights.walks_tree() {
+                for k in lanes_of(nee.bits()) {
+                    (nee_lane[chose], qp[chose], qn[chose], qu[chose]) = (k as u8, p[k], Some(ns_flipped[k]), u_sel[k]);
+                    chose += 1;
+                }
+            } else {
+                // Power and uniform choices read `u` alone, not the point and normal.
+                for k in lanes_of(nee.bits()) {
+                    (nee_lane[chose], qu[chose]) = (k as u8, u_sel[k]);
+                    chose += 1;
+                }
             }
             scene.lights.select_batch(&qp[..chose], &qn[..chose], &qu[..chose], &mut selected[..chose]);
         }

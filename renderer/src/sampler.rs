@@ -34,8 +34,10 @@ pub mod dims {
     pub const SPARE: u32 = 7;
 }
 
-/// Sampler for one (pixel, sample index).
+/// Sampler for one (pixel, sample index). `repr(C)`: [`get_4d_pair_each_lanes`] gathers
+/// `pixel_seed` and `index` (at bytes 4 and 8 of its 12) for eight lanes at once.
 #[derive(Clone, Copy, Debug)]
+#[repr(C)]
 pub struct PixelSample {
     kind: SamplerKind,
     pixel_seed: u32,
@@ -186,21 +188,43 @@ pub(crate) fn get_4d_pair_each_lanes(
     if samplers.iter().any(|s| s.kind != SamplerKind::Sobol) {
         return false;
     }
-    // `sobol_seed`'s hash inputs, the set hashes (a table lookup each) one lane at a time; the
-    // hashes themselves eight-wide.
-    let (mut index, mut pixel, mut set_a, mut set_b) = ([0u32; 8], [0u32; 8], [0u32; 8], [0u32; 8]);
-    for k in 0..8 {
-        let s = &samplers[k];
-        let block = s.index >> 16;
-        (index[k], pixel[k]) = (s.index & 0xffff, s.pixel_seed);
-        (set_a[k], set_b[k]) = (set_hash(sets_a[k], block), set_hash(sets_b[k], block));
-    }
-    // SAFETY: AVX2 is enabled at compile time; loads and stores are unaligned.
+    // `sobol_seed`'s hash inputs eight lanes at once: each sampler's pixel seed and index
+    // gathered, and the set hashes gathered from their table where every lane's sample lies in
+    // block 0 and both sets are tabulated (a bounce below 127), else looked up lane by lane.
+    // SAFETY: AVX2 is enabled at compile time; loads and stores are unaligned. The gathers read
+    // `samplers[k]`'s `pixel_seed` and `index` (`PixelSample` is `repr(C)`: a one-byte kind and
+    // its padding, then the two u32 at bytes 4 and 8 of 12), and the table at indices checked to
+    // be below its length.
     unsafe {
         use std::arch::x86_64::*;
         let load = |x: &[u32; 8]| _mm256_loadu_si256(x.as_ptr() as *const __m256i);
-        let seed = |sets: &[u32; 8]| hash_u32_avx2(_mm256_xor_si256(load(&pixel), load(sets)));
-        sobol_lanes_avx2(index, [seed(&set_a), seed(&set_b)], [a, b])
+        let words = samplers.as_ptr() as *const i32;
+        let lane = _mm256_setr_epi32(0, 3, 6, 9, 12, 15, 18, 21);
+        let pixel = _mm256_i32gather_epi32::<4>(words.add(1), lane);
+        let full = _mm256_i32gather_epi32::<4>(words.add(2), lane);
+        let index = _mm256_and_si256(full, _mm256_set1_epi32(0xffff));
+        let (sa, sb) = (load(sets_a), load(sets_b));
+        // Each lane's larger set, with its block above bit 8 (a block is 16 bits): below
+        // SET_HASHES (256) in every lane exactly where every set is tabulated and every block 0.
+        let blocks = _mm256_slli_epi32::<8>(_mm256_srli_epi32::<16>(full));
+        let key = _mm256_or_si256(_mm256_max_epu32(sa, sb), blocks);
+        const _: () = assert!(SET_HASHES == 256);
+        let tabulated = _mm256_testz_si256(key, _mm256_set1_epi32(!0xff)) != 0;
+        let (ha, hb) = if tabulated {
+            let table = SET_HASH_TABLE.as_ptr() as *const i32;
+            (_mm256_i32gather_epi32::<4>(table, sa), _mm256_i32gather_epi32::<4>(table, sb))
+        } else {
+            let (mut set_a, mut set_b) = ([0u32; 8], [0u32; 8]);
+            for k in 0..8 {
+                let block = samplers[k].index >> 16;
+                (set_a[k], set_b[k]) = (set_hash(sets_a[k], block), set_hash(sets_b[k], block));
+            }
+            (load(&set_a), load(&set_b))
+        };
+        let seed = |h: __m256i| hash_u32_avx2(_mm256_xor_si256(pixel, h));
+        let mut idx = [0u32; 8];
+        _mm256_storeu_si256(idx.as_mut_ptr() as *mut __m256i, index);
+        sobol_lanes_avx2(idx, [seed(ha), seed(hb)], [a, b])
     };
     true
 }
@@ -577,17 +601,31 @@ mod tests {
         let mut checked = 0;
         let indices = [0u32, 1, 7, 61, 65_535, 65_536, 131_071, 200_001, 3, 40_000];
         let sets = [0u32, 1, 2, 9, 254, 255, 256, 300, 5, 77, 129];
-        for round in 0..200u32 {
+        // Rounds of three kinds: lanes mixed inside and past the table (and block 0 or not); every
+        // lane inside it and in block 0 (the set hashes gathered from the table); the same with
+        // one lane moved past it, by its set or its block.
+        for round in 0..600u32 {
             let mut samplers = [PixelSample::new(SamplerKind::Sobol, 0, (0, 0), 0); 8];
             let (mut sets_a, mut sets_b) = ([0u32; 8], [0u32; 8]);
             for k in 0..8 {
                 let r = hash_u32(round * 8 + k as u32);
                 let seed = [0u64, 3, u64::MAX][(r % 3) as usize];
                 let pixel = ((r >> 4) % 4096, (r >> 16) % 64);
-                let index = indices[((r >> 8) as usize) % indices.len()];
-                samplers[k] = PixelSample::new(SamplerKind::Sobol, seed, pixel, index);
+                let mut index = indices[((r >> 8) as usize) % indices.len()];
                 sets_a[k] = sets[((r >> 12) as usize) % sets.len()];
                 sets_b[k] = sets_a[k] + 1 + (r >> 28);
+                if round % 3 != 0 {
+                    (index, sets_a[k]) = (index & 0xffff, sets_a[k] % 239);
+                    sets_b[k] = sets_a[k] + 1 + (r >> 28);
+                    if round % 3 == 2 && k == (round as usize / 3) % 8 {
+                        if round % 2 == 0 {
+                            sets_b[k] = 256 + (r >> 28);
+                        } else {
+                            index |= 1 << 16;
+                        }
+                    }
+                }
+                samplers[k] = PixelSample::new(SamplerKind::Sobol, seed, pixel, index);
             }
             let (mut a, mut b) = ([[0f32; 8]; 4], [[0f32; 8]; 4]);
             assert!(get_4d_pair_each_lanes(&samplers, &sets_a, &sets_b, &mut a, &mut b));
@@ -600,7 +638,7 @@ mod tests {
                 checked += 1;
             }
         }
-        assert_eq!(checked, 1600);
+        assert_eq!(checked, 4800);
         let mut samplers = [PixelSample::new(SamplerKind::Sobol, 3, (1, 1), 0); 8];
         samplers[5] = PixelSample::new(SamplerKind::Independent, 3, (1, 1), 0);
         let (mut a, mut b) = ([[7f32; 8]; 4], [[7f32; 8]; 4]);

@@ -16,6 +16,14 @@ struct Bin {
     alias: u32,
 }
 
+// The layout `AliasTable::sample_lanes` gathers.
+const _: () = assert!(
+    std::mem::size_of::<Bin>() == 12
+        && std::mem::offset_of!(Bin, q) == 0
+        && std::mem::offset_of!(Bin, p) == 4
+        && std::mem::offset_of!(Bin, alias) == 8
+);
+
 impl AliasTable {
     /// Builds the table from non-negative weights. Returns None when no weight is positive and finite.
     pub fn new(weights: &[f32]) -> Option<Self> {

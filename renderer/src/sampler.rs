@@ -44,6 +44,13 @@ pub struct PixelSample {
     index: u32,
 }
 
+// The layout the eight-lane gathers read.
+const _: () = assert!(
+    std::mem::size_of::<PixelSample>() == 12
+        && std::mem::offset_of!(PixelSample, pixel_seed) == 4
+        && std::mem::offset_of!(PixelSample, index) == 8
+);
+
 impl PixelSample {
     pub fn new(kind: SamplerKind, seed: u64, pixel: (u32, u32), index: u32) -> Self {
         let pixel_seed = hash_u64(seed ^ hash_u64(((pixel.0 as u64) << 32) | pixel.1 as u64)) as u32;

@@ -406,7 +406,8 @@ impl LightSet {
     ) {
         let count = reference.len().min(normal.len()).min(u.len()).min(out.len());
         // Without a tree, or with a tree of one node (a few bulbs), one at a time: there is no
-        // chain of levels for the batch to interleave.
+        // chain of levels for the batch to interleave, and the batch's state (its arrays here and
+        // `LightTree::sample_batch`'s) cost more than the one level it walks.
         let (LightSamplerKind::Tree, Some(tree)) = (self.kind, self.tree.as_ref().filter(|t| !t.is_one_node())) else {
             #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
             if self.chooses_by_table() {

@@ -532,7 +532,9 @@ impl LightTree {
         self.walk(u, |at, u| choose(&self.importances(at, p, n), u))
     }
 
-    /// Whether the tree is a single node (eight lights or fewer): a walk is then one level.
+    /// Whether the tree is a single node (eight lights or fewer): a walk is then one level, with
+    /// no chain for a batch to interleave, so `LightSet::select_batch` walks such a tree one
+    /// point at a time rather than through [`Self::sample_batch`].
     pub fn is_one_node(&self) -> bool {
         self.nodes.len() == 1
     }
@@ -546,7 +548,7 @@ impl LightTree {
     pub fn sample_batch(&self, p: &[Vec3], n: &[Option<Vec3>], u: &[f32], out: &mut [Option<(usize, f32)>]) {
         let count = p.len().min(n.len()).min(u.len()).min(out.len());
         #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
-        if !self.scalar_reference && !self.is_one_node() {
+        if !self.scalar_reference {
             for s in (0..count).step_by(MAX_WALKS) {
                 let e = (s + MAX_WALKS).min(count);
                 // SAFETY: AVX2 is enabled at compile time; the families' loads are 32-byte aligned.
@@ -554,8 +556,6 @@ impl LightTree {
             }
             return;
         }
-        // One node (eight lights or fewer: a scene's few bulbs) is one level: the walks have no
-        // chain to interleave, and the batch's state would cost more than the walk.
         for k in 0..count {
             out[k] = self.sample(p[k], n[k], u[k]);
         }

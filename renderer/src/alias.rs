@@ -90,17 +90,15 @@ impl AliasTable {
             }
             return;
         }
+        let mut ua = [0f32; 8];
+        ua[..count].copy_from_slice(&u[..count]);
         let (mut idx, mut p) = ([0i32; 8], [0f32; 8]);
         // SAFETY: AVX2 is enabled at compile time. Every gathered index is a bin's field: `i` is
         // at most n − 1 in every lane (the unsigned minimum also catches the truncation's
         // 0x8000_0000 for NaN and the wrap of a negative), an alias is a bin index
-        // (`AliasTable::new`), and `Bin` is `repr(C)` (q, p, alias at 0, 4, 8). The masked load
-        // reads only the lanes below `count`, which is at most `u.len()`.
+        // (`AliasTable::new`), and `Bin` is `repr(C)` (q, p, alias at 0, 4, 8).
         let valid = unsafe {
-            // The `count` numbers, zeros after them, by a masked load: copied into an array first,
-            // they cost a call to `memcpy` and a 32-byte load across its smaller stores.
-            let lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
-            let uv = _mm256_maskload_ps(u.as_ptr(), _mm256_cmpgt_epi32(_mm256_set1_epi32(count as i32), lanes));
+            let uv = _mm256_loadu_ps(ua.as_ptr());
             let valid = _mm256_and_ps(
                 _mm256_cmp_ps::<_CMP_GE_OQ>(uv, _mm256_setzero_ps()),
                 _mm256_cmp_ps::<_CMP_LT_OQ>(uv, _mm256_set1_ps(1.0)),

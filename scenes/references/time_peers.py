@@ -33,6 +33,7 @@ per-render overhead.
 """
 import argparse
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -142,6 +143,8 @@ def mitsuba(name, w, h, spp, max_depth, renders, tmp):
     perf.wait()
     if len(line) != 2 or line[0] != "seconds":
         sys.exit(f"{name}: the Mitsuba renders failed ({line})")
+    if not os.path.exists(data):
+        sys.exit(f"{name}: perf did not attach to the Mitsuba process (perf_event_paranoid?)")
     seconds = float(line[1])
     parts = Counter()
     for key, n in perf_samples(data, "dso,symbol").items():
@@ -166,6 +169,10 @@ def main():
                     help="bounces for both renderers, as in bench_peers.py (default 64)")
     ap.add_argument("scenes", nargs="*", default=list(mr.SCENES))
     a = ap.parse_args()
+    if shutil.which("perf") is None:
+        sys.exit("time_peers.py needs perf (Debian: apt-get install linux-perf)")
+    if not os.path.exists(TESSERA):
+        sys.exit(f"no Tessera binary at {TESSERA} (cargo build --release, or set TESSERA_BIN)")
     depth = "" if a.max_depth == mr.TESSERA_MAX_DEPTH else f", at most {a.max_depth} bounces"
     print(f"seconds per render at each reference's size, {a.spp} spp, one thread{depth} (perf cpu-clock samples); "
           f"Tessera: {TESSERA}")

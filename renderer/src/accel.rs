@@ -103,13 +103,6 @@ trait TraversalNode {
     /// The hit mask in obvhs' format and each child's entry distance by slot (see
     /// [`crate::cwbvh_node::intersect_entry`]).
     fn test(&self, ray: &NodeRay) -> (u32, [f32; 8]);
-    /// [`Self::test`]'s mask in its two parts: the primitive bits (low 24) and the inner
-    /// children's (high 8, shifted down), with the entry distances.
-    #[inline(always)]
-    fn test_split(&self, ray: &NodeRay) -> (u32, u32, [f32; 8]) {
-        let (hits, entry) = self.test(ray);
-        (hits & 0x00ff_ffff, hits >> 24, entry)
-    }
     /// obvhs' `(child_base_idx, primitive_base_idx, imask)`.
     fn links(&self) -> (u32, u32, u32);
     /// The primitive bits of leaf child `slot` (relative to `primitive_base_idx`, as in the hit
@@ -138,11 +131,6 @@ impl TraversalNode for WideNode {
     #[inline(always)]
     fn test(&self, ray: &NodeRay) -> (u32, [f32; 8]) {
         self.intersect(ray)
-    }
-    #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "bmi2"))]
-    #[inline(always)]
-    fn test_split(&self, ray: &NodeRay) -> (u32, u32, [f32; 8]) {
-        self.intersect_split(ray)
     }
     #[inline(always)]
     fn links(&self) -> (u32, u32, u32) {
@@ -318,16 +306,17 @@ impl Walk {
         }
         let oct = self.ray.oct_inv4 & 7;
         let node = &nodes[self.current as usize];
-        let (prims, mut inner, entry) = node.test_split(&self.ray);
+        let (hits, entry) = node.test(&self.ray);
+        let prims = hits & 0x00ff_ffff;
         if !BATCH && prims != 0 {
             let t = group(&self.ray, node.links().1 as usize, prims);
             if t < self.ray.tmax {
                 self.ray.tmax = t;
             }
         }
-        // Inner children hit: bit p of `inner` (the mask's bit 24 + p) is the child in slot
-        // p ^ octant. Each is inserted into this node's run at the top of the stack, farthest
-        // deepest.
+        // Inner children hit: bit 24 + p of the mask is the child in slot p ^ octant. Each is
+        // inserted into this node's run at the top of the stack, farthest deepest.
+        let mut inner = hits >> 24;
         let run = self.sp;
         let mut sp = self.sp;
         while inner != 0 && sp < stack.len() {
@@ -406,8 +395,9 @@ impl Walk {
             self.leaf_prims = 0;
         } else {
             let node = &nodes[self.current as usize];
-            let (prims, inner, _) = node.test_split(&self.ray);
-            self.sp = defer_unordered(node, inner, self.ray.oct_inv4 & 7, stack, self.sp, &|_| false);
+            let hits = node.test(&self.ray).0;
+            self.sp = defer_unordered(node, hits, self.ray.oct_inv4 & 7, stack, self.sp, &|_| false);
+            let prims = hits & 0x00ff_ffff;
             if prims != 0 {
                 let base = node.links().1;
                 touch(base as usize, prims);
@@ -426,19 +416,20 @@ impl Walk {
     }
 }
 
-/// Pushes the inner children `inner` marks (bit p, the hit mask's bit 24 + p: the child in slot
-/// p ^ `oct`) onto `stack` above `sp`, in octant order and without distances (an any-hit walk never shortens its
+/// Pushes the inner children `hits` marks (bit 24 + p: the child in slot p ^ `oct`) onto
+/// `stack` above `sp`, in octant order and without distances (an any-hit walk never shortens its
 /// ray, so their order cannot skip one), but for those `skip` names (as in
 /// [`traverse_closest`]); returns the new stack pointer.
 #[inline(always)]
 fn defer_unordered<N: TraversalNode>(
     node: &N,
-    mut inner: u32,
+    hits: u32,
     oct: u32,
     stack: &mut [MaybeUninit<Deferred>],
     mut sp: usize,
     skip: &impl Fn(u32) -> bool,
 ) -> usize {
+    let mut inner = hits >> 24;
     while inner != 0 && sp < stack.len() {
         let slot = inner.trailing_zeros() ^ oct;
         inner &= inner - 1;
@@ -473,12 +464,13 @@ fn traverse_any<N: TraversalNode>(
     let (mut sp, mut current) = (0usize, 0u32);
     loop {
         let node = &nodes[current as usize];
-        let (prims, inner, _) = node.test_split(&ray);
+        let hits = node.test(&ray).0;
+        let prims = hits & 0x00ff_ffff;
         if prims != 0 && group(node.links().1 as usize, prims) {
             return true;
         }
         let below = sp;
-        sp = defer_unordered(node, inner, oct, stack, sp, &skip);
+        sp = defer_unordered(node, hits, oct, stack, sp, &skip);
         for e in &stack[below..sp] {
             // SAFETY: entries below `sp` have been written.
             if let Some(child) = nodes.get(unsafe { e.assume_init() }.node as usize) {

@@ -45,18 +45,7 @@ pub struct WideNode {
     pub primitive_base_idx: u32,
     /// Bit i set when slot i holds an inner node.
     pub imask: u32,
-    /// The leaf children's primitive runs for [`Self::intersect_split`]: bit i set when slot i
-    /// holds a leaf, and one bit a leaf at its run's first primitive (`prim_starts`) and one
-    /// past its last (`prim_ends`), the runs in slot order. `leaf8` 0 when the runs are not in
-    /// slot order, `prim_starts` then all ones (and the split test shifts and ORs the lanes' bits
-    /// as [`Self::intersect`] does).
-    leaf8: u32,
-    prim_starts: u32,
-    prim_ends: u32,
 }
-
-// The three run fields fit in the padding of the 64-byte-aligned node: still four cache lines.
-const _: () = assert!(std::mem::size_of::<WideNode>() == 256);
 
 impl WideNode {
     pub fn from_compressed(n: &CwBvhNode) -> Self {
@@ -78,7 +67,7 @@ impl WideNode {
         // obvhs' get_child_and_index_bits, less its one ray-dependent step (the octant XOR).
         let meta8 = u64::from_le_bytes(n.child_meta);
         let is_inner8 = (meta8 & (meta8 << 1)) & 0x1010_1010_1010_1010;
-        let mut node = WideNode {
+        WideNode {
             planes,
             child_bits8: (meta8 >> 5) & 0x0707_0707_0707_0707,
             index8: meta8 & 0x1f1f_1f1f_1f1f_1f1f,
@@ -86,23 +75,7 @@ impl WideNode {
             child_base_idx: n.child_base_idx,
             primitive_base_idx: n.primitive_base_idx,
             imask: n.imask as u32,
-            leaf8: 0,
-            prim_starts: 0,
-            prim_ends: 0,
-        };
-        // The leaves' runs, kept only if each begins at or after the previous one's end.
-        let (mut leaf8, mut starts, mut ends, mut end, mut ordered) = (0u32, 0u32, 0u32, 0u32, true);
-        for slot in (0..8).filter(|&s| n.child_meta[s] != 0 && node.imask & (1 << s) == 0) {
-            let run = node.leaf_prims(slot);
-            let (first, past) = (run.trailing_zeros(), 32 - run.leading_zeros());
-            ordered &= run != 0 && first >= end && past <= 24 && run.count_ones() == past - first;
-            end = past;
-            leaf8 |= 1 << slot;
-            starts |= 1u32.checked_shl(first).unwrap_or(0);
-            ends |= 1u32.checked_shl(past).unwrap_or(0);
         }
-        (node.leaf8, node.prim_starts, node.prim_ends) = if ordered { (leaf8, starts, ends) } else { (0, u32::MAX, 0) };
-        node
     }
 
     /// Child `slot`'s box as its lower and upper corners, or None for an empty slot.
@@ -185,72 +158,13 @@ impl WideNode {
     #[inline(always)]
     unsafe fn intersect_avx2(&self, ray: &NodeRay) -> (u32, [f32; 8]) {
         use std::arch::x86_64::*;
-        let (hit, entry) = self.hit_lanes(ray);
-        let hit = _mm256_castps_si256(hit);
-        // Each hit child's bits shifted to its place in the mask, ORed across the lanes. Every
-        // shift is below 32 (a slot + 24 or a primitive offset below 24, the octant XOR touching
-        // only bits 0–2); the mask says so to LLVM, which otherwise guards `vpsllvd`'s
-        // out-of-range rule with five more instructions a node.
-        let index8 = self.index8(ray.oct_inv4) & 0x1f1f_1f1f_1f1f_1f1f;
-        let widen = |x: u64| _mm256_cvtepu8_epi32(_mm_cvtsi64_si128(x as i64));
-        let bits = _mm256_and_si256(_mm256_sllv_epi32(widen(self.child_bits8), widen(index8)), hit);
-        let x = _mm_or_si128(_mm256_castsi256_si128(bits), _mm256_extracti128_si256::<1>(bits));
-        let x = _mm_or_si128(x, _mm_shuffle_epi32::<0b01_00_11_10>(x));
-        let x = _mm_or_si128(x, _mm_shuffle_epi32::<0b10_11_00_01>(x));
-        (_mm_cvtsi128_si32(x) as u32, entry)
-    }
-
-    /// [`Self::intersect`]'s answer in two parts, the primitive bits (the mask's low 24) and the
-    /// inner children's bits (the mask's high 8, bit `slot ^ octant`), with the entry distances.
-    ///
-    /// Why: `intersect` builds its mask from every lane's shifted bits, reduced by an extract,
-    /// three ORs, two shuffles and a move (a fifth of the closest-hit walk's `perf` samples on
-    /// scenes/many_lights, whose rays visit 2.9 nodes and 0.04 leaves a query). Here both parts
-    /// come from the hit lanes' sign mask: the inner bits by a table lookup, the primitive bits
-    /// by depositing the hit leaves onto their runs' ends and starts (`pdep`) and subtracting,
-    /// which is the runs' union because they are disjoint (2^end − 2^start is a run's mask).
-    #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "bmi2"))]
-    #[inline(always)]
-    pub fn intersect_split(&self, ray: &NodeRay) -> (u32, u32, [f32; 8]) {
-        use std::arch::x86_64::*;
-        if self.prim_starts == u32::MAX {
-            return self.intersect_split_unordered(ray);
-        }
-        // SAFETY: AVX2 and BMI2 are enabled at compile time; `hit_lanes` loads the node's rows.
-        unsafe {
-            let (hit, entry) = self.hit_lanes(ray);
-            let m = _mm256_movemask_ps(hit) as u32;
-            let inner = u32::from(OCTANT_ORDER[(ray.oct_inv4 & 7) as usize][(m & self.imask) as usize & 0xff]);
-            let leaves = _pext_u32(m, self.leaf8);
-            let prims = _pdep_u32(leaves, self.prim_ends).wrapping_sub(_pdep_u32(leaves, self.prim_starts));
-            (prims, inner, entry)
-        }
-    }
-
-    /// [`Self::intersect_split`] for a node whose runs are out of slot order: the one mask,
-    /// split. Out of line, so the walks that inline the split test do not carry it (no suite
-    /// scene's BVH has such a node).
-    #[cold]
-    #[inline(never)]
-    fn intersect_split_unordered(&self, ray: &NodeRay) -> (u32, u32, [f32; 8]) {
-        let (hits, entry) = self.intersect(ray);
-        (hits & 0x00ff_ffff, hits >> 24, entry)
-    }
-
-    /// The children `ray` enters before `ray.tmax` as a lane mask, and their entry distances:
-    /// the slab test of [`Self::intersect`] and [`Self::intersect_split`].
-    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-    #[inline(always)]
-    unsafe fn hit_lanes(&self, ray: &NodeRay) -> (std::arch::x86_64::__m256, [f32; 8]) {
-        use std::arch::x86_64::*;
         // A ray with a negative inverse enters a box through its upper plane ([`NodeRay::negative`]):
         // the rows to load, as byte offsets from a table. Worked out from the sign bits, they
         // cost 13 to 15 more instructions a query (callgrind, `bench rays --scene glass` and
         // `--scene veach`, `--accel obvhs --no-batches`).
         let rows = &PLANE_ROWS[ray.negative as usize & 7];
         let planes = self.planes.as_ptr() as *const u8;
-        // SAFETY: every offset in `PLANE_ROWS` is that of one of `planes`' six 32-byte-aligned
-        // rows (the struct is 64-byte aligned, each row 32 bytes).
+        // SAFETY: every offset in `PLANE_ROWS` is that of one of `planes`' six 32-byte-aligned rows.
         let ld = |row: usize| _mm256_load_ps(planes.add(row) as *const f32);
         let slab = |axis: usize| {
             let o = _mm256_set1_ps(ray.origin[axis]);
@@ -265,9 +179,20 @@ impl WideNode {
         let (nz, fz) = slab(2);
         let tmin = _mm256_max_ps(_mm256_max_ps(nx, ny), _mm256_max_ps(nz, _mm256_set1_ps(ray.tmin)));
         let tmax = _mm256_min_ps(_mm256_min_ps(fx, fy), _mm256_min_ps(fz, _mm256_set1_ps(ray.tmax)));
+        let hit = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LE_OQ>(tmin, tmax));
+        // Each hit child's bits shifted to its place in the mask, ORed across the lanes. Every
+        // shift is below 32 (a slot + 24 or a primitive offset below 24, the octant XOR touching
+        // only bits 0–2); the mask says so to LLVM, which otherwise guards `vpsllvd`'s
+        // out-of-range rule with five more instructions a node.
+        let index8 = self.index8(ray.oct_inv4) & 0x1f1f_1f1f_1f1f_1f1f;
+        let widen = |x: u64| _mm256_cvtepu8_epi32(_mm_cvtsi64_si128(x as i64));
+        let bits = _mm256_and_si256(_mm256_sllv_epi32(widen(self.child_bits8), widen(index8)), hit);
+        let x = _mm_or_si128(_mm256_castsi256_si128(bits), _mm256_extracti128_si256::<1>(bits));
+        let x = _mm_or_si128(x, _mm_shuffle_epi32::<0b01_00_11_10>(x));
+        let x = _mm_or_si128(x, _mm_shuffle_epi32::<0b10_11_00_01>(x));
         let mut entry = [0f32; 8];
         _mm256_storeu_ps(entry.as_mut_ptr(), tmin);
-        (_mm256_cmp_ps::<_CMP_LE_OQ>(tmin, tmax), entry)
+        (_mm_cvtsi128_si32(x) as u32, entry)
     }
 
     /// Each child's place in the hit mask for a ray of octant code `oct_inv4`: obvhs'
@@ -318,31 +243,6 @@ const PLANE_ROWS: [[usize; 6]; 8] = {
     table
 };
 
-/// By octant code and a set of slots (bit s: slot s), the same set with slot s at bit
-/// `s ^ octant`: the inner children's part of the hit mask ([`WideNode::intersect_split`]).
-#[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "bmi2"))]
-static OCTANT_ORDER: [[u8; 256]; 8] = {
-    let mut table = [[0u8; 256]; 8];
-    let mut oct = 0;
-    while oct < 8 {
-        let mut slots = 0;
-        while slots < 256 {
-            let mut out = 0u8;
-            let mut s = 0;
-            while s < 8 {
-                if slots & (1 << s) != 0 {
-                    out |= 1 << (s ^ oct);
-                }
-                s += 1;
-            }
-            table[oct][slots] = out;
-            slots += 1;
-        }
-        oct += 1;
-    }
-    table
-};
-
 /// The largest f32 ≤ x.
 fn round_down(x: f64) -> f32 {
     let f = x as f32;
@@ -383,12 +283,6 @@ mod tests {
                 let (mask, entry) = w.intersect(&ray);
                 let (mask_ref, entry_ref) = w.intersect_scalar(&ray);
                 assert_eq!(mask, mask_ref, "ray {i}");
-                #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "bmi2"))]
-                {
-                    let (prims, inner, split_entry) = w.intersect_split(&ray);
-                    assert_eq!((prims, inner), (mask & 0x00ff_ffff, mask >> 24), "ray {i}: the split mask");
-                    assert_eq!(split_entry.map(f32::to_bits), entry.map(f32::to_bits), "ray {i}");
-                }
                 assert_eq!(entry.map(f32::to_bits), entry_ref.map(f32::to_bits), "ray {i}");
                 let compressed = crate::cwbvh_node::intersect(n, &ray);
                 assert_eq!(compressed & !mask, 0, "ray {i}: a child the compressed box test hits was missed");
@@ -397,37 +291,6 @@ mod tests {
             }
         }
         assert!(checked > 100_000 && hits > 10_000, "{checked} node tests, {hits} with hits");
-    }
-
-    /// The split test's two parts are the one mask's, by both of its ways: the runs' deposits
-    /// (every node of these BVHs has its leaves' runs in slot order, so that is the way taken)
-    /// and the one mask split (a node marked out of order).
-    #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "bmi2"))]
-    #[test]
-    fn split_test_is_the_mask_in_two_parts() {
-        for level in [1, 3, 4] {
-            let bvh = crate::testing::icosphere_cwbvh(level, |v| v, true);
-            let wide: Vec<WideNode> = bvh.nodes.iter().map(WideNode::from_compressed).collect();
-            assert!(wide.iter().all(|w| w.prim_starts != u32::MAX), "level {level}: a node's runs out of slot order");
-            assert!(wide.iter().any(|w| w.leaf8 != 0 && w.imask != 0), "level {level}: no node with both kinds");
-            let unordered: Vec<WideNode> =
-                wide.iter().map(|w| WideNode { leaf8: 0, prim_starts: u32::MAX, prim_ends: 0, ..*w }).collect();
-            let mut hits = 0;
-            for i in 0..600u64 {
-                let Some(theirs) = crate::testing::node_test_ray(i) else { continue };
-                let ray = NodeRay::new(theirs.origin, theirs.direction, theirs.tmax);
-                for (w, u) in wide.iter().zip(&unordered) {
-                    let (mask, entry) = w.intersect(&ray);
-                    for node in [w, u] {
-                        let (prims, inner, split_entry) = node.intersect_split(&ray);
-                        assert_eq!((prims, inner), (mask & 0x00ff_ffff, mask >> 24), "level {level}, ray {i}");
-                        assert_eq!(split_entry.map(f32::to_bits), entry.map(f32::to_bits), "level {level}, ray {i}");
-                    }
-                    hits += usize::from(mask & 0x00ff_ffff != 0 && mask >> 24 != 0);
-                }
-            }
-            assert!(hits > 100, "level {level}: {hits} node tests with both kinds hit");
-        }
     }
 
     /// The eight-at-once bundle test equals the one-box test on every child of every node, for

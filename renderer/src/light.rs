@@ -480,8 +480,7 @@ impl LightSet {
     /// tree to walk, and some light to choose. Its choice then reads only the number `u`, not
     /// the shading point.
     fn chooses_by_table(&self) -> bool {
-        self.count() > 0
-            && !matches!((self.kind, &self.tree), (LightSamplerKind::Uniform, _) | (LightSamplerKind::Tree, Some(_)))
+        self.count() > 0 && !matches!(self.kind, LightSamplerKind::Uniform) && !self.walks_tree()
     }
 
     /// Chooses a light for a shading point: (global index, probability).

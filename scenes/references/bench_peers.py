@@ -149,7 +149,7 @@ def main():
         ref = full[:, :, :3]
         own = reference_own_rel_mse(ref, full[:, :, 3]) if full.shape[2] > 3 else 0.0
         env = mr.ENVIRONMENTS.get(name)
-        env_args = ["--env", os.path.join(mr.ROOT, env[0]), "--env-rotate", str(env[1])] if env else []
+        env_args = mr.tessera_env_args(name)
         with tempfile.TemporaryDirectory() as tmp:
             # Every peer's scene is loaded and warmed up first; then the runs alternate, one
             # Tessera render and one of each peer in turn, so a shared, noisy machine slows all

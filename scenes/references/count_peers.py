@@ -108,8 +108,7 @@ def pick(rows, name):
 
 def tessera(name, w, h, spp, max_depth=mr.TESSERA_MAX_DEPTH):
     rel = mr.SCENES[name][0]
-    env = mr.ENVIRONMENTS.get(name)
-    env_args = ["--env", os.path.join(mr.ROOT, env[0]), "--env-rotate", str(env[1])] if env else []
+    env_args = mr.tessera_env_args(name)
     with tempfile.TemporaryDirectory() as tmp:
         listing, _ = callgrind([TESSERA, "render", os.path.join(mr.ROOT, rel), "-o", os.path.join(tmp, "t.exr"),
                                 "--spp", str(spp), "--width", str(w), "--height", str(h), "--threads", "1",

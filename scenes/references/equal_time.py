@@ -46,7 +46,7 @@ def main():
         with tempfile.TemporaryDirectory() as tmp:
             env = mr.ENVIRONMENTS.get(name)
             scene = mi.load_dict(mr.build_scene(os.path.join(mr.ROOT, rel), w, h, 1, tmp, env))
-            env_args = ["--env", os.path.join(mr.ROOT, env[0]), "--env-rotate", str(env[1])] if env else []
+            env_args = mr.tessera_env_args(name)
             for spp in a.spp:
                 tt, te, mt, me = [], [], [], []
                 for r in range(a.runs):

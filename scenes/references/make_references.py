@@ -49,6 +49,12 @@ ENVIRONMENTS = {
 TESSERA_MAX_DEPTH = 64
 
 
+def tessera_env_args(name):
+    """`tessera render`'s flags for scene `name`'s environment (`ENVIRONMENTS`), [] for none."""
+    env = ENVIRONMENTS.get(name)
+    return ["--env", os.path.join(ROOT, env[0]), "--env-rotate", str(env[1])] if env else []
+
+
 def mat_from_trs(node):
     if "matrix" in node:
         return np.array(node["matrix"], dtype=np.float64).reshape(4, 4).T  # column-major

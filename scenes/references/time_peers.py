@@ -50,8 +50,7 @@ LLVM = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
 
 QUERIES = ("renderer::accel::", "renderer::triangle::", "renderer::ray_bundle::", "renderer::solid_surface::",
            "renderer::convex_solid::", "renderer::wide_node::", "renderer::cwbvh_node::",
-           "renderer::scene::Scene::intersect_surface_batch", "renderer::scene::Scene::visibility_batch",
-           "renderer::scene::Scene::visibility")
+           "renderer::scene::Scene::intersect_surface_batch", "renderer::scene::Scene::visibility")
 LIGHTS = ("renderer::light::", "renderer::light_tree::", "renderer::alias::", "renderer::bulb::")
 
 # Loads the scene, renders once, says "ready", waits for a line on stdin, renders `renders` times
@@ -94,8 +93,7 @@ def perf_samples(data, sort):
 
 def tessera(name, w, h, spp, max_depth, tmp):
     rel = mr.SCENES[name][0]
-    env = mr.ENVIRONMENTS.get(name)
-    env_args = ["--env", os.path.join(mr.ROOT, env[0]), "--env-rotate", str(env[1])] if env else []
+    env_args = mr.tessera_env_args(name)
     data = os.path.join(tmp, "tessera.data")
     cmd = [TESSERA, "render", os.path.join(mr.ROOT, rel), "-o", os.path.join(tmp, "t.exr"), "--spp", str(spp),
            "--width", str(w), "--height", str(h), "--threads", "1", "--max-depth", str(max_depth), *env_args]

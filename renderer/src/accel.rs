@@ -622,15 +622,76 @@ fn next_window(base: usize, mask: &mut u32) -> (usize, u32) {
     (start, lanes)
 }
 
-/// obvhs's build quality for `n` triangles: "medium" (the best trace speed per build second at
-/// ordinary sizes) up to LARGE_BUILD triangles, "fast" above, where the medium build's longer
-/// PLOC search and reinsertion passes cost more seconds than the renders they speed up
-/// (`tessera bench scale`, figures in ARCHITECTURE.md).
-fn build_params(n: usize) -> obvhs::BvhBuildParams {
+/// obvhs's build qualities tried for `n` triangles, the preferred first: "medium" (the best trace
+/// speed per build second at ordinary sizes) up to [`LARGE_BUILD`] triangles, "fast" above, where
+/// the medium build's longer PLOC search and reinsertion passes cost more seconds than the renders
+/// they speed up (`tessera bench scale`, figures in ARCHITECTURE.md); and up to
+/// [`BUILD_CANDIDATES_UP_TO`] two more, of which [`Accel::build_triangles`] keeps the BVH of least
+/// [`sah_cost`].
+///
+/// Why more than one: PLOC's result moves with its search settings in a way no fixed choice
+/// predicts. On `scenes/many_lights` (2 098 triangles: a floor under a sparse layer of small lamps)
+/// the medium build had 259 nodes and an SAH cost of 2.87, obvhs' "slow" one 170 nodes and 2.26,
+/// and the slow build's rays went 17.2 → 28.1 Mrays/s closest and 18.7 → 23.4 occluded (`tessera
+/// bench rays --scene`, medians of 3, repeated); on the other suite scenes the three builds' costs
+/// lie within 3 % of each other and so do their rays/s. The costs ranked the builds as their
+/// rays/s did (many_lights: 2.09–2.32 for the fast ones, 2.65–3.41 for the slow), so the cost
+/// decides, and a scene no candidate improves keeps the medium build.
+fn build_candidates(n: usize) -> Vec<obvhs::BvhBuildParams> {
     if n > LARGE_BUILD {
-        obvhs::BvhBuildParams::fast_build()
+        return vec![obvhs::BvhBuildParams::fast_build()];
+    }
+    let medium = obvhs::BvhBuildParams::medium_build();
+    if n > BUILD_CANDIDATES_UP_TO {
+        return vec![medium];
+    }
+    // The medium build with PLOC's full search from its second pass on (obvhs' slow build's
+    // threshold): on many_lights the one setting that made most of the difference (2.87 → 2.09).
+    let medium_searching = obvhs::BvhBuildParams { search_depth_threshold: 2, ..medium };
+    vec![medium, medium_searching, obvhs::BvhBuildParams::slow_build()]
+}
+
+/// Up to this many triangles a one-level BVH is built with each of [`build_candidates`]' settings
+/// and the cheapest kept. Three builds of 65 536 triangles take about 0.17 s on one of this
+/// project's hosts (medium 0.05 s, slow 0.08 s for 81 920: `tessera bench rays --level 6`);
+/// above it the three builds' costs were within 4 % of each other on the icospheres measured
+/// (81 920 and 327 680 triangles), and so were their rays/s.
+pub const BUILD_CANDIDATES_UP_TO: usize = WIDE_NODES_UP_TO;
+
+/// The surface area heuristic's expected cost of a ray through `bvh` (Goldsmith and Salmon 1987,
+/// MacDonald and Booth 1990; pbrt-v4 §7.3.2): a random ray that crosses the root's box enters a box
+/// inside it with probability its surface area over the root's, so the expected work is the sum,
+/// over the nodes, of their area ratios (a node test each) and, over the leaf children, of theirs
+/// (a leaf's triangles are tested eight at a time: one window each, whatever its count up to three).
+/// A node test and a window are weighed alike: about 108 and 90 instructions on the suite's scenes
+/// (ARCHITECTURE.md, "Where the gap to Mitsuba lies on Zen 5"). A BVH without nodes costs 0.
+pub fn sah_cost(bvh: &CwBvh) -> f64 {
+    fn area(b: obvhs::aabb::Aabb) -> f64 {
+        let e = (b.max - b.min).max(Vec3A::ZERO);
+        (e.x as f64) * (e.y as f64) + (e.y as f64) * (e.z as f64) + (e.z as f64) * (e.x as f64)
+    }
+    // A node's box is the union of its children's (its own `aabb` is its quantisation frame,
+    // up to twice as wide on each axis).
+    fn children(n: &obvhs::cwbvh::node::CwBvhNode) -> impl Iterator<Item = usize> + '_ {
+        (0..8).filter(move |&c| !n.is_child_empty(c))
+    }
+    let node_box = |n: &obvhs::cwbvh::node::CwBvhNode| {
+        children(n).map(|c| n.child_aabb(c)).fold(obvhs::aabb::Aabb::INVALID, |a, b| a.union(&b))
+    };
+    let Some(root) = bvh.nodes.first() else { return 0.0 };
+    let root_area = area(node_box(root));
+    let mut cost = 0.0;
+    for n in &bvh.nodes {
+        cost += area(node_box(n));
+        for c in children(n).filter(|&c| n.is_leaf(c)) {
+            cost += area(n.child_aabb(c));
+        }
+    }
+    if root_area > 0.0 && root_area.is_finite() {
+        cost / root_area
     } else {
-        obvhs::BvhBuildParams::medium_build()
+        // A degenerate scene (a line or a point): every ray that meets it meets every box.
+        bvh.nodes.iter().map(|n| 1.0 + children(n).filter(|&c| n.is_leaf(c)).count() as f64).sum()
     }
 }
 
@@ -643,7 +704,7 @@ fn build_params(n: usize) -> obvhs::BvhBuildParams {
 /// ARCHITECTURE.md has the figures.
 pub const BATCH_RAYS_ABOVE: usize = WIDE_NODES_UP_TO;
 
-/// See [`build_params`].
+/// See [`build_candidates`].
 pub const LARGE_BUILD: usize = 4_000_000;
 
 /// Up to this many primitives a BVH's nodes are decompressed ([`WideNode`]: 256 bytes a node
@@ -728,6 +789,8 @@ pub struct Accel {
     /// else `convex_solid::NONE` ([`Self::mark_solids`]); empty until marked. Part of the
     /// BVH, so a rebuild starts unmarked and can never skip by another build's marks.
     solid_of_node: Vec<u32>,
+    /// The one-level obvhs BVH's [`sah_cost`], worked out when it was built (0 for the others).
+    sah_cost: f64,
 }
 
 impl Accel {
@@ -757,6 +820,12 @@ impl Accel {
 
     /// A one-level BVH over the triangles `ids` of `mesh` (as they are stored).
     fn build_triangles(mesh: &Mesh, ids: Vec<u32>, kind: AccelKind) -> Self {
+        let candidates = build_candidates(ids.len());
+        Self::build_triangles_with(mesh, ids, kind, &candidates)
+    }
+
+    /// [`Self::build_triangles`] with obvhs' BVH the least costly of `candidates`' builds.
+    fn build_triangles_with(mesh: &Mesh, ids: Vec<u32>, kind: AccelKind, candidates: &[obvhs::BvhBuildParams]) -> Self {
         if kind == AccelKind::Own {
             let tris = ids.iter().map(|&i| RtTriangle::new(mesh.vertices(i), i)).collect();
             return Accel {
@@ -770,6 +839,7 @@ impl Accel {
                 own: Some(crate::bvh::Bvh::build(tris)),
                 top: None,
                 solid_of_node: Vec::new(),
+                sah_cost: 0.0,
             };
         }
         let prims: Vec<obvhs::triangle::Triangle> = ids
@@ -782,11 +852,7 @@ impl Accel {
         if prims.is_empty() {
             return Accel { kind, ..Accel::default() };
         }
-        let bvh = obvhs::cwbvh::builder::build_cwbvh_from_tris(
-            &prims,
-            build_params(prims.len()),
-            &mut std::time::Duration::default(),
-        );
+        let (sah_cost, bvh) = Self::least_cost_build(&prims, candidates);
         let stack_len = stack_len(&bvh);
         let tris = TriangleBlocks::new(
             bvh.primitive_indices.iter().map(|&k| RtTriangle::new(mesh.vertices(ids[k as usize]), ids[k as usize])),
@@ -804,7 +870,28 @@ impl Accel {
             own: None,
             top: None,
             solid_of_node: Vec::new(),
+            sah_cost,
         }
+    }
+
+    /// obvhs' BVH over `prims` with each of `candidates` ([`build_candidates`]), the one of least
+    /// [`sah_cost`] kept (the first of equal cost). A function of the triangles alone, as each
+    /// build is, so every worker of a farm builds the same BVH for a scene.
+    fn least_cost_build(prims: &[obvhs::triangle::Triangle], candidates: &[obvhs::BvhBuildParams]) -> (f64, CwBvh) {
+        let mut best: Option<(f64, CwBvh)> = None;
+        for &params in candidates {
+            let bvh = obvhs::cwbvh::builder::build_cwbvh_from_tris(prims, params, &mut std::time::Duration::default());
+            let cost = sah_cost(&bvh);
+            if best.as_ref().is_none_or(|(least, _)| cost < *least) {
+                best = Some((cost, bvh));
+            }
+        }
+        best.unwrap_or_default()
+    }
+
+    /// The SAH cost ([`sah_cost`]) of the one-level obvhs BVH a ray walks (0 for the other kinds).
+    pub fn sah_cost(&self) -> f64 {
+        self.sah_cost
     }
 
     /// After an animation moved instances or world vertices: a new top level over the prototype
@@ -2192,5 +2279,80 @@ mod tests {
                 assert_eq!(got, want, "base {base} mask {mask0:#x}");
             }
         }
+    }
+
+    /// The BVH a one-level scene gets is the cheapest of the candidate builds by the SAH cost, and
+    /// on `scenes/many_lights`, where obvhs' medium build alone cost 2.87 (ARCHITECTURE.md), a
+    /// clearly cheaper one: the medium build by itself fails this. The hits are each candidate's
+    /// hits (the walks are exact whatever the tree), checked on rays off the scene's floor.
+    #[test]
+    fn one_level_bvh_is_the_least_cost_candidate() {
+        let root = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."));
+        let scene =
+            crate::gltf_loader::load(&root.join("scenes/many_lights/many_lights.gltf")).expect("many_lights loads");
+        let mesh = &scene.mesh;
+        let prims: Vec<obvhs::triangle::Triangle> = (0..mesh.triangles.len() as u32)
+            .map(|i| {
+                let [a, b, c] = mesh.vertices(i);
+                obvhs::triangle::Triangle { v0: a.into(), v1: b.into(), v2: c.into() }
+            })
+            .collect();
+        let candidates = build_candidates(prims.len());
+        assert!(candidates.len() >= 2, "a small scene must have candidates");
+        let costs: Vec<f64> = candidates
+            .iter()
+            .map(|&p| sah_cost(&obvhs::cwbvh::builder::build_cwbvh_from_tris(&prims, p, &mut Default::default())))
+            .collect();
+        let chosen = Accel::build(mesh);
+        let least = costs.iter().copied().fold(f64::INFINITY, f64::min);
+        assert_eq!(chosen.sah_cost(), least, "candidate costs {costs:?}");
+        assert!(least < 0.9 * costs[0], "many_lights: the medium build {:.3}, the chosen {least:.3}", costs[0]);
+        // Every candidate's BVH answers as the chosen one does.
+        let mut state = 7u64;
+        let mut next = || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        for &p in &candidates[1..] {
+            let other =
+                Accel::build_triangles_with(mesh, (0..mesh.triangles.len() as u32).collect(), AccelKind::Obvhs, &[p]);
+            for _ in 0..2000 {
+                let o = Vec3::new(next() * 8.0 - 4.0, 0.01, next() * 8.0 - 4.0);
+                let (u, v) = (next(), next());
+                let r = (1.0 - u).sqrt();
+                let d =
+                    Vec3::new(r * (std::f32::consts::TAU * v).cos(), u.sqrt(), r * (std::f32::consts::TAU * v).sin());
+                let (a, b) = (chosen.intersect(o, d, f32::INFINITY), other.intersect(o, d, f32::INFINITY));
+                assert_eq!(
+                    a.map(|h| (h.t.to_bits(), h.triangle)),
+                    b.map(|h| (h.t.to_bits(), h.triangle)),
+                    "{o:?} {d:?}"
+                );
+                assert_eq!(chosen.occluded(o, d, 5.0), other.occluded(o, d, 5.0), "{o:?} {d:?}");
+            }
+        }
+    }
+
+    /// The SAH cost of a BVH is its nodes' and leaf children's areas over the root's: a single
+    /// leaf node (every triangle a child of the root) costs 1 for the root plus its leaves' areas.
+    #[test]
+    fn sah_cost_sums_area_ratios() {
+        // Two unit squares' triangles far apart: the root's box spans both.
+        let tri = |x: f32, z: f32| obvhs::triangle::Triangle {
+            v0: glam::Vec3A::new(x, 0.0, z),
+            v1: glam::Vec3A::new(x + 1.0, 0.0, z),
+            v2: glam::Vec3A::new(x, 0.0, z + 1.0),
+        };
+        let prims = [tri(0.0, 0.0), tri(9.0, 0.0)];
+        let bvh = obvhs::cwbvh::builder::build_cwbvh_from_tris(
+            &prims,
+            obvhs::BvhBuildParams::medium_build(),
+            &mut Default::default(),
+        );
+        // Flat boxes: the root 10 × 0 × 1 has area 10, each leaf 1 × 0 × 1 area 1 (as a child of
+        // the root, possibly quantised outward a little).
+        let cost = sah_cost(&bvh);
+        assert!((1.2..1.3).contains(&cost), "{cost}");
+        assert_eq!(sah_cost(&CwBvh::default()), 0.0);
     }
 }

@@ -622,21 +622,21 @@ fn next_window(base: usize, mask: &mut u32) -> (usize, u32) {
     (start, lanes)
 }
 
-/// obvhs's build qualities tried for `n` triangles, the preferred first: "medium" (the best trace
-/// speed per build second at ordinary sizes) up to [`LARGE_BUILD`] triangles, "fast" above, where
-/// the medium build's longer PLOC search and reinsertion passes cost more seconds than the renders
-/// they speed up (`tessera bench scale`, figures in ARCHITECTURE.md); and up to
-/// [`BUILD_CANDIDATES_UP_TO`] two more, of which [`Accel::build_triangles`] keeps the BVH of least
-/// [`sah_cost`].
+/// obvhs's build qualities tried for `n` triangles (or a top level's `n` boxes), the preferred
+/// first: "medium" (the best trace speed per build second at ordinary sizes) up to [`LARGE_BUILD`]
+/// triangles, "fast" above, where the medium build's longer PLOC search and reinsertion passes
+/// cost more seconds than the renders they speed up (`tessera bench scale`, figures in
+/// ARCHITECTURE.md); and up to [`BUILD_CANDIDATES_UP_TO`] two more, of which [`Accel`] keeps the
+/// BVH of least [`sah_cost`].
 ///
 /// Why more than one: PLOC's result moves with its search settings in a way no fixed choice
 /// predicts. On `scenes/many_lights` (2 098 triangles: a floor under a sparse layer of small lamps)
-/// the medium build had 259 nodes and an SAH cost of 2.87, obvhs' "slow" one 170 nodes and 2.26,
-/// and the slow build's rays went 17.2 → 28.1 Mrays/s closest and 18.7 → 23.4 occluded (`tessera
-/// bench rays --scene`, medians of 3, repeated); on the other suite scenes the three builds' costs
-/// lie within 3 % of each other and so do their rays/s. The costs ranked the builds as their
-/// rays/s did (many_lights: 2.09–2.32 for the fast ones, 2.65–3.41 for the slow), so the cost
-/// decides, and a scene no candidate improves keeps the medium build.
+/// the medium build has 396 nodes and an SAH cost of 3.72, obvhs' "slow" one 170 nodes and 2.85,
+/// and the slow build's rays went 17.5 → 28.0 Mrays/s closest and 18.8 → 23.0 occluded (`tessera
+/// bench rays --scene`, medians of three runs of 3); on the other suite scenes, the Blender
+/// materials scene and the Khronos helmet the three costs lie within 3.5 % of each other and so
+/// did their rays/s (within ±4 %). Seven more settings tried on those scenes (a longer search, more
+/// reinsertion, obvhs' very slow build) came within 3 % of the least of these three.
 fn build_candidates(n: usize) -> Vec<obvhs::BvhBuildParams> {
     if n > LARGE_BUILD {
         return vec![obvhs::BvhBuildParams::fast_build()];
@@ -651,11 +651,11 @@ fn build_candidates(n: usize) -> Vec<obvhs::BvhBuildParams> {
     vec![medium, medium_searching, obvhs::BvhBuildParams::slow_build()]
 }
 
-/// Up to this many triangles a one-level BVH is built with each of [`build_candidates`]' settings
-/// and the cheapest kept. Three builds of 65 536 triangles take about 0.17 s on one of this
-/// project's hosts (medium 0.05 s, slow 0.08 s for 81 920: `tessera bench rays --level 6`);
-/// above it the three builds' costs were within 4 % of each other on the icospheres measured
-/// (81 920 and 327 680 triangles), and so were their rays/s.
+/// Up to this many triangles (or top-level boxes) a BVH is built with each of
+/// [`build_candidates`]' settings and the cheapest kept: the wide nodes' range, small scenes whose
+/// builds take milliseconds (20 480 triangles: 0.036 s for the three against 0.012 s for one,
+/// `tessera bench rays --level 5`, one host). Above it the three builds' costs were within 4 % of
+/// each other on the icospheres measured (81 920 and 327 680 triangles), and so were their rays/s.
 pub const BUILD_CANDIDATES_UP_TO: usize = WIDE_NODES_UP_TO;
 
 /// The surface area heuristic's expected cost of a ray through `bvh` (Goldsmith and Salmon 1987,
@@ -789,7 +789,8 @@ pub struct Accel {
     /// else `convex_solid::NONE` ([`Self::mark_solids`]); empty until marked. Part of the
     /// BVH, so a rebuild starts unmarked and can never skip by another build's marks.
     solid_of_node: Vec<u32>,
-    /// The one-level obvhs BVH's [`sah_cost`], worked out when it was built (0 for the others).
+    /// The obvhs BVH's [`sah_cost`] (one level, or the top level), worked out when it was built
+    /// (0 for the own BVH).
     sah_cost: f64,
 }
 
@@ -852,7 +853,9 @@ impl Accel {
         if prims.is_empty() {
             return Accel { kind, ..Accel::default() };
         }
-        let (sah_cost, bvh) = Self::least_cost_build(&prims, candidates);
+        let (sah_cost, bvh) = Self::least_cost_build(candidates, |params| {
+            obvhs::cwbvh::builder::build_cwbvh_from_tris(&prims, params, &mut std::time::Duration::default())
+        });
         let stack_len = stack_len(&bvh);
         let tris = TriangleBlocks::new(
             bvh.primitive_indices.iter().map(|&k| RtTriangle::new(mesh.vertices(ids[k as usize]), ids[k as usize])),
@@ -874,13 +877,16 @@ impl Accel {
         }
     }
 
-    /// obvhs' BVH over `prims` with each of `candidates` ([`build_candidates`]), the one of least
-    /// [`sah_cost`] kept (the first of equal cost). A function of the triangles alone, as each
-    /// build is, so every worker of a farm builds the same BVH for a scene.
-    fn least_cost_build(prims: &[obvhs::triangle::Triangle], candidates: &[obvhs::BvhBuildParams]) -> (f64, CwBvh) {
+    /// obvhs' BVH built (`build`) with each of `candidates` ([`build_candidates`]), the one of least
+    /// [`sah_cost`] kept with its cost (the first of equal cost). A function of the primitives
+    /// alone, as each build is, so every worker of a farm builds the same BVH for a scene.
+    fn least_cost_build(
+        candidates: &[obvhs::BvhBuildParams],
+        build: impl Fn(obvhs::BvhBuildParams) -> CwBvh,
+    ) -> (f64, CwBvh) {
         let mut best: Option<(f64, CwBvh)> = None;
         for &params in candidates {
-            let bvh = obvhs::cwbvh::builder::build_cwbvh_from_tris(prims, params, &mut std::time::Duration::default());
+            let bvh = build(params);
             let cost = sah_cost(&bvh);
             if best.as_ref().is_none_or(|(least, _)| cost < *least) {
                 best = Some((cost, bvh));
@@ -889,7 +895,8 @@ impl Accel {
         best.unwrap_or_default()
     }
 
-    /// The SAH cost ([`sah_cost`]) of the one-level obvhs BVH a ray walks (0 for the other kinds).
+    /// The SAH cost ([`sah_cost`]) of the obvhs BVH a ray walks first (a one-level BVH, or a
+    /// two-level one's top level; 0 for the own BVH).
     pub fn sah_cost(&self) -> f64 {
         self.sah_cost
     }
@@ -941,13 +948,22 @@ impl Accel {
         if boxes.is_empty() {
             return Accel { top: Some(Box::new(TopLevel { prims, blas })), ..Accel::default() };
         }
-        let bvh =
-            obvhs::cwbvh::builder::build_cwbvh(&boxes, obvhs::BvhBuildParams::medium_build(), &mut Default::default());
+        let (sah_cost, bvh) = Self::least_cost_build(&build_candidates(boxes.len()), |params| {
+            obvhs::cwbvh::builder::build_cwbvh(&boxes, params, &mut std::time::Duration::default())
+        });
         // Leaf order, so a leaf's primitives sit together.
         let prims: Vec<TopPrim> = bvh.primitive_indices.iter().map(|&i| prims[i as usize]).collect();
         let stack_len = stack_len(&bvh);
         let (bvh, wide) = decompress(bvh, prims.len(), kind.wide_up_to());
-        Accel { stack_len, bvh, wide, kind, top: Some(Box::new(TopLevel { prims, blas })), ..Accel::default() }
+        Accel {
+            stack_len,
+            bvh,
+            wide,
+            kind,
+            top: Some(Box::new(TopLevel { prims, blas })),
+            sah_cost,
+            ..Accel::default()
+        }
     }
 
     /// [`traverse_closest`] over this BVH's nodes, wide or compressed, for the top level of a

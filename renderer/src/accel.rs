@@ -626,29 +626,37 @@ fn next_window(base: usize, mask: &mut u32) -> (usize, u32) {
 /// first: "medium" (the best trace speed per build second at ordinary sizes) up to [`LARGE_BUILD`]
 /// triangles, "fast" above, where the medium build's longer PLOC search and reinsertion passes
 /// cost more seconds than the renders they speed up (`tessera bench scale`, figures in
-/// ARCHITECTURE.md); and up to [`BUILD_CANDIDATES_UP_TO`] two more, of which [`Accel`] keeps the
-/// BVH of least [`sah_cost`] where it is clearly below the first's ([`CANDIDATE_MARGIN`]).
+/// ARCHITECTURE.md). Besides the medium build, up to [`FAST_CANDIDATE_UP_TO`] the fast one, and up
+/// to [`BUILD_CANDIDATES_UP_TO`] two more; [`Accel`] keeps the BVH of least [`sah_cost`] where it
+/// is clearly below the medium build's ([`CANDIDATE_MARGIN`]).
 ///
 /// Why more than one: PLOC's result moves with its search settings in a way no fixed choice
 /// predicts. On `scenes/many_lights` (2 098 triangles: a floor under a sparse layer of small lamps)
 /// the medium build has 396 nodes and an SAH cost of 3.72, obvhs' "slow" one 170 nodes and 2.85,
 /// and the slow build's rays went 17.5 → 28.0 Mrays/s closest and 18.8 → 23.0 occluded (`tessera
-/// bench rays --scene`, medians of three runs of 3); on the other suite scenes, the Blender
-/// materials scene and the Khronos helmet the three costs lie within 3.5 % of each other and so
-/// did their rays/s (within ±4 %). Seven more settings tried on those scenes (a longer search, more
-/// reinsertion, obvhs' very slow build) came within 3 % of the least of these three.
+/// bench rays --scene`, medians of three runs of 3). A floor under a grid of small quads, 20 002
+/// and 80 002 triangles (`floor_and_tiles`), costs 4.96 and 5.51 built medium, 4.41 and 5.03
+/// built fast, and the fast trees' closest-hit rays from the floor were 8–24 % faster. On the
+/// other suite scenes, the Blender materials scene, the Khronos helmet and icospheres of 81 920
+/// to 1 310 720 triangles the builds' costs lie within 3.5 % of each other and so did their
+/// rays/s (within ±4 %). Seven more settings tried on those scenes (a longer search, more
+/// reinsertion, obvhs' very slow build) came within 3 % of the least of these.
 fn build_candidates(n: usize) -> Vec<obvhs::BvhBuildParams> {
+    let fast = obvhs::BvhBuildParams::fast_build();
     if n > LARGE_BUILD {
-        return vec![obvhs::BvhBuildParams::fast_build()];
+        return vec![fast];
     }
     let medium = obvhs::BvhBuildParams::medium_build();
-    if n > BUILD_CANDIDATES_UP_TO {
+    if n > FAST_CANDIDATE_UP_TO {
         return vec![medium];
     }
+    if n > BUILD_CANDIDATES_UP_TO {
+        return vec![medium, fast];
+    }
     // The medium build with PLOC's full search from its second pass on (obvhs' slow build's
-    // threshold): on many_lights the one setting that made most of the difference (2.87 → 2.09).
+    // threshold): on many_lights the one setting that made most of the difference (3.72 → 2.93).
     let medium_searching = obvhs::BvhBuildParams { search_depth_threshold: 2, ..medium };
-    vec![medium, medium_searching, obvhs::BvhBuildParams::slow_build()]
+    vec![medium, medium_searching, obvhs::BvhBuildParams::slow_build(), fast]
 }
 
 /// How much cheaper (by [`sah_cost`]) another candidate build must be than the first (obvhs'
@@ -659,11 +667,17 @@ fn build_candidates(n: usize) -> Vec<obvhs::BvhBuildParams> {
 pub const CANDIDATE_MARGIN: f64 = 0.95;
 
 /// Up to this many triangles (or top-level boxes) a BVH is built with each of
-/// [`build_candidates`]' settings and the cheapest kept: the wide nodes' range, small scenes whose
-/// builds take milliseconds (20 480 triangles: 0.036 s for the three against 0.012 s for one,
-/// `tessera bench rays --level 5`, one host). Above it the three builds' costs were within 4 % of
-/// each other on the icospheres measured (81 920 and 327 680 triangles), and so were their rays/s.
+/// [`build_candidates`]' four settings and the cheapest kept: the wide nodes' range, small scenes
+/// whose builds take milliseconds (20 480 triangles: 0.036 s for three against 0.012 s for one,
+/// `tessera bench rays --level 5`, one host). Above it the slow builds' costs were within 4 % of
+/// the medium build's on every mesh measured, the fast build's not (see `build_candidates`).
 pub const BUILD_CANDIDATES_UP_TO: usize = WIDE_NODES_UP_TO;
+
+/// Up to this many triangles (or top-level boxes) the fast build is a candidate beside the medium
+/// one. It is the cheaper of the two to build (an icosphere of 1 310 720 triangles: 0.67 s
+/// against 0.80 s, one host), so the pair costs less than twice the medium build alone; above
+/// this size, where a scene's build is seconds, the medium build alone as before.
+pub const FAST_CANDIDATE_UP_TO: usize = 1 << 21;
 
 /// The surface area heuristic's expected cost of a ray through `bvh` (Goldsmith and Salmon 1987,
 /// MacDonald and Booth 1990; pbrt-v4 §7.3.2): a random ray that crosses the root's box enters a box
@@ -2393,5 +2407,52 @@ mod tests {
         let cost = sah_cost(&bvh);
         assert!((1.2..1.3).contains(&cost), "{cost}");
         assert_eq!(sah_cost(&CwBvh::default()), 0.0);
+    }
+
+    /// A floor of two triangles under a `grid`² layer of small square tiles at heights that vary
+    /// by `tilt`: the shape of scene (a ground under many small objects) where PLOC's medium
+    /// build is a poor tree.
+    fn floor_and_tiles(grid: usize, tilt: f32) -> crate::mesh::Mesh {
+        let (lo, hi) = (-10.0f32, 10.0f32);
+        let mut tris = vec![
+            [Vec3::new(lo, 0.0, lo), Vec3::new(hi, 0.0, lo), Vec3::new(hi, 0.0, hi)],
+            [Vec3::new(lo, 0.0, lo), Vec3::new(hi, 0.0, hi), Vec3::new(lo, 0.0, hi)],
+        ];
+        let step = (hi - lo) / grid as f32;
+        for i in 0..grid {
+            for j in 0..grid {
+                let (x, z) = (lo + (i as f32 + 0.5) * step, lo + (j as f32 + 0.5) * step);
+                let (y, h) = (3.0 + tilt * ((i * 7 + j * 3) % 5) as f32, step * 0.2);
+                let corner = |a: f32, b: f32| Vec3::new(x + a * h, y, z + b * h);
+                tris.push([corner(-1.0, -1.0), corner(1.0, -1.0), corner(1.0, 1.0)]);
+                tris.push([corner(-1.0, -1.0), corner(1.0, 1.0), corner(-1.0, 1.0)]);
+            }
+        }
+        crate::testing::mesh_of(&tris)
+    }
+
+    /// Beyond many_lights: a floor under 10 000 tiles (four candidates) and under 40 000 tiles at
+    /// varying heights (above the wide nodes' range: the medium and fast builds alone) gets the
+    /// fast build's tree, at most 0.95 of the medium build's cost (measured 0.89 and 0.90); the
+    /// medium build alone fails this.
+    #[test]
+    fn ground_under_many_tiles_gets_the_cheaper_tree() {
+        for (grid, tilt) in [(100, 0.0), (200, 0.3)] {
+            let mesh = floor_and_tiles(grid, tilt);
+            let n = mesh.triangles.len();
+            let prims: Vec<obvhs::triangle::Triangle> = (0..n as u32)
+                .map(|i| {
+                    let [a, b, c] = mesh.vertices(i);
+                    obvhs::triangle::Triangle { v0: a.into(), v1: b.into(), v2: c.into() }
+                })
+                .collect();
+            let medium = sah_cost(&obvhs::cwbvh::builder::build_cwbvh_from_tris(
+                &prims,
+                obvhs::BvhBuildParams::medium_build(),
+                &mut Default::default(),
+            ));
+            let chosen = Accel::build(&mesh).sah_cost();
+            assert!(chosen < CANDIDATE_MARGIN * medium, "{n} triangles: medium {medium:.3}, chosen {chosen:.3}");
+        }
     }
 }

@@ -634,9 +634,11 @@ fn next_window(base: usize, mask: &mut u32) -> (usize, u32) {
 /// predicts. On `scenes/many_lights` (2 098 triangles: a floor under a sparse layer of small lamps)
 /// the medium build has 396 nodes and an SAH cost of 3.72, obvhs' "slow" one 170 nodes and 2.85,
 /// and the slow build's rays went 17.5 → 28.0 Mrays/s closest and 18.8 → 23.0 occluded (`tessera
-/// bench rays --scene`, medians of three runs of 3). A floor under a grid of small quads, 20 002
-/// and 80 002 triangles (`floor_and_tiles`), costs 4.96 and 5.51 built medium, 4.41 and 5.03
-/// built fast, and the fast trees' closest-hit rays from the floor were 8–24 % faster. On the
+/// bench rays --scene`, medians of three runs of 3). A floor under a grid of small tiles, 20 002
+/// triangles, and 80 002 at varying heights (`floor_and_tiles`; as glTF,
+/// `scenes/references/make_tiles.py`), costs 4.96 and 12.63 built medium, 4.41 and 11.34 built
+/// fast, whose closest-hit rays went 11.2–11.8 → 12.7–13.9 and 3.20–3.36 → 3.83–3.97 Mrays/s
+/// (`bench rays --scene`, two alternations). On the
 /// other suite scenes, the Blender materials scene, the Khronos helmet and icospheres of 81 920
 /// to 1 310 720 triangles the builds' costs lie within 3.5 % of each other and so did their
 /// rays/s (within ±4 %). Seven more settings tried on those scenes (a longer search, more

@@ -663,16 +663,17 @@ fn build_candidates(n: usize) -> Vec<obvhs::BvhBuildParams> {
 
 /// How much cheaper (by [`sah_cost`]) another candidate build must be than the first (obvhs'
 /// medium build) to be kept instead. The cost is a model: on the suite's scenes other than
-/// many_lights the three builds' costs differ by at most 1 % and their rays/s by up to ±4 % either
-/// way (`tessera bench rays --scene`), while many_lights' 23 % lower cost was 60 % more closest-hit
-/// rays/s; a difference the model cannot resolve is not worth a different tree.
+/// many_lights the candidates' costs differ from the medium build's by at most 1 % and the slow
+/// builds' rays/s by up to ±4 % either way (`tessera bench rays --scene`), while many_lights' 23 %
+/// lower cost was 60 % more closest-hit rays/s; a difference the model cannot resolve is not
+/// worth a different tree.
 pub const CANDIDATE_MARGIN: f64 = 0.95;
 
 /// Up to this many triangles (or top-level boxes) a BVH is built with each of
 /// [`build_candidates`]' four settings and the cheapest kept: the wide nodes' range, small scenes
-/// whose builds take milliseconds (20 480 triangles: 0.036 s for three against 0.012 s for one,
-/// `tessera bench rays --level 5`, one host). Above it the slow builds' costs were within 4 % of
-/// the medium build's on every mesh measured, the fast build's not (see `build_candidates`).
+/// whose builds take milliseconds (20 480 triangles: 0.039 s for the four against 0.011–0.012 s
+/// for one, `tessera bench rays --level 5`, one host). Above it the slow builds' costs were within
+/// 4 % of the medium build's on every mesh measured, the fast build's not (`build_candidates`).
 pub const BUILD_CANDIDATES_UP_TO: usize = WIDE_NODES_UP_TO;
 
 /// Up to this many triangles (or top-level boxes) the fast build is a candidate beside the medium

@@ -638,11 +638,13 @@ fn next_window(base: usize, mask: &mut u32) -> (usize, u32) {
 /// triangles, and 80 002 at varying heights (`floor_and_tiles`; as glTF,
 /// `scenes/references/make_tiles.py`), costs 4.96 and 12.63 built medium, 4.41 and 11.34 built
 /// fast, whose closest-hit rays went 11.2–11.8 → 12.7–13.9 and 3.20–3.36 → 3.83–3.97 Mrays/s
-/// (`bench rays --scene`, two alternations). On the
-/// other suite scenes, the Blender materials scene, the Khronos helmet and icospheres of 81 920
-/// to 1 310 720 triangles the builds' costs lie within 3.5 % of each other and so did their
-/// rays/s (within ±4 %). Seven more settings tried on those scenes (a longer search, more
-/// reinsertion, obvhs' very slow build) came within 3 % of the least of these.
+/// (`bench rays --scene`, two alternations). On the other suite scenes, the Blender materials
+/// scene and the Khronos helmet the builds' costs lie within 3.5 % of each other and so did their
+/// rays/s (within ±4 %); on icospheres of 81 920 to 1 310 720 triangles within 2.5 %, where the
+/// slow build's rays ran up to 6 % faster (`bench rays --level 6`: 3.77–3.79 against 3.58–3.64
+/// Mrays/s closest), a difference the margin leaves alone. Seven more settings tried on the
+/// suite's scenes (a longer search, more reinsertion, obvhs' very slow build) came within 3 % of
+/// the least of these.
 fn build_candidates(n: usize) -> Vec<obvhs::BvhBuildParams> {
     let fast = obvhs::BvhBuildParams::fast_build();
     if n > LARGE_BUILD {
@@ -669,11 +671,22 @@ fn build_candidates(n: usize) -> Vec<obvhs::BvhBuildParams> {
 /// worth a different tree.
 pub const CANDIDATE_MARGIN: f64 = 0.95;
 
+/// Triangles `ids` of `mesh` as obvhs builds them.
+fn obvhs_triangles(mesh: &Mesh, ids: &[u32]) -> Vec<obvhs::triangle::Triangle> {
+    ids.iter()
+        .map(|&i| {
+            let [a, b, c] = mesh.vertices(i);
+            obvhs::triangle::Triangle { v0: a.into(), v1: b.into(), v2: c.into() }
+        })
+        .collect()
+}
+
 /// Up to this many triangles (or top-level boxes) a BVH is built with each of
 /// [`build_candidates`]' four settings and the cheapest kept: the wide nodes' range, small scenes
 /// whose builds take milliseconds (20 480 triangles: 0.039 s for the four against 0.011–0.012 s
 /// for one, `tessera bench rays --level 5`, one host). Above it the slow builds' costs were within
-/// 4 % of the medium build's on every mesh measured, the fast build's not (`build_candidates`).
+/// 2.5 % of the medium build's on the icospheres measured (81 920 triangles: 15.58 medium, 15.45
+/// and 15.24 the slow ones), the fast build's not on the tile scenes (`build_candidates`).
 pub const BUILD_CANDIDATES_UP_TO: usize = WIDE_NODES_UP_TO;
 
 /// Up to this many triangles (or top-level boxes) the fast build is a candidate beside the medium
@@ -869,13 +882,7 @@ impl Accel {
                 sah_cost: 0.0,
             };
         }
-        let prims: Vec<obvhs::triangle::Triangle> = ids
-            .iter()
-            .map(|&i| {
-                let [a, b, c] = mesh.vertices(i);
-                obvhs::triangle::Triangle { v0: a.into(), v1: b.into(), v2: c.into() }
-            })
-            .collect();
+        let prims = obvhs_triangles(mesh, &ids);
         if prims.is_empty() {
             return Accel { kind, ..Accel::default() };
         }
@@ -918,11 +925,8 @@ impl Accel {
         });
         let Some(first) = builds.next() else { return Default::default() };
         let bar = first.0 * CANDIDATE_MARGIN;
-        let best = builds.filter(|(cost, _)| *cost < bar).fold(None, |best: Option<(f64, CwBvh)>, b| match best {
-            Some(a) if a.0 <= b.0 => Some(a),
-            _ => Some(b),
-        });
-        best.unwrap_or(first)
+        // `min_by` keeps the first of equal minima.
+        builds.filter(|(cost, _)| *cost < bar).min_by(|a, b| a.0.total_cmp(&b.0)).unwrap_or(first)
     }
 
     /// The SAH cost ([`sah_cost`]) of the obvhs BVH a ray walks first (a one-level BVH, or a
@@ -2333,12 +2337,7 @@ mod tests {
         let path = root.join(format!("scenes/{name}/{name}.gltf"));
         let scene = crate::gltf_loader::load(&path).expect("the suite scene loads");
         let mesh = scene.mesh;
-        let prims: Vec<obvhs::triangle::Triangle> = (0..mesh.triangles.len() as u32)
-            .map(|i| {
-                let [a, b, c] = mesh.vertices(i);
-                obvhs::triangle::Triangle { v0: a.into(), v1: b.into(), v2: c.into() }
-            })
-            .collect();
+        let prims = obvhs_triangles(&mesh, &(0..mesh.triangles.len() as u32).collect::<Vec<_>>());
         let candidates = build_candidates(prims.len());
         assert!(candidates.len() >= 2, "a small scene must have candidates");
         let costs = candidates
@@ -2419,9 +2418,11 @@ mod tests {
     /// build is a poor tree.
     fn floor_and_tiles(grid: usize, tilt: f32) -> crate::mesh::Mesh {
         let (lo, hi) = (-10.0f32, 10.0f32);
+        // Wound as `scenes/references/make_tiles.py` writes them: the floor faces up, the tiles
+        // down (the BVH does not read it).
         let mut tris = vec![
-            [Vec3::new(lo, 0.0, lo), Vec3::new(hi, 0.0, lo), Vec3::new(hi, 0.0, hi)],
-            [Vec3::new(lo, 0.0, lo), Vec3::new(hi, 0.0, hi), Vec3::new(lo, 0.0, hi)],
+            [Vec3::new(lo, 0.0, lo), Vec3::new(lo, 0.0, hi), Vec3::new(hi, 0.0, hi)],
+            [Vec3::new(lo, 0.0, lo), Vec3::new(hi, 0.0, hi), Vec3::new(hi, 0.0, lo)],
         ];
         let step = (hi - lo) / grid as f32;
         for i in 0..grid {
@@ -2429,8 +2430,8 @@ mod tests {
                 let (x, z) = (lo + (i as f32 + 0.5) * step, lo + (j as f32 + 0.5) * step);
                 let (y, h) = (3.0 + tilt * ((i * 7 + j * 3) % 5) as f32, step * 0.2);
                 let corner = |a: f32, b: f32| Vec3::new(x + a * h, y, z + b * h);
-                tris.push([corner(-1.0, -1.0), corner(1.0, -1.0), corner(1.0, 1.0)]);
                 tris.push([corner(-1.0, -1.0), corner(1.0, 1.0), corner(-1.0, 1.0)]);
+                tris.push([corner(-1.0, -1.0), corner(1.0, -1.0), corner(1.0, 1.0)]);
             }
         }
         crate::testing::mesh_of(&tris)
@@ -2445,12 +2446,7 @@ mod tests {
         for (grid, tilt) in [(100, 0.0), (200, 0.3)] {
             let mesh = floor_and_tiles(grid, tilt);
             let n = mesh.triangles.len();
-            let prims: Vec<obvhs::triangle::Triangle> = (0..n as u32)
-                .map(|i| {
-                    let [a, b, c] = mesh.vertices(i);
-                    obvhs::triangle::Triangle { v0: a.into(), v1: b.into(), v2: c.into() }
-                })
-                .collect();
+            let prims = obvhs_triangles(&mesh, &(0..n as u32).collect::<Vec<_>>());
             let medium = sah_cost(&obvhs::cwbvh::builder::build_cwbvh_from_tris(
                 &prims,
                 obvhs::BvhBuildParams::medium_build(),

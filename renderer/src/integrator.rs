@@ -436,15 +436,10 @@ impl Path {
         let mut ns = sp.ns;
         let mut tangent_hint = None;
         if let Some(t) = sp.tangent {
-            let tan = t.truncate();
             if let Some(n_ts) = material.tangent_space_normal(textures, sp.uv) {
-                let bitangent = ns.cross(tan) * t.w;
-                let mapped = (tan * n_ts.x + bitangent * n_ts.y + ns * n_ts.z).normalize_or_zero();
-                if mapped != Vec3::ZERO && mapped.is_finite() {
-                    ns = mapped;
-                }
+                ns = normal_mapped(ns, t, n_ts);
             }
-            tangent_hint = Some(tan);
+            tangent_hint = Some(t.truncate());
         }
         let mut ng = sp.ng;
         if ng.dot(wo_world) < 0.0 {
@@ -659,6 +654,21 @@ impl Path {
             }
         }
         true
+    }
+}
+
+/// The shading normal `ns` bent by a normal map's tangent-space normal `n_ts` in the frame of
+/// tangent `t` (xyz, handedness w: the bitangent is ns × t · w; glTF 2.0 §3.9.3); `ns` itself
+/// where the mapped normal degenerates. Shared with the eight-lane kernel (`spmd.rs`).
+#[inline]
+pub(crate) fn normal_mapped(ns: Vec3, t: crate::math::Vec4, n_ts: Vec3) -> Vec3 {
+    let tan = t.truncate();
+    let bitangent = ns.cross(tan) * t.w;
+    let mapped = (tan * n_ts.x + bitangent * n_ts.y + ns * n_ts.z).normalize_or_zero();
+    if mapped != Vec3::ZERO && mapped.is_finite() {
+        mapped
+    } else {
+        ns
     }
 }
 

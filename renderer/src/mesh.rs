@@ -146,6 +146,28 @@ impl Mesh {
         (p0 + (p1 - p0) * b1 + (p2 - p0) * b2, if ng == Vec3::ZERO { Vec3::Z } else { ng }, uv)
     }
 
+    /// The texture coordinates [`Self::surface_point`] gives at barycentrics (b1, b2) of `tri`
+    /// (the eight-lane kernel resolves a textured material's BSDF with them).
+    #[inline]
+    pub fn tex_coords_at(&self, tri: u32, b1: f32, b2: f32) -> TexCoords {
+        self.tex_coords(&self.triangles[tri as usize], b1, b2)
+    }
+
+    /// The interpolated tangent (xyz, handedness w) [`Self::surface_point`] gives at barycentrics
+    /// (b1, b2) of `tri`: None for a triangle without tangents.
+    #[inline]
+    pub fn tangent_at(&self, tri: u32, b1: f32, b2: f32) -> Option<Vec4> {
+        self.tangent(&self.triangles[tri as usize], b1, b2)
+    }
+
+    #[inline(always)]
+    fn tangent(&self, t: &Triangle, b1: f32, b2: f32) -> Option<Vec4> {
+        let b0 = 1.0 - b1 - b2;
+        let [i0, i1, i2] = [t.v[0] as usize, t.v[1] as usize, t.v[2] as usize];
+        (t.flags & flags::TANGENTS != 0)
+            .then(|| self.tangents[i0] * b0 + self.tangents[i1] * b1 + self.tangents[i2] * b2)
+    }
+
     /// Both texture coordinate sets of triangle `t` at barycentrics (b1, b2).
     #[inline(always)]
     fn tex_coords(&self, t: &Triangle, b1: f32, b2: f32) -> TexCoords {
@@ -214,8 +236,7 @@ impl Mesh {
             ng
         };
         let uv = self.tex_coords(t, b1, b2);
-        let tangent = (t.flags & flags::TANGENTS != 0)
-            .then(|| self.tangents[i0] * b0 + self.tangents[i1] * b1 + self.tangents[i2] * b2);
+        let tangent = self.tangent(t, b1, b2);
         let color = if t.flags & flags::COLORS != 0 {
             self.colors[i0] * b0 + self.colors[i1] * b1 + self.colors[i2] * b2
         } else {

@@ -45,7 +45,9 @@ pub const LANES: usize = 8;
 /// sheen, and either opaque or all glass), whether it is plain Lambert (`Bsdf::is_lambert`: the
 /// shading takes a shortcut when every lane's is) or glass, and whether next-event estimation
 /// samples a light at a vertex of it (not on a black, mirror or smooth-glass one:
-/// `Bsdf::is_delta_only`).
+/// `Bsdf::is_delta_only`). A `textured` material's entry holds none of these: a lane that hits
+/// it reads them from the material's `Bsdf` at the hit's texture coordinates
+/// ([`LaneMaterial::at_hit`]), as the scalar path resolves it (`Scene::bsdf`).
 #[derive(Clone, Copy, Debug)]
 #[cfg_attr(not(all(target_arch = "x86_64", target_feature = "avx2")), allow(dead_code))]
 pub struct LaneMaterial {
@@ -59,6 +61,7 @@ pub struct LaneMaterial {
     lambert: bool,
     glass: bool,
     nee: bool,
+    textured: bool,
 }
 
 impl LaneMaterial {
@@ -72,12 +75,61 @@ impl LaneMaterial {
         lambert: true,
         glass: false,
         nee: false,
+        textured: false,
     };
 
+    /// The entry of a material whose BSDF is `b` everywhere (`glass`: all glass, else opaque).
+    fn of(b: &Bsdf, glass: bool) -> LaneMaterial {
+        LaneMaterial {
+            base: b.base_color,
+            metallic: b.metallic,
+            specular: b.specular,
+            f0: b.f0_dielectric,
+            alpha: b.ggx.alpha,
+            eta: b.eta,
+            lambert: b.is_lambert(),
+            glass,
+            nee: !b.is_delta_only(),
+            textured: false,
+        }
+    }
+
+    /// Whether a textured material is one the kernel shades lane by lane: opaque, its BSDF's
+    /// textures feeding only the base colour, metallic-roughness and specular parameters (no
+    /// transmission, coat or sheen texture, no coat or sheen at all: what varies is numbers the
+    /// eight-wide BSDF takes per lane, never the BSDF's kind). Normal maps and emissive textures
+    /// are read lane by lane wherever the material is, textured or not.
+    fn textured_opaque(m: &Material) -> bool {
+        m.transmission == 0.0
+            && m.transmission_texture.is_none()
+            && m.clearcoat <= 0.0
+            && m.sheen_color.max_element() <= 0.0
+            && m.sheen_color_texture.is_none()
+            && m.sheen_roughness_texture.is_none()
+            && m.clearcoat_texture.is_none()
+            && m.clearcoat_roughness_texture.is_none()
+            && m.clearcoat_normal_texture.is_none()
+    }
+
+    /// A textured material's entry at the hit (`tri`, `b1`, `b2`): its `Bsdf` where the scalar
+    /// path resolves it (`Scene::bsdf`: the texture coordinates `Mesh::surface_point` gives, no
+    /// vertex colour), the same bits. Any other entry as it is.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[inline]
+    fn at_hit(self, scene: &Scene, material: usize, tri: u32, b1: f32, b2: f32) -> LaneMaterial {
+        if !self.textured {
+            return self;
+        }
+        let uv = scene.mesh.tex_coords_at(tri, b1, b2);
+        let b = scene.materials[material].bsdf(&scene.textures, uv, crate::math::Vec4::ONE);
+        LaneMaterial::of(&b, false)
+    }
+
     /// The table for a scene (`uniform_bsdfs`: `Material::uniform_bsdf` of each material), or
-    /// None when some triangle needs what the kernel does not do: instances, vertex colours or
-    /// tangents, a material that is textured, unlit, normal-mapped, coated or sheened, partly
-    /// transmissive (transmission between 0 and 1, or metal over glass) or an absorbing volume.
+    /// None when some triangle needs what the kernel does not do: instances, vertex colours, a
+    /// material that is unlit, coated or sheened,
+    /// partly transmissive (transmission between 0 and 1, or metal over glass), an absorbing
+    /// volume, or textured other than as [`LaneMaterial::textured_opaque`] allows.
     /// Materials no triangle uses do not count (the loader's default one among them).
     pub fn table(mesh: &Mesh, materials: &[Material], uniform_bsdfs: &[Option<Bsdf>]) -> Option<Vec<LaneMaterial>> {
         if !mesh.instances.is_empty() {
@@ -85,7 +137,7 @@ impl LaneMaterial {
         }
         let mut used = vec![false; materials.len()];
         for t in &mesh.triangles {
-            if t.flags & (flags::TANGENTS | flags::COLORS) != 0 {
+            if t.flags & flags::COLORS != 0 {
                 return None;
             }
             *used.get_mut(t.material as usize)? = true;
@@ -96,25 +148,26 @@ impl LaneMaterial {
                 table.push(LaneMaterial::UNUSED);
                 continue;
             }
-            let b = (*uniform_bsdfs.get(i)?)?;
+            if m.unlit {
+                return None;
+            }
+            let Some(b) = *uniform_bsdfs.get(i)? else {
+                // Textured: resolved lane by lane at each hit, where it is opaque whatever the
+                // texels say.
+                if !LaneMaterial::textured_opaque(m) {
+                    return None;
+                }
+                table.push(LaneMaterial { textured: true, ..LaneMaterial::UNUSED });
+                continue;
+            };
             let layered = b.coat.is_some() || b.sheen.is_some();
             // All glass: `Bsdf`'s glass weight (1 − metallic)·transmission is exactly 1.
             let glass = b.transmission == 1.0 && b.metallic == 0.0 && m.absorption == Vec3::ZERO;
             let opaque = b.transmission == 0.0;
-            if m.unlit || layered || !(opaque || glass) || m.normal_texture.is_some() || m.emissive_texture.is_some() {
+            if layered || !(opaque || glass) {
                 return None;
             }
-            table.push(LaneMaterial {
-                base: b.base_color,
-                metallic: b.metallic,
-                specular: b.specular,
-                f0: b.f0_dielectric,
-                alpha: b.ggx.alpha,
-                eta: b.eta,
-                lambert: b.is_lambert(),
-                glass,
-                nee: !b.is_delta_only(),
-            });
+            table.push(LaneMaterial::of(&b, glass));
         }
         Some(table)
     }
@@ -423,7 +476,11 @@ pub fn radiance8(
         let mut u_bsdf = [[0f32; LANES]; 4];
         let mut u_light = [[0f32; LANES]; 4];
         let mut albedo = [Vec3::ZERO; LANES];
-        let mut mat_id = [0usize; LANES];
+        // Each shading lane's material entry (a textured one resolved at its hit).
+        let mut lane_m = [LaneMaterial::UNUSED; LANES];
+        // The shading lanes whose triangles have tangents, their tangents and normal-map texels.
+        let (mut tangent_bits, mut tangent) = (0u32, [crate::math::Vec4::ZERO; LANES]);
+        let mut normal_ts: [Option<Vec3>; LANES] = [None; LANES];
         let mut nee_bits = 0u32;
         // The shading lanes whose material is opaque but not plain Lambert, and those of glass.
         let (mut general, mut glass_bits) = (0u32, 0u32);
@@ -553,8 +610,12 @@ pub fn radiance8(
             let material_id = scene.mesh.triangles[tri[k] as usize].material as usize;
             let material = &scene.materials[material_id];
             if material.is_emissive() {
-                // No emissive texture (`LaneMaterial::table`): no texture coordinates needed.
-                let le = crate::light::emitted(material, &scene.textures, sp_ng[k], Default::default(), -dirs[k]);
+                // Texture coordinates only for an emissive texture (`Path::shade` reads `sp.uv`).
+                let uv = match material.emissive_texture {
+                    Some(_) => scene.mesh.tex_coords_at(tri[k], hb1[k], hb2[k]),
+                    None => Default::default(),
+                };
+                let le = crate::light::emitted(material, &scene.textures, sp_ng[k], uv, -dirs[k]);
                 if le != Vec3::ZERO {
                     emit[k] = le;
                     if prev_bits & (1 << k) != 0 {
@@ -567,8 +628,18 @@ pub fn radiance8(
                 continue;
             }
             shading |= 1 << k;
-            let m = materials[material_id];
-            (albedo[k], mat_id[k]) = (m.base, material_id);
+            let m = materials[material_id].at_hit(scene, material_id, tri[k], hb1[k], hb2[k]);
+            (albedo[k], lane_m[k]) = (m.base, m);
+            // A triangle with tangents: its frame is built around the tangent, and a normal map
+            // bends its shading normal (`Path::shade`).
+            if let Some(t) = scene.mesh.tangent_at(tri[k], hb1[k], hb2[k]) {
+                (tangent[k], tangent_bits) = (t, tangent_bits | 1 << k);
+                let material = &scene.materials[material_id];
+                if material.normal_texture.is_some() {
+                    let uv = scene.mesh.tex_coords_at(tri[k], hb1[k], hb2[k]);
+                    normal_ts[k] = material.tangent_space_normal(&scene.textures, uv);
+                }
+            }
             if m.nee {
                 nee_bits |= 1 << k;
             }
@@ -589,13 +660,32 @@ pub fn radiance8(
         let act = M8::from_bits(shading);
         let wo_world = rd.neg();
         let (pv, mut ngv, mut nsv) = (sp.p, sp.ng, sp.ns);
+        // Normal maps first, in the mesh's orientation (`Path::shade`), one lane at a time.
+        if normal_ts.iter().any(Option::is_some) {
+            let mut ns = nsv.to_lanes();
+            for k in lanes_of(tangent_bits) {
+                if let Some(n_ts) = normal_ts[k] {
+                    ns[k] = crate::integrator::normal_mapped(ns[k], tangent[k], n_ts);
+                }
+            }
+            nsv = V8::from_lanes(&ns);
+        }
         // Seen from the back face: also where glass's relative index inverts.
         let back_face = ngv.dot(wo_world).lt(zero);
         ngv = V8::select(back_face, ngv.neg(), ngv);
         let flip = nsv.dot(ngv).lt(zero);
         nsv = V8::select(flip, nsv.neg(), nsv);
         let ns_flipped = nsv.to_lanes();
-        let frame_s = Frame8::from_normal(nsv);
+        let mut frame_s = Frame8::from_normal(nsv);
+        if tangent_bits != 0 {
+            // `Frame::from_normal_tangent` on the lanes with tangents.
+            let (mut fs, mut ft, mut fnl) = (frame_s.s.to_lanes(), frame_s.t.to_lanes(), frame_s.n.to_lanes());
+            for k in lanes_of(tangent_bits) {
+                let f = crate::math::Frame::from_normal_tangent(ns_flipped[k], tangent[k].truncate());
+                (fs[k], ft[k], fnl[k]) = (f.s, f.t, f.n);
+            }
+            frame_s = Frame8 { s: V8::from_lanes(&fs), t: V8::from_lanes(&ft), n: V8::from_lanes(&fnl) };
+        }
         let wo_s = frame_s.to_local(wo_world);
         let back = wo_s.z.le(zero);
         let (frame, wo) = if back.any() {
@@ -617,7 +707,7 @@ pub fn radiance8(
         let albedo = V8::from_lanes(&albedo);
         let f_lambert = V8::zero().add(albedo.scale(F8::splat(INV_PI)));
         // The lanes' materials, where some lane needs more than its albedo.
-        let m = (general | glass_bits != 0).then(|| mat_id.map(|i| materials[i]));
+        let m = (general | glass_bits != 0).then_some(lane_m);
         // Where some lane is not plain Lambert, every lane takes the general opaque BSDF (whose
         // numbers are the Lambert shortcut's on a Lambert lane: `bsdf.rs`'s test).
         let bsdf = m.filter(|_| general != 0).map(|m| OpaqueBsdf8 {
@@ -692,6 +782,8 @@ pub fn radiance8(
             let mut lle = [Vec3::ZERO; LANES];
             let mut two_sided = 0u32;
             let mut area = 0u32;
+            // The area lanes whose light is emissive-textured, its triangle and material.
+            let (mut textured_light, mut ltri, mut lmat) = (0u32, [0u32; LANES], [0u32; LANES]);
             // Any other light's sample (`LightSet::sample_selected`, one lane at a time): its
             // direction, radiance, pdf and point; which are delta (punctual) and which at infinity.
             let (mut owi, mut ole, mut op, mut opdf) =
@@ -729,6 +821,10 @@ pub fn radiance8(
                     light.area,
                     if m.is_emissive() { m.emission(&scene.textures, Default::default()) } else { Vec3::ZERO },
                 );
+                if m.is_emissive() && m.emissive_texture.is_some() {
+                    // Its radiance is read at the sampled point, once that is drawn.
+                    (textured_light, ltri[k], lmat[k]) = (textured_light | 1 << k, light.triangle, light.material);
+                }
                 lpmf[k] = pmf;
                 if m.double_sided {
                     two_sided |= 1 << k;
@@ -824,6 +920,16 @@ pub fn radiance8(
             // radiance and pdf, and the side it faces (None when no lane chose an area light).
             let areas = (area != 0).then(|| {
                 let (b1, b2) = sample_uniform_triangle(F8::from_array(u_pos.0), F8::from_array(u_pos.1));
+                let mut lle = lle;
+                if textured_light != 0 {
+                    // A textured emitter's radiance at the point (`LightSet::sample_selected`: the
+                    // texture coordinates `Mesh::position_normal_uv` gives there).
+                    let (b1, b2) = (b1.to_array(), b2.to_array());
+                    for k in lanes_of(textured_light) {
+                        let uv = scene.mesh.tex_coords_at(ltri[k], b1[k], b2[k]);
+                        lle[k] = scene.materials[lmat[k] as usize].emission(&scene.textures, uv);
+                    }
+                }
                 let lng = V8::from_lanes(&lng);
                 let lp = V8::from_lanes(&lp0).add(V8::from_lanes(&le1).scale(b1)).add(V8::from_lanes(&le2).scale(b2));
                 let to = lp.sub(pv);

@@ -61,7 +61,11 @@ pub struct LaneMaterial {
     lambert: bool,
     glass: bool,
     nee: bool,
+    /// Resolved at each hit ([`LaneMaterial::at_hit`]).
     textured: bool,
+    /// Some lane that hits this material needs more than the table: it is `textured`, or some
+    /// triangle of it has tangents (a tangent frame, maybe a normal map: [`HitDetail`]).
+    per_lane: bool,
 }
 
 impl LaneMaterial {
@@ -76,6 +80,7 @@ impl LaneMaterial {
         glass: false,
         nee: false,
         textured: false,
+        per_lane: false,
     };
 
     /// The entry of a material whose BSDF is `b` everywhere (`glass`: all glass, else opaque).
@@ -91,6 +96,7 @@ impl LaneMaterial {
             glass,
             nee: !b.is_delta_only(),
             textured: false,
+            per_lane: false,
         }
     }
 
@@ -135,12 +141,13 @@ impl LaneMaterial {
         if !mesh.instances.is_empty() {
             return None;
         }
-        let mut used = vec![false; materials.len()];
+        let (mut used, mut tangents) = (vec![false; materials.len()], vec![false; materials.len()]);
         for t in &mesh.triangles {
             if t.flags & flags::COLORS != 0 {
                 return None;
             }
             *used.get_mut(t.material as usize)? = true;
+            tangents[t.material as usize] |= t.flags & flags::TANGENTS != 0;
         }
         let mut table = Vec::with_capacity(materials.len());
         for (i, m) in materials.iter().enumerate() {
@@ -157,7 +164,7 @@ impl LaneMaterial {
                 if !LaneMaterial::textured_opaque(m) {
                     return None;
                 }
-                table.push(LaneMaterial { textured: true, ..LaneMaterial::UNUSED });
+                table.push(LaneMaterial { textured: true, per_lane: true, ..LaneMaterial::UNUSED });
                 continue;
             };
             let layered = b.coat.is_some() || b.sheen.is_some();
@@ -167,7 +174,7 @@ impl LaneMaterial {
             if layered || !(opaque || glass) {
                 return None;
             }
-            table.push(LaneMaterial::of(&b, glass));
+            table.push(LaneMaterial { per_lane: tangents[i], ..LaneMaterial::of(&b, glass) });
         }
         Some(table)
     }
@@ -293,6 +300,63 @@ impl Frame8 {
     #[inline(always)]
     fn select(m: M8, a: Frame8, b: Frame8) -> Frame8 {
         Frame8 { s: V8::select(m, a.s, b.s), t: V8::select(m, a.t, b.t), n: V8::select(m, a.n, b.n) }
+    }
+}
+
+/// What a bounce's lanes resolve at their hits beyond the material table, one lane at a time
+/// and only for the lanes that need it ([`LaneMaterial::per_lane`]): a textured material's entry
+/// at the hit, and a tangent (`Mesh::surface_point`'s) with the normal map's texel there.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+struct HitDetail {
+    textured: u32,
+    m: [LaneMaterial; LANES],
+    tangent_bits: u32,
+    tangent: [crate::math::Vec4; LANES],
+    normal_ts: [Option<Vec3>; LANES],
+}
+
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+impl HitDetail {
+    fn new() -> Self {
+        HitDetail {
+            textured: 0,
+            m: [LaneMaterial::UNUSED; LANES],
+            tangent_bits: 0,
+            tangent: [crate::math::Vec4::ZERO; LANES],
+            normal_ts: [None; LANES],
+        }
+    }
+
+    /// Lane `k`'s hit on triangle `tri` at (b1, b2) with material `id`, whose table entry is
+    /// `m`: the entry the lane shades with (`m` resolved where it is textured).
+    #[inline(never)]
+    #[allow(clippy::too_many_arguments)]
+    fn resolve(
+        &mut self,
+        scene: &Scene,
+        k: usize,
+        id: usize,
+        m: LaneMaterial,
+        tri: u32,
+        b1: f32,
+        b2: f32,
+    ) -> LaneMaterial {
+        if m.textured {
+            self.textured |= 1 << k;
+        }
+        let m = m.at_hit(scene, id, tri, b1, b2);
+        self.m[k] = m;
+        // A triangle with tangents: its frame is built around the tangent, and a normal map
+        // bends its shading normal (`Path::shade`).
+        if let Some(t) = scene.mesh.tangent_at(tri, b1, b2) {
+            (self.tangent[k], self.tangent_bits) = (t, self.tangent_bits | 1 << k);
+            let material = &scene.materials[id];
+            if material.normal_texture.is_some() {
+                let uv = scene.mesh.tex_coords_at(tri, b1, b2);
+                self.normal_ts[k] = material.tangent_space_normal(&scene.textures, uv);
+            }
+        }
+        m
     }
 }
 
@@ -476,11 +540,9 @@ pub fn radiance8(
         let mut u_bsdf = [[0f32; LANES]; 4];
         let mut u_light = [[0f32; LANES]; 4];
         let mut albedo = [Vec3::ZERO; LANES];
-        // Each shading lane's material entry (a textured one resolved at its hit).
-        let mut lane_m = [LaneMaterial::UNUSED; LANES];
-        // The shading lanes whose triangles have tangents, their tangents and normal-map texels.
-        let (mut tangent_bits, mut tangent) = (0u32, [crate::math::Vec4::ZERO; LANES]);
-        let mut normal_ts: [Option<Vec3>; LANES] = [None; LANES];
+        let mut mat_id = [0usize; LANES];
+        // What some lanes resolve at their hits (textures, tangents), made for the first.
+        let mut detail: Option<HitDetail> = None;
         let mut nee_bits = 0u32;
         // The shading lanes whose material is opaque but not plain Lambert, and those of glass.
         let (mut general, mut glass_bits) = (0u32, 0u32);
@@ -628,18 +690,14 @@ pub fn radiance8(
                 continue;
             }
             shading |= 1 << k;
-            let m = materials[material_id].at_hit(scene, material_id, tri[k], hb1[k], hb2[k]);
-            (albedo[k], lane_m[k]) = (m.base, m);
-            // A triangle with tangents: its frame is built around the tangent, and a normal map
-            // bends its shading normal (`Path::shade`).
-            if let Some(t) = scene.mesh.tangent_at(tri[k], hb1[k], hb2[k]) {
-                (tangent[k], tangent_bits) = (t, tangent_bits | 1 << k);
-                let material = &scene.materials[material_id];
-                if material.normal_texture.is_some() {
-                    let uv = scene.mesh.tex_coords_at(tri[k], hb1[k], hb2[k]);
-                    normal_ts[k] = material.tangent_space_normal(&scene.textures, uv);
-                }
+            let resolved;
+            let mut m = &materials[material_id];
+            if m.per_lane {
+                let d = detail.get_or_insert_with(HitDetail::new);
+                resolved = d.resolve(scene, k, material_id, *m, tri[k], hb1[k], hb2[k]);
+                m = &resolved;
             }
+            (albedo[k], mat_id[k]) = (m.base, material_id);
             if m.nee {
                 nee_bits |= 1 << k;
             }
@@ -661,11 +719,12 @@ pub fn radiance8(
         let wo_world = rd.neg();
         let (pv, mut ngv, mut nsv) = (sp.p, sp.ng, sp.ns);
         // Normal maps first, in the mesh's orientation (`Path::shade`), one lane at a time.
-        if normal_ts.iter().any(Option::is_some) {
+        let tangents = detail.as_ref().filter(|d| d.tangent_bits != 0);
+        if let Some(d) = tangents.filter(|d| d.normal_ts.iter().any(Option::is_some)) {
             let mut ns = nsv.to_lanes();
-            for k in lanes_of(tangent_bits) {
-                if let Some(n_ts) = normal_ts[k] {
-                    ns[k] = crate::integrator::normal_mapped(ns[k], tangent[k], n_ts);
+            for k in lanes_of(d.tangent_bits) {
+                if let Some(n_ts) = d.normal_ts[k] {
+                    ns[k] = crate::integrator::normal_mapped(ns[k], d.tangent[k], n_ts);
                 }
             }
             nsv = V8::from_lanes(&ns);
@@ -677,11 +736,11 @@ pub fn radiance8(
         nsv = V8::select(flip, nsv.neg(), nsv);
         let ns_flipped = nsv.to_lanes();
         let mut frame_s = Frame8::from_normal(nsv);
-        if tangent_bits != 0 {
+        if let Some(d) = tangents {
             // `Frame::from_normal_tangent` on the lanes with tangents.
             let (mut fs, mut ft, mut fnl) = (frame_s.s.to_lanes(), frame_s.t.to_lanes(), frame_s.n.to_lanes());
-            for k in lanes_of(tangent_bits) {
-                let f = crate::math::Frame::from_normal_tangent(ns_flipped[k], tangent[k].truncate());
+            for k in lanes_of(d.tangent_bits) {
+                let f = crate::math::Frame::from_normal_tangent(ns_flipped[k], d.tangent[k].truncate());
                 (fs[k], ft[k], fnl[k]) = (f.s, f.t, f.n);
             }
             frame_s = Frame8 { s: V8::from_lanes(&fs), t: V8::from_lanes(&ft), n: V8::from_lanes(&fnl) };
@@ -707,7 +766,15 @@ pub fn radiance8(
         let albedo = V8::from_lanes(&albedo);
         let f_lambert = V8::zero().add(albedo.scale(F8::splat(INV_PI)));
         // The lanes' materials, where some lane needs more than its albedo.
-        let m = (general | glass_bits != 0).then_some(lane_m);
+        let m = (general | glass_bits != 0).then(|| {
+            let mut m = mat_id.map(|i| materials[i]);
+            if let Some(d) = detail.as_ref() {
+                for k in lanes_of(d.textured) {
+                    m[k] = d.m[k];
+                }
+            }
+            m
+        });
         // Where some lane is not plain Lambert, every lane takes the general opaque BSDF (whose
         // numbers are the Lambert shortcut's on a Lambert lane: `bsdf.rs`'s test).
         let bsdf = m.filter(|_| general != 0).map(|m| OpaqueBsdf8 {
@@ -821,7 +888,7 @@ pub fn radiance8(
                     light.area,
                     if m.is_emissive() { m.emission(&scene.textures, Default::default()) } else { Vec3::ZERO },
                 );
-                if m.is_emissive() && m.emissive_texture.is_some() {
+                if m.emissive_texture.is_some() && m.is_emissive() {
                     // Its radiance is read at the sampled point, once that is drawn.
                     (textured_light, ltri[k], lmat[k]) = (textured_light | 1 << k, light.triangle, light.material);
                 }
@@ -920,16 +987,19 @@ pub fn radiance8(
             // radiance and pdf, and the side it faces (None when no lane chose an area light).
             let areas = (area != 0).then(|| {
                 let (b1, b2) = sample_uniform_triangle(F8::from_array(u_pos.0), F8::from_array(u_pos.1));
-                let mut lle = lle;
-                if textured_light != 0 {
+                let le = if textured_light != 0 {
                     // A textured emitter's radiance at the point (`LightSet::sample_selected`: the
                     // texture coordinates `Mesh::position_normal_uv` gives there).
                     let (b1, b2) = (b1.to_array(), b2.to_array());
+                    let mut lle = lle;
                     for k in lanes_of(textured_light) {
                         let uv = scene.mesh.tex_coords_at(ltri[k], b1[k], b2[k]);
                         lle[k] = scene.materials[lmat[k] as usize].emission(&scene.textures, uv);
                     }
-                }
+                    V8::from_lanes(&lle)
+                } else {
+                    V8::from_lanes(&lle)
+                };
                 let lng = V8::from_lanes(&lng);
                 let lp = V8::from_lanes(&lp0).add(V8::from_lanes(&le1).scale(b1)).add(V8::from_lanes(&le2).scale(b2));
                 let to = lp.sub(pv);
@@ -941,7 +1011,7 @@ pub fn radiance8(
                 let ok = ok & !cos_l.eq(zero);
                 // `light::emitted`: one-sided emitters are dark from behind.
                 let lit = M8::from_bits(two_sided) | cos_l.gt(zero);
-                let lle = V8::select(lit, V8::from_lanes(&lle), V8::zero());
+                let lle = V8::select(lit, le, V8::zero());
                 let lpdf = F8::from_array(lpmf) * dist2 / (cos_l.abs() * F8::from_array(larea));
                 let ok = ok & lpdf.gt(zero) & lpdf.is_finite();
                 let ln = V8::select(cos_l.gt(zero), lng, lng.neg());

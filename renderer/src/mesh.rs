@@ -168,6 +168,24 @@ impl Mesh {
             .then(|| self.tangents[i0] * b0 + self.tangents[i1] * b1 + self.tangents[i2] * b2)
     }
 
+    /// The interpolated vertex colour [`Self::surface_point`] gives at barycentrics (b1, b2) of
+    /// `tri`: white for a triangle without colours.
+    #[inline]
+    pub fn color_at(&self, tri: u32, b1: f32, b2: f32) -> Vec4 {
+        self.color(&self.triangles[tri as usize], b1, b2)
+    }
+
+    #[inline(always)]
+    fn color(&self, t: &Triangle, b1: f32, b2: f32) -> Vec4 {
+        let b0 = 1.0 - b1 - b2;
+        let [i0, i1, i2] = [t.v[0] as usize, t.v[1] as usize, t.v[2] as usize];
+        if t.flags & flags::COLORS != 0 {
+            self.colors[i0] * b0 + self.colors[i1] * b1 + self.colors[i2] * b2
+        } else {
+            Vec4::ONE
+        }
+    }
+
     /// Both texture coordinate sets of triangle `t` at barycentrics (b1, b2).
     #[inline(always)]
     fn tex_coords(&self, t: &Triangle, b1: f32, b2: f32) -> TexCoords {
@@ -237,11 +255,7 @@ impl Mesh {
         };
         let uv = self.tex_coords(t, b1, b2);
         let tangent = self.tangent(t, b1, b2);
-        let color = if t.flags & flags::COLORS != 0 {
-            self.colors[i0] * b0 + self.colors[i1] * b1 + self.colors[i2] * b2
-        } else {
-            Vec4::ONE
-        };
+        let color = self.color(t, b1, b2);
         SurfacePoint { p, ng, ns, tangent, uv, color, triangle: tri, plane_error: plane_error(e1, e2) }
     }
 

@@ -117,37 +117,37 @@ impl LaneMaterial {
             && m.clearcoat_normal_texture.is_none()
     }
 
-    /// A textured material's entry at the hit (`tri`, `b1`, `b2`): its `Bsdf` where the scalar
-    /// path resolves it (`Scene::bsdf`: the texture coordinates `Mesh::surface_point` gives, no
-    /// vertex colour), the same bits. Any other entry as it is.
+    /// A textured (or vertex-coloured) material's entry at the hit (`tri`, `b1`, `b2`): its
+    /// `Bsdf` where the scalar path resolves it (`Scene::bsdf`: the texture coordinates and
+    /// colour `Mesh::surface_point` gives; a material's precomputed `Bsdf` is the same bits as
+    /// one resolved under white), the same bits. Any other entry as it is.
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[inline]
     fn at_hit(self, scene: &Scene, material: usize, tri: u32, b1: f32, b2: f32) -> LaneMaterial {
         if !self.textured {
             return self;
         }
-        let uv = scene.mesh.tex_coords_at(tri, b1, b2);
-        let b = scene.materials[material].bsdf(&scene.textures, uv, crate::math::Vec4::ONE);
+        let (uv, color) = (scene.mesh.tex_coords_at(tri, b1, b2), scene.mesh.color_at(tri, b1, b2));
+        let b = scene.materials[material].bsdf(&scene.textures, uv, color);
         LaneMaterial::of(&b, false)
     }
 
     /// The table for a scene (`uniform_bsdfs`: `Material::uniform_bsdf` of each material), or
-    /// None when some triangle needs what the kernel does not do: instances, vertex colours, a
-    /// material that is unlit, coated or sheened,
-    /// partly transmissive (transmission between 0 and 1, or metal over glass), an absorbing
-    /// volume, or textured other than as [`LaneMaterial::textured_opaque`] allows.
+    /// None when some triangle needs what the kernel does not do: instances, a material that is
+    /// unlit, coated or sheened, partly transmissive (transmission between 0 and 1, or metal over
+    /// glass), an absorbing volume, or textured or vertex-coloured other than as
+    /// [`LaneMaterial::textured_opaque`] allows.
     /// Materials no triangle uses do not count (the loader's default one among them).
     pub fn table(mesh: &Mesh, materials: &[Material], uniform_bsdfs: &[Option<Bsdf>]) -> Option<Vec<LaneMaterial>> {
         if !mesh.instances.is_empty() {
             return None;
         }
-        let (mut used, mut tangents) = (vec![false; materials.len()], vec![false; materials.len()]);
+        let n = materials.len();
+        let (mut used, mut tangents, mut colors) = (vec![false; n], vec![false; n], vec![false; n]);
         for t in &mesh.triangles {
-            if t.flags & flags::COLORS != 0 {
-                return None;
-            }
             *used.get_mut(t.material as usize)? = true;
             tangents[t.material as usize] |= t.flags & flags::TANGENTS != 0;
+            colors[t.material as usize] |= t.flags & flags::COLORS != 0;
         }
         let mut table = Vec::with_capacity(materials.len());
         for (i, m) in materials.iter().enumerate() {
@@ -158,9 +158,10 @@ impl LaneMaterial {
             if m.unlit {
                 return None;
             }
-            let Some(b) = *uniform_bsdfs.get(i)? else {
-                // Textured: resolved lane by lane at each hit, where it is opaque whatever the
-                // texels say.
+            let uniform = (*uniform_bsdfs.get(i)?).filter(|_| !colors[i]);
+            let Some(b) = uniform else {
+                // Textured or vertex-coloured: resolved lane by lane at each hit, where it is
+                // opaque whatever the texels and colours say.
                 if !LaneMaterial::textured_opaque(m) {
                     return None;
                 }

@@ -418,6 +418,8 @@ fn textured_room() -> Scene {
     let bumpy = Material { normal_texture: feed(3), normal_scale: 0.8, ..textured.clone() };
     let w = b.material(textured);
     let n = b.material(bumpy);
+    // Untextured plastic whose colour comes from its vertices alone.
+    let painted = b.material(Material { name: "painted".into(), roughness: 0.4, ..lambert(Vec3::ONE) });
     let e = b.material(Material { emissive_texture: feed(0), ..emitter(Vec3::splat(9.0)) });
     let first_vertex = b.mesh.positions.len();
     // The floor and back wall normal-mapped; the ceiling and side walls with tangents but no
@@ -426,7 +428,7 @@ fn textured_room() -> Scene {
         (Vec3::new(0.0, -1.0, 0.0), Vec3::X, Vec3::NEG_Z, n),
         (Vec3::new(0.0, 1.0, 0.0), Vec3::X, Vec3::Z, w),
         (Vec3::new(-1.0, 0.0, 0.0), Vec3::Z, Vec3::Y, w),
-        (Vec3::new(1.0, 0.0, 0.0), Vec3::Y, Vec3::Z, w),
+        (Vec3::new(1.0, 0.0, 0.0), Vec3::Y, Vec3::Z, painted),
         (Vec3::new(0.0, 0.0, -1.0), Vec3::X, Vec3::Y, n),
     ] {
         b.quad(c, u, v, m);
@@ -441,6 +443,15 @@ fn textured_room() -> Scene {
     }
     for t in &mut b.mesh.triangles {
         t.flags |= flags::UVS | flags::TANGENTS;
+    }
+    // Vertex colours on the side walls (the textured one tinted, the painted one coloured).
+    let colours = [Vec4::new(1.0, 0.2, 0.2, 1.0), Vec4::new(0.2, 1.0, 0.2, 1.0), Vec4::ONE, Vec4::new(0.3, 0.3, 1.0, 1.0)];
+    b.mesh.colors.resize(b.mesh.positions.len(), Vec4::ONE);
+    for wall in [2, 3] {
+        b.mesh.colors[first_vertex + 4 * wall..first_vertex + 4 * wall + 4].copy_from_slice(&colours);
+        for t in &mut b.mesh.triangles[2 * wall..2 * wall + 2] {
+            t.flags |= flags::COLORS;
+        }
     }
     // No texture coordinates or tangents: every hit reads the texel at (0, 0), no normal map.
     b.sphere(Vec3::new(-0.3, -0.6, -0.2), 0.35, 1, false, n);
@@ -476,7 +487,7 @@ fn textured_room() -> Scene {
 }
 
 /// Textured surfaces (base colour, metallic-roughness, specular and emissive textures, normal
-/// maps, tangent frames) go through the kernel, each lane's BSDF and shading frame resolved at its own
+/// maps, tangent frames, vertex colours) go through the kernel, each lane's BSDF and shading frame resolved at its own
 /// hit as the scalar path resolves them; same bits, with the light tree and by power.
 #[test]
 fn eight_lanes_match_on_textured_surfaces() {

@@ -139,9 +139,6 @@ impl LaneMaterial {
     /// [`LaneMaterial::textured_opaque`] allows.
     /// Materials no triangle uses do not count (the loader's default one among them).
     pub fn table(mesh: &Mesh, materials: &[Material], uniform_bsdfs: &[Option<Bsdf>]) -> Option<Vec<LaneMaterial>> {
-        if !mesh.instances.is_empty() {
-            return None;
-        }
         let n = materials.len();
         let (mut used, mut tangents, mut colors) = (vec![false; n], vec![false; n], vec![false; n]);
         for t in &mesh.triangles {
@@ -329,7 +326,8 @@ impl HitDetail {
     }
 
     /// Lane `k`'s hit on triangle `tri` at (b1, b2) with material `id`, whose table entry is
-    /// `m`: the entry the lane shades with (`m` resolved where it is textured).
+    /// `m`, and the hit's world-space `tangent` (`Scene::surface_point`'s): the entry the lane
+    /// shades with (`m` resolved where it is textured).
     #[inline(never)]
     #[allow(clippy::too_many_arguments)]
     fn resolve(
@@ -341,6 +339,7 @@ impl HitDetail {
         tri: u32,
         b1: f32,
         b2: f32,
+        tangent: Option<crate::math::Vec4>,
     ) -> LaneMaterial {
         if m.textured {
             self.textured |= 1 << k;
@@ -349,7 +348,7 @@ impl HitDetail {
         self.m[k] = m;
         // A triangle with tangents: its frame is built around the tangent, and a normal map
         // bends its shading normal (`Path::shade`).
-        if let Some(t) = scene.mesh.tangent_at(tri, b1, b2) {
+        if let Some(t) = tangent {
             (self.tangent[k], self.tangent_bits) = (t, self.tangent_bits | 1 << k);
             let material = &scene.materials[id];
             if material.normal_texture.is_some() {
@@ -358,6 +357,37 @@ impl HitDetail {
             }
         }
         m
+    }
+}
+
+/// The lanes whose hits are on instances, and their world-space tangents.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+struct InstancedLanes {
+    bits: u32,
+    tangent: [Option<crate::math::Vec4>; LANES],
+}
+
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+impl InstancedLanes {
+    /// Finds the `hit_bits` lanes of `hits` on an instance and writes their surface points
+    /// (`Mesh::instance_surface_point`: position, normals and plane error) into `sp`.
+    #[inline(never)]
+    fn of(scene: &Scene, hits: &[Option<crate::accel::Hit>; LANES], hit_bits: u32, sp: &mut SurfacePoint8) -> Self {
+        let mut lanes = InstancedLanes { bits: 0, tangent: [None; LANES] };
+        let (mut p, mut ng, mut ns, mut err) =
+            (sp.p.to_lanes(), sp.ng.to_lanes(), sp.ns.to_lanes(), sp.plane_error.to_array());
+        for k in lanes_of(hit_bits) {
+            let Some(hit) = hits[k] else { continue };
+            let Some(inst) = scene.mesh.instances.get(hit.instance as usize) else { continue };
+            let w = scene.mesh.instance_surface_point(inst, hit.triangle, hit.b1, hit.b2);
+            (p[k], ng[k], ns[k], err[k]) = (w.p, w.ng, w.ns, w.plane_error);
+            (lanes.bits, lanes.tangent[k]) = (lanes.bits | 1 << k, w.tangent);
+        }
+        if lanes.bits != 0 {
+            (sp.p, sp.ng, sp.ns) = (V8::from_lanes(&p), V8::from_lanes(&ng), V8::from_lanes(&ns));
+            sp.plane_error = F8::from_array(err);
+        }
+        lanes
     }
 }
 
@@ -661,13 +691,16 @@ pub fn radiance8(
             alive = 0;
             continue;
         }
-        let sp = SurfacePoint8::new(
+        let mut sp = SurfacePoint8::new(
             [v0, v1, v2].map(|v| V8::from_registers(&v)),
             (smooth != 0).then(|| [n0, n1, n2].map(|n| V8::from_registers(&n))),
             M8::from_bits(smooth),
             F8::from_array(hb1),
             F8::from_array(hb2),
         );
+        // Hits on instances: the prototype's point carried to the world one lane at a time
+        // (`Scene::surface_point`), over the object-space point computed above.
+        let instanced = (!scene.mesh.instances.is_empty()).then(|| InstancedLanes::of(scene, &hits, hit_bits, &mut sp));
         let (sp_p, sp_ng) = (sp.p.to_lanes(), sp.ng.to_lanes());
         for k in lanes_of(hit_bits) {
             let material_id = scene.mesh.triangles[tri[k] as usize].material as usize;
@@ -695,7 +728,11 @@ pub fn radiance8(
             let mut m = &materials[material_id];
             if m.per_lane {
                 let d = detail.get_or_insert_with(HitDetail::new);
-                resolved = d.resolve(scene, k, material_id, *m, tri[k], hb1[k], hb2[k]);
+                let tangent = match &instanced {
+                    Some(i) if i.bits & (1 << k) != 0 => i.tangent[k],
+                    _ => scene.mesh.tangent_at(tri[k], hb1[k], hb2[k]),
+                };
+                resolved = d.resolve(scene, k, material_id, *m, tri[k], hb1[k], hb2[k], tangent);
                 m = &resolved;
             }
             (albedo[k], mat_id[k]) = (m.base, material_id);

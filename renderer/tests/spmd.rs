@@ -8,13 +8,14 @@
 
 #![cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 
+use glam::Mat4;
 use renderer::accel::BATCH_RAYS_ABOVE;
 use renderer::environment::Environment;
 use renderer::film::Rect;
 use renderer::light::LightSamplerKind;
 use renderer::material::Material;
 use renderer::math::{Vec2, Vec3, Vec4};
-use renderer::mesh::flags;
+use renderer::mesh::{flags, Instance, Triangle};
 use renderer::microfacet::Ggx;
 use renderer::punctual::{PunctualKind, PunctualLight};
 use renderer::render::render_tile_counted;
@@ -445,7 +446,8 @@ fn textured_room() -> Scene {
         t.flags |= flags::UVS | flags::TANGENTS;
     }
     // Vertex colours on the side walls (the textured one tinted, the painted one coloured).
-    let colours = [Vec4::new(1.0, 0.2, 0.2, 1.0), Vec4::new(0.2, 1.0, 0.2, 1.0), Vec4::ONE, Vec4::new(0.3, 0.3, 1.0, 1.0)];
+    let colours =
+        [Vec4::new(1.0, 0.2, 0.2, 1.0), Vec4::new(0.2, 1.0, 0.2, 1.0), Vec4::ONE, Vec4::new(0.3, 0.3, 1.0, 1.0)];
     b.mesh.colors.resize(b.mesh.positions.len(), Vec4::ONE);
     for wall in [2, 3] {
         b.mesh.colors[first_vertex + 4 * wall..first_vertex + 4 * wall + 4].copy_from_slice(&colours);
@@ -496,6 +498,51 @@ fn eight_lanes_match_on_textured_surfaces() {
         let settings =
             RenderSettings { width: 32, height: 24, spp: 16, seed: 3, light_sampler, ..RenderSettings::default() };
         same_with_lanes_or_not(&mut scene, &settings, &format!("textured room ({light_sampler:?})"));
+    }
+}
+
+/// Instances (a prototype placed three times, rotated, mirrored and stretched unevenly, so
+/// normals go through the inverse transpose and tangents through the linear part): each lane's
+/// hit carried to the world as the scalar path carries it (`Scene::surface_point`); same bits,
+/// among world-space walls, with a normal map on the prototype.
+#[test]
+fn eight_lanes_match_on_instances() {
+    let mut scene = textured_room();
+    use std::mem::take;
+    let (mut mesh, materials) = (take(&mut scene.mesh), take(&mut scene.materials));
+    let (textures, cameras) = (take(&mut scene.textures), take(&mut scene.cameras));
+    let bumpy = 1; // `textured_room`'s normal-mapped material
+    let (first_vertex, first_triangle) = (mesh.positions.len(), mesh.triangles.len());
+    let mut b = SceneBuilder::default();
+    b.sphere(Vec3::ZERO, 0.3, 1, false, bumpy);
+    let offset = first_vertex as u32;
+    for (v, p) in b.mesh.positions.iter().enumerate() {
+        mesh.positions.push(*p);
+        mesh.normals.push(p.normalize());
+        mesh.tangents.push(Vec3::Y.cross(*p).normalize_or(Vec3::X).extend(if v % 2 == 0 { 1.0 } else { -1.0 }));
+        mesh.uvs.push(Vec2::new(p.x + 0.5, p.y + 0.5));
+        if !mesh.colors.is_empty() {
+            mesh.colors.push(Vec4::ONE);
+        }
+    }
+    for t in &b.mesh.triangles {
+        let flags = flags::OBJECT_SPACE | flags::NORMALS | flags::TANGENTS | flags::UVS;
+        mesh.triangles.push(Triangle { v: t.v.map(|i| i + offset), material: bumpy, flags });
+    }
+    mesh.prototypes.push(first_triangle as u32..mesh.triangles.len() as u32);
+    let proto = mesh.prototypes.len() as u32 - 1;
+    let place = [
+        Mat4::from_translation(Vec3::new(0.5, -0.6, 0.1)) * Mat4::from_rotation_y(0.7),
+        Mat4::from_translation(Vec3::new(-0.5, 0.2, -0.4)) * Mat4::from_scale(Vec3::new(1.6, 0.7, 1.0)),
+        Mat4::from_translation(Vec3::new(0.1, 0.5, 0.3)) * Mat4::from_scale(Vec3::new(-0.8, 0.8, 0.8)),
+    ];
+    mesh.instances.extend(place.into_iter().filter_map(|m| Instance::new(proto, m)));
+    assert_eq!(mesh.instances.len(), 3);
+    scene = Scene::new(mesh, materials, textures, cameras);
+    for light_sampler in [LightSamplerKind::Power, LightSamplerKind::Tree] {
+        let settings =
+            RenderSettings { width: 32, height: 24, spp: 16, seed: 5, light_sampler, ..RenderSettings::default() };
+        same_with_lanes_or_not(&mut scene, &settings, &format!("instances ({light_sampler:?})"));
     }
 }
 

@@ -476,9 +476,45 @@ pub const STREAM: usize = 256;
 /// bit for bit. The camera rays are traced eight at a time as the lanes reach them (a bundle
 /// where they share an origin: `Scene::intersect_bundle`; the caller lays a pixel's samples out
 /// together), and a path whose camera ray escapes ends there without taking a lane.
+///
+/// Two builds of it: one for scenes whose lanes need nothing beyond the material table (every
+/// scene of the benchmark suite), one that also resolves what some hits need one lane at a time
+/// (textures, vertex colours, tangent frames and normal maps, instances, textured emitters:
+/// [`needs_hit_detail`]). The first is the kernel as it was before the second existed, so the
+/// suite's renders pay nothing for it.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[allow(clippy::too_many_arguments)]
 pub fn radiance8(
+    scene: &Scene,
+    materials: &[LaneMaterial],
+    settings: &RenderSettings,
+    o: Vec3,
+    d: &[Vec3],
+    samplers: &[PixelSample],
+    rays: &mut u64,
+    out: &mut [Vec3],
+) {
+    if needs_hit_detail(scene, materials) {
+        radiance8_with::<true>(scene, materials, settings, o, d, samplers, rays, out)
+    } else {
+        radiance8_with::<false>(scene, materials, settings, o, d, samplers, rays, out)
+    }
+}
+
+/// Whether some lane of `scene` may need more than `materials` (its table) tells: a material
+/// resolved at its hits ([`LaneMaterial::per_lane`]), an emissive texture, or instances.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+fn needs_hit_detail(scene: &Scene, materials: &[LaneMaterial]) -> bool {
+    !scene.mesh.instances.is_empty()
+        || materials.iter().any(|m| m.per_lane)
+        || scene.materials.iter().any(|m| m.emissive_texture.is_some())
+}
+
+/// [`radiance8`], with the per-lane resolution of hits where `DETAIL`.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[allow(clippy::too_many_arguments)]
+#[inline(never)]
+fn radiance8_with<const DETAIL: bool>(
     scene: &Scene,
     materials: &[LaneMaterial],
     settings: &RenderSettings,
@@ -700,7 +736,8 @@ pub fn radiance8(
         );
         // Hits on instances: the prototype's point carried to the world one lane at a time
         // (`Scene::surface_point`), over the object-space point computed above.
-        let instanced = (!scene.mesh.instances.is_empty()).then(|| InstancedLanes::of(scene, &hits, hit_bits, &mut sp));
+        let instanced =
+            (DETAIL && !scene.mesh.instances.is_empty()).then(|| InstancedLanes::of(scene, &hits, hit_bits, &mut sp));
         let (sp_p, sp_ng) = (sp.p.to_lanes(), sp.ng.to_lanes());
         for k in lanes_of(hit_bits) {
             let material_id = scene.mesh.triangles[tri[k] as usize].material as usize;
@@ -708,8 +745,8 @@ pub fn radiance8(
             if material.is_emissive() {
                 // Texture coordinates only for an emissive texture (`Path::shade` reads `sp.uv`).
                 let uv = match material.emissive_texture {
-                    Some(_) => scene.mesh.tex_coords_at(tri[k], hb1[k], hb2[k]),
-                    None => Default::default(),
+                    Some(_) if DETAIL => scene.mesh.tex_coords_at(tri[k], hb1[k], hb2[k]),
+                    _ => Default::default(),
                 };
                 let le = crate::light::emitted(material, &scene.textures, sp_ng[k], uv, -dirs[k]);
                 if le != Vec3::ZERO {
@@ -726,7 +763,7 @@ pub fn radiance8(
             shading |= 1 << k;
             let resolved;
             let mut m = &materials[material_id];
-            if m.per_lane {
+            if DETAIL && m.per_lane {
                 let d = detail.get_or_insert_with(HitDetail::new);
                 let tangent = match &instanced {
                     Some(i) if i.bits & (1 << k) != 0 => i.tangent[k],
@@ -757,7 +794,7 @@ pub fn radiance8(
         let wo_world = rd.neg();
         let (pv, mut ngv, mut nsv) = (sp.p, sp.ng, sp.ns);
         // Normal maps first, in the mesh's orientation (`Path::shade`), one lane at a time.
-        let tangents = detail.as_ref().filter(|d| d.tangent_bits != 0);
+        let tangents = detail.as_ref().filter(|d| DETAIL && d.tangent_bits != 0);
         if let Some(d) = tangents.filter(|d| d.normal_ts.iter().any(Option::is_some)) {
             let mut ns = nsv.to_lanes();
             for k in lanes_of(d.tangent_bits) {
@@ -806,7 +843,7 @@ pub fn radiance8(
         // The lanes' materials, where some lane needs more than its albedo.
         let m = (general | glass_bits != 0).then(|| {
             let mut m = mat_id.map(|i| materials[i]);
-            if let Some(d) = detail.as_ref() {
+            if let Some(d) = detail.as_ref().filter(|_| DETAIL) {
                 for k in lanes_of(d.textured) {
                     m[k] = d.m[k];
                 }
@@ -926,7 +963,7 @@ pub fn radiance8(
                     light.area,
                     if m.is_emissive() { m.emission(&scene.textures, Default::default()) } else { Vec3::ZERO },
                 );
-                if m.emissive_texture.is_some() && m.is_emissive() {
+                if DETAIL && m.emissive_texture.is_some() && m.is_emissive() {
                     // Its radiance is read at the sampled point, once that is drawn.
                     (textured_light, ltri[k], lmat[k]) = (textured_light | 1 << k, light.triangle, light.material);
                 }
@@ -1025,7 +1062,7 @@ pub fn radiance8(
             // radiance and pdf, and the side it faces (None when no lane chose an area light).
             let areas = (area != 0).then(|| {
                 let (b1, b2) = sample_uniform_triangle(F8::from_array(u_pos.0), F8::from_array(u_pos.1));
-                let le = if textured_light != 0 {
+                let le = if DETAIL && textured_light != 0 {
                     // A textured emitter's radiance at the point (`LightSet::sample_selected`: the
                     // texture coordinates `Mesh::position_normal_uv` gives there).
                     let (b1, b2) = (b1.to_array(), b2.to_array());

@@ -204,9 +204,10 @@ impl Scene {
     }
 
     /// The eight-lane kernel's material table when it renders this scene with `settings`
-    /// ([`crate::spmd::radiance8`]): every surface an untextured metallic-roughness material,
-    /// opaque or all glass ([`crate::spmd::LaneMaterial::table`]), no alpha blending or masking,
-    /// the MIS integrator and some light to sample.
+    /// ([`crate::spmd::radiance8`]): every surface a metallic-roughness material, opaque (textures,
+    /// vertex colours, normal maps and instances allowed) or all glass
+    /// ([`crate::spmd::LaneMaterial::table`]), no alpha blending or masking, the MIS integrator
+    /// and some light to sample.
     pub fn lanes(&self, settings: &crate::RenderSettings) -> Option<&[crate::spmd::LaneMaterial]> {
         let usable = cfg!(all(target_arch = "x86_64", target_feature = "avx2"))
             && self.lanes

@@ -1,7 +1,12 @@
 //! Eight paths in lock step, their shading done on eight-lane registers ([`crate::lanes`]): the
-//! SPMD kernel of issue 15, for the scenes whose every surface is an untextured metallic-roughness
-//! material, opaque (Lambert, plastic, metal) or all glass ([`crate::bsdf8`]), lit by emissive
-//! triangles, an environment or punctual lights (every scene of the benchmark suite).
+//! SPMD kernel of issue 15, for the scenes whose every surface is a metallic-roughness material,
+//! opaque (Lambert, plastic, metal) or all glass ([`crate::bsdf8`]), lit by emissive triangles,
+//! an environment or punctual lights (every scene of the benchmark suite). Opaque surfaces may be
+//! textured (base colour, metallic-roughness, specular), vertex-coloured, normal-mapped, placed
+//! as instances and emit through a texture: what those vary is resolved one lane at a time at
+//! each hit, with the scalar path's own functions (`HitDetail`, `InstancedLanes`), and the
+//! eight-wide shading takes the numbers per lane. Coats, sheen, partial transmission, absorbing
+//! volumes and alpha-blended or masked surfaces stay with the scalar path.
 //!
 //! Each lane runs exactly [`crate::integrator::radiance`]'s arithmetic for its path, in its
 //! order, so a lane's radiance is bit-equal to the scalar path's (`renderer/tests/spmd.rs`

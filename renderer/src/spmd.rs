@@ -486,7 +486,8 @@ pub const STREAM: usize = 256;
 /// scene of the benchmark suite), one that also resolves what some hits need one lane at a time
 /// (textures, vertex colours, tangent frames and normal maps, instances, textured emitters:
 /// [`needs_hit_detail`]). The first is the kernel as it was before the second existed, so the
-/// suite's renders pay nothing for it.
+/// suite's scenes run without the second's code (ARCHITECTURE.md, thirty-first round: +0.7 %
+/// instructions on cornell remain, from the table's new flags and the per-lane branches).
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[allow(clippy::too_many_arguments)]
 pub fn radiance8(

@@ -493,11 +493,15 @@ fn textured_room() -> Scene {
 /// hit as the scalar path resolves them; same bits, with the light tree and by power.
 #[test]
 fn eight_lanes_match_on_textured_surfaces() {
-    let mut scene = textured_room();
+    same_by_power_and_tree(&mut textured_room(), 3, "textured room");
+}
+
+/// [`same_with_lanes_or_not`] at 32×24, 16 spp, seed `seed`, lights chosen by power and by the tree.
+fn same_by_power_and_tree(scene: &mut Scene, seed: u64, what: &str) {
     for light_sampler in [LightSamplerKind::Power, LightSamplerKind::Tree] {
         let settings =
-            RenderSettings { width: 32, height: 24, spp: 16, seed: 3, light_sampler, ..RenderSettings::default() };
-        same_with_lanes_or_not(&mut scene, &settings, &format!("textured room ({light_sampler:?})"));
+            RenderSettings { width: 32, height: 24, spp: 16, seed, light_sampler, ..RenderSettings::default() };
+        same_with_lanes_or_not(scene, &settings, &format!("{what} ({light_sampler:?})"));
     }
 }
 
@@ -539,11 +543,7 @@ fn eight_lanes_match_on_instances() {
     mesh.instances.extend(place.into_iter().filter_map(|m| Instance::new(proto, m)));
     assert_eq!(mesh.instances.len(), 3);
     scene = Scene::new(mesh, materials, textures, cameras);
-    for light_sampler in [LightSamplerKind::Power, LightSamplerKind::Tree] {
-        let settings =
-            RenderSettings { width: 32, height: 24, spp: 16, seed: 5, light_sampler, ..RenderSettings::default() };
-        same_with_lanes_or_not(&mut scene, &settings, &format!("instances ({light_sampler:?})"));
-    }
+    same_by_power_and_tree(&mut scene, 5, "instances");
 }
 
 /// What the kernel does not do, it leaves to the scalar path: partial transmission, absorbing

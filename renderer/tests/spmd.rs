@@ -422,6 +422,14 @@ fn textured_room() -> Scene {
     // Untextured plastic whose colour comes from its vertices alone.
     let painted = b.material(Material { name: "painted".into(), roughness: 0.4, ..lambert(Vec3::ONE) });
     let e = b.material(Material { emissive_texture: feed(0), ..emitter(Vec3::splat(9.0)) });
+    // A pane of rough glass, normal-mapped: glass lanes bend their normals and frames too.
+    let pane = b.material(Material {
+        name: "pane".into(),
+        transmission: 1.0,
+        metallic: 0.0,
+        normal_texture: feed(3),
+        ..metal(Vec3::ONE, 0.2)
+    });
     let first_vertex = b.mesh.positions.len();
     // The floor and back wall normal-mapped; the ceiling and side walls with tangents but no
     // normal map (their frames still follow the tangent).
@@ -431,6 +439,7 @@ fn textured_room() -> Scene {
         (Vec3::new(-1.0, 0.0, 0.0), Vec3::Z, Vec3::Y, w),
         (Vec3::new(1.0, 0.0, 0.0), Vec3::Y, Vec3::Z, painted),
         (Vec3::new(0.0, 0.0, -1.0), Vec3::X, Vec3::Y, n),
+        (Vec3::new(0.3, -0.3, 0.5), Vec3::X * 0.35, Vec3::Y * 0.35, pane),
     ] {
         b.quad(c, u, v, m);
         // Tangent along u; the back wall's bitangent flipped (handedness −1).
@@ -489,7 +498,7 @@ fn textured_room() -> Scene {
 }
 
 /// Textured surfaces (base colour, metallic-roughness, specular and emissive textures, normal
-/// maps, tangent frames, vertex colours) go through the kernel, each lane's BSDF and shading frame resolved at its own
+/// maps on opaque surfaces and on glass, tangent frames, vertex colours) go through the kernel, each lane's BSDF and shading frame resolved at its own
 /// hit as the scalar path resolves them; same bits, with the light tree and by power.
 #[test]
 fn eight_lanes_match_on_textured_surfaces() {

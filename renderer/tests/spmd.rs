@@ -3,7 +3,8 @@
 //! arithmetic in its order. Every test scene it renders, and programmatic scenes at the
 //! extremes (black and white albedo, smooth shading normals, one-sided emitters seen from behind, a tiny bright light,
 //! a millimetre-sized room, a mesh large enough that the BVH batches its rays, every light
-//! sampler, both MIS heuristics, depths 0 to 8, roulette from the first bounce), is rendered with
+//! sampler, both MIS heuristics, depths 0 to 8, roulette from the first bounce; textures, vertex
+//! colours, normal maps and tangent frames, textured emitters, instances), is rendered with
 //! the kernel and with the scalar path and compared sum for sum, and ray count for ray count.
 
 #![cfg(all(target_arch = "x86_64", target_feature = "avx2"))]

@@ -282,7 +282,7 @@ const STREAM_PIXELS: usize = 16;
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 fn kernel_pixels(
     scene: &Scene,
-    materials: &[crate::spmd::LaneMaterial],
+    materials: &crate::spmd::LaneTable,
     settings: &RenderSettings,
     raster: &crate::camera::Raster,
     origin: Vec3,
@@ -307,7 +307,12 @@ fn kernel_pixels(
             let mut fill = 0;
             let mut run = |dirs: &[Vec3], samplers: &[PixelSample], owner: &[u8], l: &mut [Vec3]| {
                 let l = &mut l[..dirs.len()];
-                crate::spmd::radiance8(scene, materials, settings, origin, dirs, samplers, &mut rays, l);
+                // The kernel's build with the per-lane hit detail only where the scene has some.
+                if materials.hit_detail {
+                    crate::spmd::radiance8::<true>(scene, materials, settings, origin, dirs, samplers, &mut rays, l);
+                } else {
+                    crate::spmd::radiance8::<false>(scene, materials, settings, origin, dirs, samplers, &mut rays, l);
+                }
                 for (l, &o) in l.iter().zip(owner) {
                     sums[o as usize].add(*l);
                 }

@@ -47,7 +47,7 @@ pub struct Scene {
     batch_paths: Option<bool>,
     /// Per material, what the eight-lane kernel reads of it, when every surface the mesh uses is
     /// one it renders ([`crate::spmd::LaneMaterial::table`]; fixed with the materials).
-    lane_materials: Option<Vec<crate::spmd::LaneMaterial>>,
+    lane_materials: Option<crate::spmd::LaneTable>,
     /// False when [`Self::set_scalar_reference`] or [`Self::set_lanes`] turned the kernel off.
     lanes: bool,
 }
@@ -208,14 +208,14 @@ impl Scene {
     /// vertex colours, normal maps and instances allowed) or all glass
     /// ([`crate::spmd::LaneMaterial::table`]), no alpha blending or masking, the MIS integrator
     /// and some light to sample.
-    pub fn lanes(&self, settings: &crate::RenderSettings) -> Option<&[crate::spmd::LaneMaterial]> {
+    pub fn lanes(&self, settings: &crate::RenderSettings) -> Option<&crate::spmd::LaneTable> {
         let usable = cfg!(all(target_arch = "x86_64", target_feature = "avx2"))
             && self.lanes
             && settings.integrator == crate::settings::IntegratorKind::Mis
             && !self.transparent
             && !self.lights.is_empty();
         if usable {
-            self.lane_materials.as_deref()
+            self.lane_materials.as_ref()
         } else {
             None
         }

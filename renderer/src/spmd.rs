@@ -125,13 +125,10 @@ impl LaneMaterial {
     /// A textured (or vertex-coloured) material's entry at the hit (`tri`, `b1`, `b2`): its
     /// `Bsdf` where the scalar path resolves it (`Scene::bsdf`: the texture coordinates and
     /// colour `Mesh::surface_point` gives; a material's precomputed `Bsdf` is the same bits as
-    /// one resolved under white), the same bits. Any other entry as it is.
+    /// one resolved under white), the same bits.
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[inline]
-    fn at_hit(self, scene: &Scene, material: usize, tri: u32, b1: f32, b2: f32) -> LaneMaterial {
-        if !self.textured {
-            return self;
-        }
+    fn at_hit(scene: &Scene, material: usize, tri: u32, b1: f32, b2: f32) -> LaneMaterial {
         let (uv, color) = (scene.mesh.tex_coords_at(tri, b1, b2), scene.mesh.color_at(tri, b1, b2));
         let b = scene.materials[material].bsdf(&scene.textures, uv, color);
         LaneMaterial::of(&b, false)
@@ -143,7 +140,7 @@ impl LaneMaterial {
     /// glass), an absorbing volume, or textured or vertex-coloured other than as
     /// [`LaneMaterial::textured_opaque`] allows.
     /// Materials no triangle uses do not count (the loader's default one among them).
-    pub fn table(mesh: &Mesh, materials: &[Material], uniform_bsdfs: &[Option<Bsdf>]) -> Option<Vec<LaneMaterial>> {
+    pub fn table(mesh: &Mesh, materials: &[Material], uniform_bsdfs: &[Option<Bsdf>]) -> Option<LaneTable> {
         let n = materials.len();
         let (mut used, mut tangents, mut colors) = (vec![false; n], vec![false; n], vec![false; n]);
         for t in &mesh.triangles {
@@ -179,7 +176,27 @@ impl LaneMaterial {
             }
             table.push(LaneMaterial { per_lane: tangents[i], ..LaneMaterial::of(&b, glass) });
         }
-        Some(table)
+        let hit_detail = !mesh.instances.is_empty()
+            || table.iter().any(|m| m.per_lane)
+            || materials.iter().any(|m| m.emissive_texture.is_some());
+        Some(LaneTable { entries: table, hit_detail })
+    }
+}
+
+/// A scene's [`LaneMaterial`]s, by material index, and whether some lane may need more than
+/// they tell (`hit_detail`: a material resolved at its hits, [`LaneMaterial::per_lane`]; an
+/// emissive texture; instances): then the renderer runs [`radiance8`]`::<true>`, which resolves
+/// those one lane at a time, else `::<false>`, the kernel without that code.
+#[derive(Clone, Debug)]
+pub struct LaneTable {
+    entries: Vec<LaneMaterial>,
+    pub hit_detail: bool,
+}
+
+impl std::ops::Deref for LaneTable {
+    type Target = [LaneMaterial];
+    fn deref(&self) -> &[LaneMaterial] {
+        &self.entries
     }
 }
 
@@ -346,11 +363,13 @@ impl HitDetail {
         b2: f32,
         tangent: Option<crate::math::Vec4>,
     ) -> LaneMaterial {
-        if m.textured {
+        let m = if m.textured {
             self.textured |= 1 << k;
-        }
-        let m = m.at_hit(scene, id, tri, b1, b2);
-        self.m[k] = m;
+            self.m[k] = LaneMaterial::at_hit(scene, id, tri, b1, b2);
+            self.m[k]
+        } else {
+            m
+        };
         // A triangle with tangents: its frame is built around the tangent, and a normal map
         // bends its shading normal (`Path::shade`).
         if let Some(t) = tangent {
@@ -482,45 +501,14 @@ pub const STREAM: usize = 256;
 /// where they share an origin: `Scene::intersect_bundle`; the caller lays a pixel's samples out
 /// together), and a path whose camera ray escapes ends there without taking a lane.
 ///
-/// Two builds of it: one for scenes whose lanes need nothing beyond the material table (every
-/// scene of the benchmark suite), one that also resolves what some hits need one lane at a time
-/// (textures, vertex colours, tangent frames and normal maps, instances, textured emitters:
-/// [`needs_hit_detail`]). The first is the kernel as it was before the second existed, so the
-/// suite's scenes run without the second's code (ARCHITECTURE.md, thirty-first round: +0.7 %
-/// instructions on cornell remain, from the table's new flags and the per-lane branches).
+/// Two builds of it: `DETAIL` also resolves what some hits need one lane at a time (textures,
+/// vertex colours, tangent frames and normal maps, instances, textured emitters); the caller
+/// takes it where the scene's [`LaneTable::hit_detail`] says so. Without it, it is the kernel as
+/// it was before that code existed, which every scene of the benchmark suite runs
+/// (ARCHITECTURE.md, thirty-first round: +0.7 % instructions on cornell remain).
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[allow(clippy::too_many_arguments)]
-pub fn radiance8(
-    scene: &Scene,
-    materials: &[LaneMaterial],
-    settings: &RenderSettings,
-    o: Vec3,
-    d: &[Vec3],
-    samplers: &[PixelSample],
-    rays: &mut u64,
-    out: &mut [Vec3],
-) {
-    if needs_hit_detail(scene, materials) {
-        radiance8_with::<true>(scene, materials, settings, o, d, samplers, rays, out)
-    } else {
-        radiance8_with::<false>(scene, materials, settings, o, d, samplers, rays, out)
-    }
-}
-
-/// Whether some lane of `scene` may need more than `materials` (its table) tells: a material
-/// resolved at its hits ([`LaneMaterial::per_lane`]), an emissive texture, or instances.
-#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-fn needs_hit_detail(scene: &Scene, materials: &[LaneMaterial]) -> bool {
-    !scene.mesh.instances.is_empty()
-        || materials.iter().any(|m| m.per_lane)
-        || scene.materials.iter().any(|m| m.emissive_texture.is_some())
-}
-
-/// [`radiance8`], with the per-lane resolution of hits where `DETAIL`.
-#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-#[allow(clippy::too_many_arguments)]
-#[inline(never)]
-fn radiance8_with<const DETAIL: bool>(
+pub fn radiance8<const DETAIL: bool>(
     scene: &Scene,
     materials: &[LaneMaterial],
     settings: &RenderSettings,

@@ -50,6 +50,57 @@ pub fn radiance(
     path.l
 }
 
+/// Where a path stands when its next ray has hit something: what [`Path`] carries from one bounce
+/// to the next, as the SPMD kernel ([`crate::spmd::radiance8`]) keeps it in a lane.
+#[derive(Clone, Copy, Debug)]
+pub struct PathState {
+    /// Radiance gathered so far.
+    pub l: Vec3,
+    /// Path throughput.
+    pub beta: Vec3,
+    /// The previous vertex, its shading normal and its BSDF pdf (None after the camera and after
+    /// a delta bounce): what MIS weighs the emission this hit may find against.
+    pub prev: Option<(Vec3, Vec3, f32)>,
+    /// Scattering events so far (the bounce the hit belongs to).
+    pub depth: u32,
+    /// η² of the transmissions so far.
+    pub eta_scale: f32,
+    /// The ray that made the hit.
+    pub o: Vec3,
+    pub d: Vec3,
+}
+
+/// The rest of a path from the hit of its current ray (`state.o + t state.d` found `hit`), as
+/// [`radiance`] computes it a ray at a time: the bounce's sample sets, the vertex's emission,
+/// shading, next-event estimation, then the bounces after. Returns the path's radiance.
+///
+/// Why: the SPMD kernel shades eight paths side by side but only the materials its eight-wide
+/// BSDF knows; a path that reaches a coated, sheened, partly transmissive, absorbing or unlit
+/// surface is handed here at that hit and finished alone, while its lane takes the next path.
+/// Each of [`Path`]'s steps is a function of the state above (no medium: the kernel's paths
+/// never enter an absorbing one) and of the sample sets, themselves functions of (pixel, sample
+/// index, bounce), so the result is the one the path gets from [`radiance`], bit for bit. The
+/// hit's ray was counted by the caller; the rays traced here are added to `rays`.
+#[inline(never)]
+pub fn radiance_from_hit(
+    scene: &Scene,
+    settings: &RenderSettings,
+    sampler: &PixelSample,
+    state: PathState,
+    hit: Hit,
+    rays: &mut u64,
+) -> Vec3 {
+    let mut path = Path::new(scene, settings, state.o, state.d);
+    (path.l, path.beta, path.prev, path.depth, path.eta_scale) =
+        (state.l, state.beta, state.prev, state.depth, state.eta_scale);
+    // `begin_bounce`'s and `draw_held_sets`' draws for a ray that hit something.
+    path.draw_sets(sampler);
+    if path.after_hit(scene, settings, Some(hit), rays) {
+        path.run(scene, settings, sampler, rays);
+    }
+    path.l
+}
+
 /// [`radiance`] for up to [`MAX_BATCH`] samples at once (`d[k]` with `samplers[k]` into
 /// `out[k]`): each round, the live paths' bounce rays go to the BVH together
 /// ([`Scene::intersect_surface_batch`]), their vertices choose their lights together

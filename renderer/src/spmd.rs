@@ -71,6 +71,10 @@ pub struct LaneMaterial {
     /// Some lane that hits this material needs more than the table: it is `textured`, or some
     /// triangle of it has tangents (a tangent frame, maybe a normal map: [`HitDetail`]).
     per_lane: bool,
+    /// The kernel does not shade it (unlit, coated, sheened, partly transmissive, absorbing, or
+    /// textured other than [`LaneMaterial::textured_opaque`] allows): a path whose ray hits it is
+    /// finished by the scalar path from that hit ([`crate::integrator::radiance_from_hit`]).
+    scalar: bool,
 }
 
 impl LaneMaterial {
@@ -86,7 +90,11 @@ impl LaneMaterial {
         nee: false,
         textured: false,
         per_lane: false,
+        scalar: false,
     };
+
+    /// The entry of a material the kernel hands its paths' hits on to the scalar path for.
+    const SCALAR: LaneMaterial = LaneMaterial { scalar: true, ..LaneMaterial::UNUSED };
 
     /// The entry of a material whose BSDF is `b` everywhere (`glass`: all glass, else opaque).
     fn of(b: &Bsdf, glass: bool) -> LaneMaterial {
@@ -102,6 +110,7 @@ impl LaneMaterial {
             nee: !b.is_delta_only(),
             textured: false,
             per_lane: false,
+            scalar: false,
         }
     }
 
@@ -134,12 +143,14 @@ impl LaneMaterial {
         LaneMaterial::of(&b, false)
     }
 
-    /// The table for a scene (`uniform_bsdfs`: `Material::uniform_bsdf` of each material), or
-    /// None when some triangle needs what the kernel does not do: instances, a material that is
-    /// unlit, coated or sheened, partly transmissive (transmission between 0 and 1, or metal over
-    /// glass), an absorbing volume, or textured or vertex-coloured other than as
-    /// [`LaneMaterial::textured_opaque`] allows.
-    /// Materials no triangle uses do not count (the loader's default one among them).
+    /// The table for a scene (`uniform_bsdfs`: `Material::uniform_bsdf` of each material). A
+    /// material the kernel does not shade — unlit, coated or sheened, partly transmissive
+    /// (transmission between 0 and 1, or metal over glass), an absorbing volume, or textured or
+    /// vertex-coloured other than as [`LaneMaterial::textured_opaque`] allows — gets a `scalar`
+    /// entry: the paths that reach it are finished one at a time from there. None when every
+    /// material a triangle uses is such (the kernel would hand each path over at its first hit)
+    /// or a triangle names a material that does not exist. Materials no triangle uses do not
+    /// count (the loader's default one among them).
     pub fn table(mesh: &Mesh, materials: &[Material], uniform_bsdfs: &[Option<Bsdf>]) -> Option<LaneTable> {
         let n = materials.len();
         let (mut used, mut tangents, mut colors) = (vec![false; n], vec![false; n], vec![false; n]);
@@ -155,14 +166,16 @@ impl LaneMaterial {
                 continue;
             }
             if m.unlit {
-                return None;
+                table.push(LaneMaterial::SCALAR);
+                continue;
             }
             let uniform = (*uniform_bsdfs.get(i)?).filter(|_| !colors[i]);
             let Some(b) = uniform else {
                 // Textured or vertex-coloured: resolved lane by lane at each hit, where it is
                 // opaque whatever the texels and colours say.
                 if !LaneMaterial::textured_opaque(m) {
-                    return None;
+                    table.push(LaneMaterial::SCALAR);
+                    continue;
                 }
                 table.push(LaneMaterial { textured: true, per_lane: true, ..LaneMaterial::UNUSED });
                 continue;
@@ -172,9 +185,13 @@ impl LaneMaterial {
             let glass = b.transmission == 1.0 && b.metallic == 0.0 && m.absorption == Vec3::ZERO;
             let opaque = b.transmission == 0.0;
             if layered || !(opaque || glass) {
-                return None;
+                table.push(LaneMaterial::SCALAR);
+                continue;
             }
             table.push(LaneMaterial { per_lane: tangents[i], ..LaneMaterial::of(&b, glass) });
+        }
+        if table.iter().zip(&used).all(|(e, &u)| !u || e.scalar) {
+            return None;
         }
         let hit_detail = !mesh.instances.is_empty()
             || table.iter().any(|m| m.per_lane)
@@ -550,15 +567,18 @@ pub fn radiance8<const DETAIL: bool>(
     let scale = scene.offset_scale();
     // The lanes that ran the last bounce: those of them not alive now ended there.
     let mut started = 0u32;
+    // The lanes whose path the last bounce handed to the scalar path (their radiance is out).
+    let mut handed = 0u32;
     loop {
         // The paths that ended at the last bounce: their radiance out.
-        let ended = started & !alive;
+        let ended = started & !alive & !handed;
         if ended != 0 {
             let lanes = l.to_lanes();
             for k in lanes_of(ended) {
                 out[path[k]] = lanes[k];
             }
         }
+        handed = 0;
         // The empty lanes take the stream's next paths: a camera ray each, from a fresh state.
         let mut dirs = rd.to_lanes();
         let mut fresh = 0u32;
@@ -735,6 +755,27 @@ pub fn radiance8<const DETAIL: bool>(
         let (sp_p, sp_ng) = (sp.p.to_lanes(), sp.ng.to_lanes());
         for k in lanes_of(hit_bits) {
             let material_id = scene.mesh.triangles[tri[k] as usize].material as usize;
+            if materials[material_id].scalar {
+                // A surface the kernel does not shade: the scalar path finishes this path from
+                // here, and the lane takes the next one.
+                if let Some(hit) = hits[k] {
+                    let (ls, bs) = (l.to_lanes(), beta.to_lanes());
+                    let prev = (prev_bits & (1 << k) != 0).then(|| (prev_p[k], prev_n[k], prev_pdf[k]));
+                    let state = crate::integrator::PathState {
+                        l: ls[k],
+                        beta: bs[k],
+                        prev,
+                        depth: depth[k],
+                        eta_scale: eta_scale.to_array()[k],
+                        o: ro[k],
+                        d: dirs[k],
+                    };
+                    out[path[k]] =
+                        crate::integrator::radiance_from_hit(scene, settings, &lane_samplers[k], state, hit, rays);
+                    handed |= 1 << k;
+                }
+                continue;
+            }
             let material = &scene.materials[material_id];
             if material.is_emissive() {
                 // Texture coordinates only for an emissive texture (`Path::shade` reads `sp.uv`).

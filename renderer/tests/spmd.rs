@@ -81,6 +81,7 @@ fn eight_lanes_render_every_test_scene_they_take_bit_for_bit() {
         "sphere_lights",
         "veach",
         "lights.glb",
+        "materials.glb",
         "BoxTextured.glb",
         "DamagedHelmet",
     ] {
@@ -556,8 +557,74 @@ fn eight_lanes_match_on_instances() {
     same_by_power_and_tree(&mut scene, 5, "instances");
 }
 
-/// What the kernel does not do, it leaves to the scalar path: partial transmission, absorbing
-/// volumes, coats and sheen, other integrators, the scalar reference.
+/// The materials the kernel does not shade (`LaneMaterial::table`'s scalar entries), textured
+/// where the kind is.
+fn materials_the_kernel_hands_over() -> Vec<(&'static str, Material)> {
+    let glass = Material { transmission: 1.0, metallic: 0.0, ..metal(Vec3::ONE, 0.0) };
+    let rough_glass = Material { transmission: 1.0, metallic: 0.0, ..metal(Vec3::ONE, 0.4) };
+    vec![
+        ("half glass", Material { transmission: 0.5, ..rough_glass.clone() }),
+        ("metal over glass", Material { metallic: 0.5, ..glass.clone() }),
+        ("absorbing glass", Material { absorption: Vec3::new(0.2, 1.0, 3.0), ..glass.clone() }),
+        ("absorbing rough glass", Material { absorption: Vec3::new(2.0, 0.5, 0.1), ..rough_glass.clone() }),
+        ("a coat", Material { clearcoat: 1.0, clearcoat_roughness: 0.1, ..metal(Vec3::new(0.8, 0.2, 0.1), 0.3) }),
+        ("sheen", Material { sheen_color: Vec3::ONE, sheen_roughness: 0.5, ..lambert(Vec3::splat(0.5)) }),
+        ("unlit", Material { unlit: true, ..lambert(Vec3::new(0.2, 0.9, 0.4)) }),
+        ("textured glass", Material { base_color_texture: feed(0), ..glass.clone() }),
+        ("a transmission texture", Material { transmission_texture: feed(0), ..lambert(Vec3::ONE) }),
+        ("a textured coat", Material { clearcoat: 1.0, clearcoat_texture: feed(0), ..metal(Vec3::ONE, 0.3) }),
+        // A lamp too: NEE samples it, and a path that hits it weighs its emission by MIS.
+        ("a coated lamp", Material { clearcoat: 1.0, ..emitter(Vec3::new(4.0, 3.0, 2.0)) }),
+    ]
+}
+
+/// A path that reaches a surface the kernel does not shade is finished by the scalar path from
+/// that hit (`integrator::radiance_from_hit`): at its camera ray (the sphere in view), after
+/// diffuse, glossy and glass bounces (the walls, a metal wall, glass spheres of the kernel's
+/// own, where η² is carried), at the depth limit, under roulette from the first bounce, with
+/// its MIS state for the emission it may find there. Same bits and ray counts as the scalar
+/// path's render, for each material in turn as the sphere, and all of them at once as walls.
+#[test]
+fn eight_lanes_hand_the_surfaces_they_do_not_shade_to_the_scalar_path() {
+    let glass = Material { transmission: 1.0, metallic: 0.0, ..metal(Vec3::ONE, 0.0) };
+    let with_texture = |scene: Scene| {
+        let mut scene = scene;
+        use std::mem::take;
+        let (mesh, materials, cameras) = (take(&mut scene.mesh), take(&mut scene.materials), take(&mut scene.cameras));
+        let checker = [[250, 30, 90, 255], [20, 200, 60, 255], [128; 4], [255; 4]];
+        Scene::new(mesh, materials, vec![texture(std::array::from_fn(|i| checker[i % 4]), true)], cameras)
+    };
+    for (what, m) in materials_the_kernel_hands_over() {
+        let mut scene = with_texture(room_with(lambert(Vec3::splat(0.7)), m, 1.0, 6.0));
+        assert!(scene.lanes(&RenderSettings::default()).is_some(), "{what}: the kernel must take the room");
+        same_by_power_and_tree(&mut scene, 3, what);
+    }
+    // Every such material at once, as walls, with the kernel's glass and metal between them.
+    let mut b = SceneBuilder::default();
+    let handed: Vec<u32> = materials_the_kernel_hands_over().into_iter().map(|(_, m)| b.material(m)).collect();
+    let (kernel_glass, kernel_metal) = (b.material(glass), b.material(metal(Vec3::new(0.9, 0.8, 0.5), 0.2)));
+    let (floor, e) = (b.material(lambert(Vec3::splat(0.6))), b.material(emitter(Vec3::splat(8.0))));
+    b.quad(Vec3::new(0.0, -1.0, 0.0), Vec3::X, Vec3::NEG_Z, floor);
+    for (i, &m) in handed.iter().enumerate() {
+        let x = -1.0 + 0.2 * i as f32 + 0.1;
+        b.quad(Vec3::new(x, 0.0, -1.0), Vec3::X * 0.1, Vec3::Y, m);
+    }
+    b.quad(Vec3::new(-1.0, 0.0, 0.0), Vec3::Z, Vec3::Y, kernel_metal);
+    b.sphere(Vec3::new(0.3, -0.6, 0.2), 0.35, 1, false, kernel_glass);
+    b.sphere(Vec3::new(-0.4, -0.7, 0.3), 0.25, 1, false, handed[2]);
+    b.quad(Vec3::new(0.0, 0.99, 0.0), Vec3::X * 0.3, Vec3::Z * 0.3, e);
+    b.look_at(Vec3::new(0.0, 0.0, 3.5), Vec3::ZERO, 45.0);
+    let mut scene = with_texture(b.build());
+    same_by_power_and_tree(&mut scene, 9, "every handed-over material");
+    for (max_depth, rr_depth) in [(0, 5), (1, 5), (2, 5), (7, 1)] {
+        let settings = RenderSettings { width: 32, height: 24, spp: 16, seed: 2, max_depth, rr_depth, ..RenderSettings::default() };
+        same_with_lanes_or_not(&mut scene, &settings, &format!("every handed-over material, depth {max_depth}, roulette from {rr_depth}"));
+    }
+}
+
+/// The kernel takes a scene where some material it shades is used; the surfaces it does not
+/// shade it hands to the scalar path. A scene with none of its own it leaves to the scalar path
+/// whole, as it does other integrators and the scalar reference.
 #[test]
 fn eight_lanes_take_only_what_they_render() {
     let s = RenderSettings::default();
@@ -569,33 +636,26 @@ fn eight_lanes_take_only_what_they_render() {
     plain.set_scalar_reference(true);
     assert!(plain.lanes(&s).is_none(), "the scalar reference must not run the kernel");
     let glass = Material { transmission: 1.0, metallic: 0.0, ..metal(Vec3::ONE, 0.0) };
-    let half_glass = Material { transmission: 0.5, ..glass.clone() };
-    let metal_over_glass = Material { metallic: 0.5, ..glass.clone() };
-    let absorbing = Material { absorption: Vec3::splat(0.5), ..glass.clone() };
-    let coat = Material { clearcoat: 1.0, ..metal(Vec3::ONE, 0.3) };
-    let sheen = Material { sheen_color: Vec3::ONE, ..lambert(Vec3::splat(0.5)) };
-    let cases = [
-        ("a metal surface", metal(Vec3::ONE, 0.3), true),
-        ("glass", glass.clone(), true),
-        ("half glass", half_glass, false),
-        ("metal over glass", metal_over_glass, false),
-        ("absorbing glass", absorbing, false),
-        ("a coat", coat, false),
-        ("sheen", sheen, false),
-        ("a base colour texture", Material { base_color_texture: feed(0), ..lambert(Vec3::ONE) }, true),
-        ("textured glass", Material { base_color_texture: feed(0), ..glass.clone() }, false),
-        ("a normal map", Material { normal_texture: feed(0), ..lambert(Vec3::ONE) }, true),
-        ("an emissive texture", Material { emissive_texture: feed(0), ..emitter(Vec3::ONE) }, true),
-        ("a transmission texture", Material { transmission_texture: feed(0), ..lambert(Vec3::ONE) }, false),
-        ("a textured coat", Material { clearcoat_texture: feed(0), ..metal(Vec3::ONE, 0.3) }, false),
+    let shaded = [
+        ("a metal surface", metal(Vec3::ONE, 0.3)),
+        ("glass", glass.clone()),
+        ("a base colour texture", Material { base_color_texture: feed(0), ..lambert(Vec3::ONE) }),
+        ("a normal map", Material { normal_texture: feed(0), ..lambert(Vec3::ONE) }),
+        ("an emissive texture", Material { emissive_texture: feed(0), ..emitter(Vec3::ONE) }),
     ];
-    for (what, m, taken) in cases {
-        let mut b = SceneBuilder::default();
-        let m = b.material(m);
-        let e = b.material(emitter(Vec3::ONE));
-        b.quad(Vec3::ZERO, Vec3::X, Vec3::Y, m);
-        b.quad(Vec3::Z, Vec3::X, Vec3::NEG_Y, e);
-        let scene = Scene::new(b.mesh, b.materials, vec![texture([[128; 4]; 16], true)], Vec::new());
-        assert_eq!(scene.lanes(&s).is_some(), taken, "{what}");
+    let cases = shaded.into_iter().map(|(w, m)| (w, m, true));
+    let cases = cases.chain(materials_the_kernel_hands_over().into_iter().map(|(w, m)| (w, m, false)));
+    // The light: one the kernel shades, and a coated one it hands over.
+    let lamps = [(emitter(Vec3::ONE), true), (Material { clearcoat: 1.0, ..emitter(Vec3::ONE) }, false)];
+    for (what, m, shades) in cases {
+        for (lamp, lamp_shaded) in &lamps {
+            let mut b = SceneBuilder::default();
+            let m = b.material(m.clone());
+            let e = b.material(lamp.clone());
+            b.quad(Vec3::ZERO, Vec3::X, Vec3::Y, m);
+            b.quad(Vec3::Z, Vec3::X, Vec3::NEG_Y, e);
+            let scene = Scene::new(b.mesh, b.materials, vec![texture([[128; 4]; 16], true)], Vec::new());
+            assert_eq!(scene.lanes(&s).is_some(), shades || *lamp_shaded, "{what} (lamp shaded: {lamp_shaded})");
+        }
     }
 }

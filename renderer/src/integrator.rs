@@ -50,8 +50,8 @@ pub fn radiance(
     path.l
 }
 
-/// Where a path stands when its next ray has hit something: what [`Path`] carries from one bounce
-/// to the next, as the SPMD kernel ([`crate::spmd::radiance8`]) keeps it in a lane.
+/// Where a path stands between two bounces: what [`Path`] carries from one to the next, as the
+/// SPMD kernel ([`crate::spmd::radiance8`]) keeps it in a lane.
 #[derive(Clone, Copy, Debug)]
 pub struct PathState {
     /// Radiance gathered so far.
@@ -59,46 +59,64 @@ pub struct PathState {
     /// Path throughput.
     pub beta: Vec3,
     /// The previous vertex, its shading normal and its BSDF pdf (None after the camera and after
-    /// a delta bounce): what MIS weighs the emission this hit may find against.
+    /// a delta bounce): what MIS weighs the emission the next hit may find against.
     pub prev: Option<(Vec3, Vec3, f32)>,
-    /// Scattering events so far (the bounce the hit belongs to).
+    /// Scattering events so far (the bounce the next hit belongs to).
     pub depth: u32,
     /// η² of the transmissions so far.
     pub eta_scale: f32,
-    /// The ray that made the hit.
+    /// The next ray, and the triangle it starts on (`convex_solid::NONE` for a camera ray).
     pub o: Vec3,
     pub d: Vec3,
+    pub from: u32,
 }
 
-/// The rest of a path from the hit of its current ray (`state.o + t state.d` found `hit`), as
-/// [`radiance`] computes it a ray at a time: the bounce's sample sets, the vertex's emission,
-/// shading, next-event estimation, then the bounces after. Returns the path's radiance.
+/// One bounce of a path whose ray (`state.o + t state.d`) found `hit`, as [`radiance`] does it:
+/// the bounce's sample sets, the vertex's emission, shading, next-event estimation, the next
+/// direction and Russian roulette; `state` becomes the path's state after it. True when the path
+/// goes on (with its next ray, not yet traced or counted), false when it ended (`state.l` is its
+/// radiance). A path this bounce sends into an absorbing medium is taken on here, a ray at a
+/// time, until it leaves the medium or ends.
 ///
 /// Why: the SPMD kernel shades eight paths side by side but only the materials its eight-wide
-/// BSDF knows; a path that reaches a coated, sheened, partly transmissive, absorbing or unlit
-/// surface is handed here at that hit and finished alone, while its lane takes the next path.
-/// Each of [`Path`]'s steps is a function of the state above (no medium: the kernel's paths
-/// never enter an absorbing one) and of the sample sets, themselves functions of (pixel, sample
-/// index, bounce), so the result is the one the path gets from [`radiance`], bit for bit. The
-/// hit's ray was counted by the caller; the rays traced here are added to `rays`.
+/// BSDF knows; a lane whose ray reaches a coated, sheened, partly transmissive, absorbing or
+/// unlit surface has that vertex shaded here and goes on in its lane. Each of [`Path`]'s steps
+/// is a function of the state above (and of the medium, which the kernel's paths are never in)
+/// and of the sample sets, themselves functions of (pixel, sample index, bounce), so the path
+/// is the one [`radiance`] traces, bit for bit. The hit's ray was counted by the caller; the
+/// rays traced here are added to `rays`.
 #[inline(never)]
-pub fn radiance_from_hit(
+pub fn bounce_from_hit(
     scene: &Scene,
     settings: &RenderSettings,
     sampler: &PixelSample,
-    state: PathState,
+    state: &mut PathState,
     hit: Hit,
     rays: &mut u64,
-) -> Vec3 {
+) -> bool {
     let mut path = Path::new(scene, settings, state.o, state.d);
-    (path.l, path.beta, path.prev, path.depth, path.eta_scale) =
-        (state.l, state.beta, state.prev, state.depth, state.eta_scale);
+    (path.l, path.beta, path.prev, path.depth, path.eta_scale, path.from) =
+        (state.l, state.beta, state.prev, state.depth, state.eta_scale, state.from);
     // `begin_bounce`'s and `draw_held_sets`' draws for a ray that hit something.
     path.draw_sets(sampler);
-    if path.after_hit(scene, settings, Some(hit), rays) {
-        path.run(scene, settings, sampler, rays);
+    let mut goes_on = path.after_hit(scene, settings, Some(hit), rays);
+    while goes_on && path.medium != Vec3::ZERO {
+        let seed = path.begin_bounce(scene, sampler, rays);
+        let hit = scene.intersect_surface(path.o, path.d, seed, path.from);
+        path.draw_held_sets(scene, sampler, &hit);
+        goes_on = path.after_hit(scene, settings, hit, rays);
     }
-    path.l
+    *state = PathState {
+        l: path.l,
+        beta: path.beta,
+        prev: path.prev,
+        depth: path.depth,
+        eta_scale: path.eta_scale,
+        o: path.o,
+        d: path.d,
+        from: path.from,
+    };
+    goes_on
 }
 
 /// [`radiance`] for up to [`MAX_BATCH`] samples at once (`d[k]` with `samplers[k]` into

@@ -215,8 +215,15 @@ impl Material {
     /// than at every path vertex (the clamps, `Ggx::from_roughness` and F0's division were 4.5 %
     /// of a Cornell-box render). None when a texture does feed it.
     pub fn uniform_bsdf(&self) -> Option<Bsdf> {
+        self.base_color_texture.is_none().then(|| self.bsdf_but_base_colour()).flatten()
+    }
+
+    /// The BSDF when no texture but the base colour's feeds it: what [`Self::bsdf`] gives
+    /// everywhere but in `base_color` (which [`Self::base_color_at`] gives at a point: nothing
+    /// else of the BSDF reads the base colour texture or the vertex colour). None when another
+    /// texture feeds it.
+    pub fn bsdf_but_base_colour(&self) -> Option<Bsdf> {
         let feeds = [
-            &self.base_color_texture,
             &self.metallic_roughness_texture,
             &self.specular_texture,
             &self.specular_color_texture,
@@ -226,7 +233,8 @@ impl Material {
             &self.sheen_color_texture,
             &self.sheen_roughness_texture,
         ];
-        feeds.iter().all(|t| t.is_none()).then(|| self.bsdf(&[], TexCoords::default(), Vec4::ONE))
+        let untextured = || Material { base_color_texture: None, ..self.clone() };
+        feeds.iter().all(|t| t.is_none()).then(|| untextured().bsdf(&[], TexCoords::default(), Vec4::ONE))
     }
 
     /// Tangent-space normal from the normal texture (scaled as the glTF spec defines), or None.

@@ -31,6 +31,9 @@ pub struct Scene {
     transparent: bool,
     /// Per material, its BSDF when no texture feeds it ([`Material::uniform_bsdf`]).
     uniform_bsdfs: Vec<Option<Bsdf>>,
+    /// Per material, its BSDF but for the base colour when no other texture feeds it
+    /// ([`Material::bsdf_but_base_colour`]).
+    base_colour_bsdfs: Vec<Option<Bsdf>>,
     /// What the loader could not honour but rendered without (optional extensions), for the user.
     pub warnings: Vec<String>,
     /// The file's `asset.generator` (decides `--light-units auto`).
@@ -104,6 +107,7 @@ impl Scene {
         tracing::debug!(triangles = mesh.triangles.len(), lights = lights.lights.len(), "scene built");
         let transparent = materials.iter().any(|m| m.alpha_mode != AlphaMode::Opaque);
         let uniform_bsdfs: Vec<Option<Bsdf>> = materials.iter().map(Material::uniform_bsdf).collect();
+        let base_colour_bsdfs = materials.iter().map(Material::bsdf_but_base_colour).collect();
         let lane_materials = crate::spmd::LaneMaterial::table(&mesh, &materials, &uniform_bsdfs);
         let solids = find_solids(&mesh, &materials, &mut accel);
         Scene {
@@ -118,6 +122,7 @@ impl Scene {
             offset_scale: offset_scale_of((min, max)),
             transparent,
             uniform_bsdfs,
+            base_colour_bsdfs,
             warnings: Vec::new(),
             animator: None,
             time: 0.0,
@@ -466,9 +471,33 @@ impl Scene {
     /// are the same bits), else resolved from the textures.
     #[inline]
     pub fn bsdf(&self, material: u32, sp: &crate::mesh::SurfacePoint) -> Bsdf {
-        match self.uniform_bsdfs.get(material as usize) {
-            Some(Some(b)) if sp.color == crate::math::Vec4::ONE => *b,
-            _ => self.materials[material as usize].bsdf(&self.textures, sp.uv, sp.color),
+        self.bsdf_at(material, || sp.uv, sp.color)
+    }
+
+    /// [`Self::bsdf`] from a hit's vertex colour and texture coordinates (`uv`, asked for only
+    /// where a texture reads them). Where no texture but the base colour's feeds the material, it
+    /// is the precomputed BSDF with the base colour resolved at the point
+    /// (`Material::base_color_at`): nothing else of [`Material::bsdf`] reads the base colour
+    /// texture or the vertex colour, so the two are the same bits
+    /// (`base_coloured_bsdf_is_the_materials_own`), for about a third of the instructions
+    /// (ARCHITECTURE.md, thirty-second round: a textured floor, as Blender's exports have).
+    #[inline]
+    pub fn bsdf_at(
+        &self,
+        material: u32,
+        uv: impl FnOnce() -> crate::texture::TexCoords,
+        color: crate::math::Vec4,
+    ) -> Bsdf {
+        let (i, m) = (material as usize, &self.materials[material as usize]);
+        if let (Some(Some(b)), true) = (self.uniform_bsdfs.get(i), color == crate::math::Vec4::ONE) {
+            return *b;
+        }
+        match self.base_colour_bsdfs.get(i) {
+            Some(Some(b)) => {
+                let uv = if m.base_color_texture.is_some() { uv() } else { Default::default() };
+                Bsdf { base_color: m.base_color_at(&self.textures, uv, color), ..*b }
+            }
+            _ => m.bsdf(&self.textures, uv(), color),
         }
     }
 
@@ -766,5 +795,68 @@ mod tests {
         let coloured = scene.bsdf(m, &sp);
         assert_eq!(format!("{coloured:?}"), format!("{:?}", material.bsdf(&scene.textures, sp.uv, sp.color)));
         assert_eq!(coloured.base_color, Vec3::new(0.4, 0.6, 0.1));
+    }
+
+    /// A material fed by no texture but its base colour's, under a vertex colour or not:
+    /// `Scene::bsdf` resolves only the base colour over the precomputed BSDF, which is
+    /// `Material::bsdf`'s answer to the last bit, for every lobe a material can have, with and
+    /// without a base colour texture, at points across the texture, and colours out of range,
+    /// zero, infinite and NaN.
+    #[test]
+    fn base_coloured_bsdf_is_the_materials_own() {
+        use crate::texture::{TexCoords, Texture, TextureRef, Wrap};
+        use glam::Vec2;
+        let base = Material { base_color: Vec4::new(0.8, 0.6, 0.4, 1.0), roughness: 0.3, ..Material::default() };
+        let materials = [
+            base.clone(),
+            Material { metallic: 1.0, roughness: 0.0, ..base.clone() },
+            Material {
+                metallic: 0.4,
+                specular: 0.3,
+                specular_color: Vec3::new(1.0, 0.5, 0.2),
+                ior: 1.8,
+                ..base.clone()
+            },
+            Material { transmission: 1.0, metallic: 0.0, roughness: 0.2, ..base.clone() },
+            Material { transmission: 0.4, absorption: Vec3::new(0.1, 0.2, 0.3), ..base.clone() },
+            Material { clearcoat: 0.7, clearcoat_roughness: 0.2, ..base.clone() },
+            Material { sheen_color: Vec3::new(0.3, 0.9, 0.1), sheen_roughness: 0.6, ..base.clone() },
+            Material { base_color: Vec4::new(3.0, f32::NAN, -1.0, 0.5), ior: f32::NAN, ..base.clone() },
+        ];
+        let checker =
+            Some(TextureRef { texture: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, set: 0, transform: None });
+        let textured: Vec<Material> =
+            materials.iter().map(|m| Material { base_color_texture: checker.clone(), ..m.clone() }).collect();
+        let materials: Vec<Material> = materials.into_iter().chain(textured).collect();
+        let colours = [
+            Vec4::ONE,
+            Vec4::new(0.5, 1.0, 0.25, 1.0),
+            Vec4::new(0.0, 0.0, 0.0, 0.0),
+            Vec4::new(7.0, 0.3, 1e-30, 0.2),
+            Vec4::new(f32::INFINITY, f32::NAN, -0.5, 1.0),
+        ];
+        let mut b = SceneBuilder::default();
+        let ids: Vec<u32> = materials.iter().map(|m| b.material(m.clone())).collect();
+        for &m in &ids {
+            b.triangles(&[Vec3::ZERO, Vec3::X, Vec3::Y], &[[0, 1, 2]], m);
+        }
+        let mut scene = b.build();
+        let texels: Vec<[u8; 4]> = (0..16u8).map(|i| [i * 16, 255 - i * 9, (i * 37) % 255, 255]).collect();
+        scene.textures = vec![Texture { width: 4, height: 4, texels, srgb: true }];
+        for (i, &m) in ids.iter().enumerate() {
+            let mut sp = scene.mesh.surface_point(i as u32, 0.25, 0.25);
+            let material = &scene.materials[m as usize];
+            assert!(material.bsdf_but_base_colour().is_some(), "material {i} has no other texture");
+            for colour in colours {
+                for uv in [Vec2::new(0.1, 0.3), Vec2::new(0.62, 0.9), Vec2::new(-3.3, 7.01)] {
+                    (sp.color, sp.uv) = (colour, TexCoords([uv, uv]));
+                    assert_eq!(
+                        format!("{:?}", scene.bsdf(m, &sp)),
+                        format!("{:?}", material.bsdf(&scene.textures, sp.uv, sp.color)),
+                        "material {i}, colour {colour}, uv {uv}"
+                    );
+                }
+            }
+        }
     }
 }

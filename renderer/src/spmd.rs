@@ -26,6 +26,8 @@ use crate::bsdf8::{normalize_or_zero, sample_cosine_hemisphere, Glass8, OpaqueBs
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use crate::environment::MapPoint;
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+use crate::integrator::PathState;
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use crate::lanes::{select, F8, I8, M8, V8};
 use crate::material::Material;
 use crate::math::Vec3;
@@ -138,8 +140,8 @@ impl LaneMaterial {
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[inline]
     fn at_hit(scene: &Scene, material: usize, tri: u32, b1: f32, b2: f32) -> LaneMaterial {
-        let (uv, color) = (scene.mesh.tex_coords_at(tri, b1, b2), scene.mesh.color_at(tri, b1, b2));
-        let b = scene.materials[material].bsdf(&scene.textures, uv, color);
+        let uv = || scene.mesh.tex_coords_at(tri, b1, b2);
+        let b = scene.bsdf_at(material as u32, uv, scene.mesh.color_at(tri, b1, b2));
         LaneMaterial::of(&b, false)
     }
 
@@ -567,8 +569,42 @@ pub fn radiance8<const DETAIL: bool>(
     let scale = scene.offset_scale();
     // The lanes that ran the last bounce: those of them not alive now ended there.
     let mut started = 0u32;
-    // The lanes whose path the last bounce handed to the scalar path (their radiance is out).
+    // The lanes whose vertex the scalar path shades this bounce (`integrator::bounce_from_hit`),
+    // each with its state and hit; after the bounce, those of them whose path ended there (their
+    // radiance is out).
     let mut handed = 0u32;
+    let mut handed_over: [Option<(PathState, crate::accel::Hit)>; LANES] = [None; LANES];
+    // The handed lanes' vertices shaded one at a time, after the eight-wide bounce has updated
+    // the other lanes: a path that goes on is back in its lane, its state as the scalar path
+    // left it; one that ended has its radiance out.
+    macro_rules! shade_handed_lanes {
+        () => {
+            if handed != 0 {
+                let (mut ls, mut bs) = (l.to_lanes(), beta.to_lanes());
+                let (mut es, mut ds) = (eta_scale.to_array(), rd.to_lanes());
+                for k in lanes_of(handed) {
+                    let Some((mut state, hit)) = handed_over[k].take() else { continue };
+                    if crate::integrator::bounce_from_hit(scene, settings, &lane_samplers[k], &mut state, hit, rays) {
+                        (ls[k], bs[k], es[k], ds[k]) = (state.l, state.beta, state.eta_scale, state.d);
+                        (ro[k], tri[k], depth[k]) = (state.o, state.from, state.depth);
+                        match state.prev {
+                            Some(prev) => {
+                                (prev_p[k], prev_n[k], prev_pdf[k]) = prev;
+                                prev_bits |= 1 << k;
+                            }
+                            None => prev_bits &= !(1 << k),
+                        }
+                        alive |= 1 << k;
+                        handed &= !(1 << k);
+                    } else {
+                        out[path[k]] = state.l;
+                    }
+                }
+                (l, beta) = (V8::from_lanes(&ls), V8::from_lanes(&bs));
+                (eta_scale, rd) = (F8::from_array(es), V8::from_lanes(&ds));
+            }
+        };
+    }
     loop {
         // The paths that ended at the last bounce: their radiance out.
         let ended = started & !alive & !handed;
@@ -756,12 +792,12 @@ pub fn radiance8<const DETAIL: bool>(
         for k in lanes_of(hit_bits) {
             let material_id = scene.mesh.triangles[tri[k] as usize].material as usize;
             if materials[material_id].scalar {
-                // A surface the kernel does not shade: the scalar path finishes this path from
-                // here, and the lane takes the next one.
+                // A surface the kernel does not shade: the scalar path shades this vertex once
+                // the bounce is done (`shade_handed_lanes`).
                 if let Some(hit) = hits[k] {
                     let (ls, bs) = (l.to_lanes(), beta.to_lanes());
                     let prev = (prev_bits & (1 << k) != 0).then(|| (prev_p[k], prev_n[k], prev_pdf[k]));
-                    let state = crate::integrator::PathState {
+                    let state = PathState {
                         l: ls[k],
                         beta: bs[k],
                         prev,
@@ -769,9 +805,10 @@ pub fn radiance8<const DETAIL: bool>(
                         eta_scale: eta_scale.to_array()[k],
                         o: ro[k],
                         d: dirs[k],
+                        // (The ray is traced; its next one starts where the vertex says.)
+                        from: tri[k],
                     };
-                    out[path[k]] =
-                        crate::integrator::radiance_from_hit(scene, settings, &lane_samplers[k], state, hit, rays);
+                    handed_over[k] = Some((state, hit));
                     handed |= 1 << k;
                 }
                 continue;
@@ -821,6 +858,7 @@ pub fn radiance8<const DETAIL: bool>(
         l = add_emission(l, beta, &emit, emit_w);
         if shading == 0 {
             alive = 0;
+            shade_handed_lanes!();
             continue;
         }
 
@@ -1276,5 +1314,6 @@ pub fn radiance8<const DETAIL: bool>(
             beta = V8::select(kept, beta.div(one - q), beta);
         }
         alive = go.bits() & shading;
+        shade_handed_lanes!();
     }
 }

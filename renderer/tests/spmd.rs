@@ -617,8 +617,20 @@ fn eight_lanes_hand_the_surfaces_they_do_not_shade_to_the_scalar_path() {
     let mut scene = with_texture(b.build());
     same_by_power_and_tree(&mut scene, 9, "every handed-over material");
     for (max_depth, rr_depth) in [(0, 5), (1, 5), (2, 5), (7, 1)] {
-        let settings = RenderSettings { width: 32, height: 24, spp: 16, seed: 2, max_depth, rr_depth, ..RenderSettings::default() };
-        same_with_lanes_or_not(&mut scene, &settings, &format!("every handed-over material, depth {max_depth}, roulette from {rr_depth}"));
+        let settings = RenderSettings {
+            width: 32,
+            height: 24,
+            spp: 16,
+            seed: 2,
+            max_depth,
+            rr_depth,
+            ..RenderSettings::default()
+        };
+        same_with_lanes_or_not(
+            &mut scene,
+            &settings,
+            &format!("every handed-over material, depth {max_depth}, roulette from {rr_depth}"),
+        );
     }
 }
 

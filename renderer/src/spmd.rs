@@ -5,8 +5,10 @@
 //! textured (base colour, metallic-roughness, specular), vertex-coloured, normal-mapped, placed
 //! as instances and emit through a texture: what those vary is resolved one lane at a time at
 //! each hit, with the scalar path's own functions (`HitDetail`, `InstancedLanes`), and the
-//! eight-wide shading takes the numbers per lane. Coats, sheen, partial transmission, absorbing
-//! volumes and alpha-blended or masked surfaces stay with the scalar path.
+//! eight-wide shading takes the numbers per lane. A vertex on a surface the eight-wide BSDF does
+//! not know (coated, sheened, partly transmissive, absorbing, unlit) is shaded by the scalar
+//! path's own code (`integrator::bounce_from_hit`) and its path goes on in its lane; a scene
+//! with alpha-blended or masked surfaces stays with the scalar path whole.
 //!
 //! Each lane runs exactly [`crate::integrator::radiance`]'s arithmetic for its path, in its
 //! order, so a lane's radiance is bit-equal to the scalar path's (`renderer/tests/spmd.rs`
@@ -196,16 +198,17 @@ impl LaneMaterial {
             return None;
         }
         let hit_detail = !mesh.instances.is_empty()
-            || table.iter().any(|m| m.per_lane)
+            || table.iter().any(|m| m.per_lane || m.scalar)
             || materials.iter().any(|m| m.emissive_texture.is_some());
         Some(LaneTable { entries: table, hit_detail })
     }
 }
 
 /// A scene's [`LaneMaterial`]s, by material index, and whether some lane may need more than
-/// they tell (`hit_detail`: a material resolved at its hits, [`LaneMaterial::per_lane`]; an
-/// emissive texture; instances): then the renderer runs [`radiance8`]`::<true>`, which resolves
-/// those one lane at a time, else `::<false>`, the kernel without that code.
+/// they tell (`hit_detail`: a material resolved at its hits, [`LaneMaterial::per_lane`]; one
+/// whose vertices the scalar path shades, [`LaneMaterial::scalar`]; an emissive texture;
+/// instances): then the renderer runs [`radiance8`]`::<true>`, which resolves those one lane at
+/// a time, else `::<false>`, the kernel without that code.
 #[derive(Clone, Debug)]
 pub struct LaneTable {
     entries: Vec<LaneMaterial>,
@@ -217,6 +220,68 @@ impl std::ops::Deref for LaneTable {
     fn deref(&self) -> &[LaneMaterial] {
         &self.entries
     }
+}
+
+/// Lane `k`'s path as the scalar path keeps it ([`PathState`]): its radiance, throughput and η²
+/// from the kernel's registers, its previous vertex, bounce and ray (origin, direction, the
+/// triangle it starts on).
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[cold]
+#[inline(never)]
+fn lane_state(
+    k: usize,
+    (l, beta, eta_scale): (V8, V8, F8),
+    prev: Option<(Vec3, Vec3, f32)>,
+    depth: u32,
+    (o, d, from): (Vec3, Vec3, u32),
+) -> PathState {
+    let (l, beta, eta_scale) = (l.to_lanes()[k], beta.to_lanes()[k], eta_scale.to_array()[k]);
+    PathState { l, beta, prev, depth, eta_scale, o, d, from }
+}
+
+/// The vertices [`radiance8`] handed to the scalar path this bounce (`handed`, their states and
+/// hits in `over`), each shaded by [`crate::integrator::bounce_from_hit`] after the eight-wide
+/// bounce has updated the other lanes: a path that goes on is back in its lane, its state as the
+/// scalar path left it, and its lane alive; one that ended has its radiance out and stays in
+/// `handed`, so the kernel does not write its lane's radiance over it.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[cold]
+#[inline(never)]
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+fn shade_handed_lanes(
+    scene: &Scene,
+    settings: &RenderSettings,
+    samplers: &[PixelSample; LANES],
+    (handed, over): (&mut u32, &mut [Option<(PathState, crate::accel::Hit)>; LANES]),
+    (l, beta, eta_scale, rd): (&mut V8, &mut V8, &mut F8, &mut V8),
+    (ro, tri, depth): (&mut [Vec3; LANES], &mut [u32; LANES], &mut [u32; LANES]),
+    (prev_p, prev_n, prev_pdf, prev_bits): (&mut [Vec3; LANES], &mut [Vec3; LANES], &mut [f32; LANES], &mut u32),
+    alive: &mut u32,
+    (out, path): (&mut [Vec3], &[usize; LANES]),
+    rays: &mut u64,
+) {
+    let (mut ls, mut bs) = (l.to_lanes(), beta.to_lanes());
+    let (mut es, mut ds) = (eta_scale.to_array(), rd.to_lanes());
+    for k in lanes_of(*handed) {
+        let Some((mut state, hit)) = over[k].take() else { continue };
+        if crate::integrator::bounce_from_hit(scene, settings, &samplers[k], &mut state, hit, rays) {
+            (ls[k], bs[k], es[k], ds[k]) = (state.l, state.beta, state.eta_scale, state.d);
+            (ro[k], tri[k], depth[k]) = (state.o, state.from, state.depth);
+            match state.prev {
+                Some(prev) => {
+                    (prev_p[k], prev_n[k], prev_pdf[k]) = prev;
+                    *prev_bits |= 1 << k;
+                }
+                None => *prev_bits &= !(1 << k),
+            }
+            *alive |= 1 << k;
+            *handed &= !(1 << k);
+        } else if let Some(o) = out.get_mut(path[k]) {
+            *o = state.l;
+        }
+    }
+    (*l, *beta) = (V8::from_lanes(&ls), V8::from_lanes(&bs));
+    (*eta_scale, *rd) = (F8::from_array(es), V8::from_lanes(&ds));
 }
 
 /// The lanes whose bits are set in `bits`, in lane order.
@@ -521,7 +586,8 @@ pub const STREAM: usize = 256;
 /// together), and a path whose camera ray escapes ends there without taking a lane.
 ///
 /// Two builds of it: `DETAIL` also resolves what some hits need one lane at a time (textures,
-/// vertex colours, tangent frames and normal maps, instances, textured emitters); the caller
+/// vertex colours, tangent frames and normal maps, instances, textured emitters) and hands the
+/// vertices on surfaces it does not shade to the scalar path (`shade_handed_lanes`); the caller
 /// takes it where the scene's [`LaneTable::hit_detail`] says so. Without it, it is the kernel as
 /// it was before that code existed, which every scene of the benchmark suite runs
 /// (ARCHITECTURE.md, thirty-first round: +0.7 % instructions on cornell remain).
@@ -574,34 +640,24 @@ pub fn radiance8<const DETAIL: bool>(
     // radiance is out).
     let mut handed = 0u32;
     let mut handed_over: [Option<(PathState, crate::accel::Hit)>; LANES] = [None; LANES];
-    // The handed lanes' vertices shaded one at a time, after the eight-wide bounce has updated
-    // the other lanes: a path that goes on is back in its lane, its state as the scalar path
-    // left it; one that ended has its radiance out.
+    // The handed lanes' vertices shaded one at a time once the eight-wide bounce has updated the
+    // other lanes (`shade_handed_lanes`; out of line, so the registers above stay where the
+    // kernel keeps them when no lane is handed).
     macro_rules! shade_handed_lanes {
         () => {
-            if handed != 0 {
-                let (mut ls, mut bs) = (l.to_lanes(), beta.to_lanes());
-                let (mut es, mut ds) = (eta_scale.to_array(), rd.to_lanes());
-                for k in lanes_of(handed) {
-                    let Some((mut state, hit)) = handed_over[k].take() else { continue };
-                    if crate::integrator::bounce_from_hit(scene, settings, &lane_samplers[k], &mut state, hit, rays) {
-                        (ls[k], bs[k], es[k], ds[k]) = (state.l, state.beta, state.eta_scale, state.d);
-                        (ro[k], tri[k], depth[k]) = (state.o, state.from, state.depth);
-                        match state.prev {
-                            Some(prev) => {
-                                (prev_p[k], prev_n[k], prev_pdf[k]) = prev;
-                                prev_bits |= 1 << k;
-                            }
-                            None => prev_bits &= !(1 << k),
-                        }
-                        alive |= 1 << k;
-                        handed &= !(1 << k);
-                    } else {
-                        out[path[k]] = state.l;
-                    }
-                }
-                (l, beta) = (V8::from_lanes(&ls), V8::from_lanes(&bs));
-                (eta_scale, rd) = (F8::from_array(es), V8::from_lanes(&ds));
+            if DETAIL && handed != 0 {
+                shade_handed_lanes(
+                    scene,
+                    settings,
+                    &lane_samplers,
+                    (&mut handed, &mut handed_over),
+                    (&mut l, &mut beta, &mut eta_scale, &mut rd),
+                    (&mut ro, &mut tri, &mut depth),
+                    (&mut prev_p, &mut prev_n, &mut prev_pdf, &mut prev_bits),
+                    &mut alive,
+                    (out, &path),
+                    rays,
+                );
             }
         };
     }
@@ -791,24 +847,14 @@ pub fn radiance8<const DETAIL: bool>(
         let (sp_p, sp_ng) = (sp.p.to_lanes(), sp.ng.to_lanes());
         for k in lanes_of(hit_bits) {
             let material_id = scene.mesh.triangles[tri[k] as usize].material as usize;
-            if materials[material_id].scalar {
+            if DETAIL && materials[material_id].scalar {
                 // A surface the kernel does not shade: the scalar path shades this vertex once
                 // the bounce is done (`shade_handed_lanes`).
                 if let Some(hit) = hits[k] {
-                    let (ls, bs) = (l.to_lanes(), beta.to_lanes());
                     let prev = (prev_bits & (1 << k) != 0).then(|| (prev_p[k], prev_n[k], prev_pdf[k]));
-                    let state = PathState {
-                        l: ls[k],
-                        beta: bs[k],
-                        prev,
-                        depth: depth[k],
-                        eta_scale: eta_scale.to_array()[k],
-                        o: ro[k],
-                        d: dirs[k],
-                        // (The ray is traced; its next one starts where the vertex says.)
-                        from: tri[k],
-                    };
-                    handed_over[k] = Some((state, hit));
+                    // (The ray is traced; its next one starts where the vertex says.)
+                    let ray = (ro[k], dirs[k], tri[k]);
+                    handed_over[k] = Some((lane_state(k, (l, beta, eta_scale), prev, depth[k], ray), hit));
                     handed |= 1 << k;
                 }
                 continue;

@@ -8,7 +8,8 @@
 //! eight-wide shading takes the numbers per lane. A vertex on a surface the eight-wide BSDF does
 //! not know (coated, sheened, partly transmissive, absorbing, unlit) is shaded by the scalar
 //! path's own code (`integrator::bounce_from_hit`) and its path goes on in its lane; a scene
-//! with alpha-blended or masked surfaces stays with the scalar path whole.
+//! with alpha-blended surfaces stays with the scalar path whole (MASK cut-outs do not: a ray
+//! passes them the same way whatever its sample's numbers, so the kernel traces with seed 0).
 //!
 //! Each lane runs exactly [`crate::integrator::radiance`]'s arithmetic for its path, in its
 //! order, so a lane's radiance is bit-equal to the scalar path's (`renderer/tests/spmd.rs`
@@ -541,6 +542,7 @@ fn mis_weight(h: MisHeuristic, f: F8, g: F8) -> F8 {
 fn camera_group(scene: &Scene, o: Vec3, d: &[Vec3], hits: &mut [Option<crate::accel::Hit>; LANES], out: &mut [Vec3]) {
     let n = d.len().min(out.len()).min(LANES);
     let hits = &mut hits[..n];
+    // (`Scene::intersect_bundle` declines where cut-outs may pass the rays.)
     if !scene.intersect_bundle(o, &d[..n], hits) {
         let none = crate::convex_solid::NONE;
         scene.intersect_surface_batch(&[o; LANES][..n], &d[..n], &[0; LANES][..n], &[none; LANES][..n], hits);

@@ -14,7 +14,7 @@ use renderer::accel::BATCH_RAYS_ABOVE;
 use renderer::environment::Environment;
 use renderer::film::Rect;
 use renderer::light::LightSamplerKind;
-use renderer::material::Material;
+use renderer::material::{AlphaMode, Material};
 use renderer::math::{Vec2, Vec3, Vec4};
 use renderer::mesh::{flags, Instance, Triangle};
 use renderer::microfacet::Ggx;
@@ -557,6 +557,56 @@ fn eight_lanes_match_on_instances() {
     same_by_power_and_tree(&mut scene, 5, "instances");
 }
 
+/// MASK cut-outs: a ray passes where the texel's alpha is under the cutoff whatever its
+/// sample's numbers, so the kernel takes such scenes (camera rays one at a time through the
+/// layers rather than as a bundle, bounce rays through `Scene::intersect_surface`'s layers,
+/// shadow rays through the holes). Cut-outs before the camera, under the lamp and two deep;
+/// same bits and ray counts as the scalar path.
+#[test]
+fn eight_lanes_match_through_cut_outs() {
+    let mut b = SceneBuilder::default();
+    let wall = b.material(lambert(Vec3::splat(0.7)));
+    let shiny = b.material(metal(Vec3::new(0.9, 0.2, 0.1), 0.3));
+    let e = b.material(emitter(Vec3::splat(8.0)));
+    let leaf =
+        Material { alpha_mode: AlphaMode::Mask(0.5), base_color_texture: feed(0), ..lambert(Vec3::new(0.3, 0.8, 0.2)) };
+    let leaf = b.material(leaf);
+    for (c, u, v, m) in [
+        (Vec3::new(0.0, -1.0, 0.0), Vec3::X, Vec3::NEG_Z, wall),
+        (Vec3::new(0.0, 1.0, 0.0), Vec3::X, Vec3::Z, wall),
+        (Vec3::new(-1.0, 0.0, 0.0), Vec3::Z, Vec3::Y, shiny),
+        (Vec3::new(1.0, 0.0, 0.0), Vec3::Y, Vec3::Z, wall),
+        (Vec3::new(0.0, 0.0, -1.0), Vec3::X, Vec3::Y, wall),
+    ] {
+        b.quad(c, u, v, m);
+    }
+    let (first_vertex, first_triangle) = (b.mesh.positions.len(), b.mesh.triangles.len());
+    for (c, u, v) in [
+        // Before the camera, under the lamp, and two layers deep.
+        (Vec3::new(0.1, 0.0, 1.2), Vec3::X * 0.6, Vec3::Y * 0.6),
+        (Vec3::new(0.0, 0.7, 0.0), Vec3::X * 0.5, Vec3::Z * 0.5),
+        (Vec3::new(-0.4, -0.5, 0.0), Vec3::Z * 0.4, Vec3::Y * 0.4),
+        (Vec3::new(-0.3, -0.5, 0.05), Vec3::Z * 0.4, Vec3::Y * 0.4),
+    ] {
+        b.quad(c, u, v, leaf);
+    }
+    for (i, uv) in b.mesh.uvs[first_vertex..].iter_mut().enumerate() {
+        *uv = [Vec2::new(0.0, 0.0), Vec2::new(2.0, 0.0), Vec2::new(2.0, 2.0), Vec2::new(0.0, 2.0)][i % 4];
+    }
+    for t in &mut b.mesh.triangles[first_triangle..] {
+        t.flags |= flags::UVS;
+    }
+    b.quad(Vec3::new(0.0, 0.99, 0.0), Vec3::X * 0.3, Vec3::Z * 0.3, e);
+    b.look_at(Vec3::new(0.0, 0.0, 3.5), Vec3::ZERO, 45.0);
+    let holes = texture(std::array::from_fn(|i| [200, 255, 120, if (i + i / 4) % 2 == 0 { 255 } else { 0 }]), true);
+    let mut scene = Scene::new(b.mesh, b.materials, vec![holes], b.cameras);
+    assert!(scene.has_transparency());
+    same_by_power_and_tree(&mut scene, 4, "cut-outs");
+    let settings =
+        RenderSettings { width: 32, height: 24, spp: 16, seed: 6, max_depth: 2, ..RenderSettings::default() };
+    same_with_lanes_or_not(&mut scene, &settings, "cut-outs, two bounces");
+}
+
 /// The materials the kernel does not shade (`LaneMaterial::table`'s scalar entries), textured
 /// where the kind is.
 fn materials_the_kernel_hands_over() -> Vec<(&'static str, Material)> {
@@ -669,5 +719,15 @@ fn eight_lanes_take_only_what_they_render() {
             let scene = Scene::new(b.mesh, b.materials, vec![texture([[128; 4]; 16], true)], Vec::new());
             assert_eq!(scene.lanes(&s).is_some(), shades || *lamp_shaded, "{what} (lamp shaded: {lamp_shaded})");
         }
+    }
+    // Cut-outs pass rays whatever the sample; BLEND surfaces by its numbers: the scalar path's.
+    for (alpha_mode, taken) in [(AlphaMode::Mask(0.5), true), (AlphaMode::Blend, false)] {
+        let mut b = SceneBuilder::default();
+        let m = b.material(Material { alpha_mode, base_color_texture: feed(0), ..lambert(Vec3::ONE) });
+        let e = b.material(emitter(Vec3::ONE));
+        b.quad(Vec3::ZERO, Vec3::X, Vec3::Y, m);
+        b.quad(Vec3::Z, Vec3::X, Vec3::NEG_Y, e);
+        let scene = Scene::new(b.mesh, b.materials, vec![texture([[128; 4]; 16], true)], Vec::new());
+        assert_eq!(scene.lanes(&s).is_some(), taken, "{alpha_mode:?}");
     }
 }

@@ -827,7 +827,7 @@ mod tests {
         let checker =
             Some(TextureRef { texture: 0, wrap_s: Wrap::Repeat, wrap_t: Wrap::Repeat, set: 0, transform: None });
         let textured: Vec<Material> =
-            materials.iter().map(|m| Material { base_color_texture: checker.clone(), ..m.clone() }).collect();
+            materials.iter().map(|m| Material { base_color_texture: checker, ..m.clone() }).collect();
         let materials: Vec<Material> = materials.into_iter().chain(textured).collect();
         let colours = [
             Vec4::ONE,

@@ -65,7 +65,8 @@ pub struct PathState {
     pub depth: u32,
     /// η² of the transmissions so far.
     pub eta_scale: f32,
-    /// The next ray, and the triangle it starts on (`convex_solid::NONE` for a camera ray).
+    /// The next ray, and the triangle it starts on (`convex_solid::NONE` for a camera ray; not
+    /// read where the ray has been traced, as [`bounce_from_hit`]'s is on the way in).
     pub o: Vec3,
     pub d: Vec3,
     pub from: u32,

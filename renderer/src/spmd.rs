@@ -77,8 +77,9 @@ pub struct LaneMaterial {
     /// triangle of it has tangents (a tangent frame, maybe a normal map: [`HitDetail`]).
     per_lane: bool,
     /// The kernel does not shade it (unlit, coated, sheened, partly transmissive, absorbing, or
-    /// textured other than [`LaneMaterial::textured_opaque`] allows): a path whose ray hits it is
-    /// finished by the scalar path from that hit ([`crate::integrator::radiance_from_hit`]).
+    /// textured other than [`LaneMaterial::textured_opaque`] allows): a lane whose ray hits it
+    /// has that vertex shaded by the scalar path ([`crate::integrator::bounce_from_hit`]) and
+    /// goes on.
     scalar: bool,
 }
 
@@ -152,7 +153,7 @@ impl LaneMaterial {
     /// material the kernel does not shade — unlit, coated or sheened, partly transmissive
     /// (transmission between 0 and 1, or metal over glass), an absorbing volume, or textured or
     /// vertex-coloured other than as [`LaneMaterial::textured_opaque`] allows — gets a `scalar`
-    /// entry: the paths that reach it are finished one at a time from there. None when every
+    /// entry: a lane's vertex on it is shaded by the scalar path's code. None when every
     /// material a triangle uses is such (the kernel would hand each path over at its first hit)
     /// or a triangle names a material that does not exist. Materials no triangle uses do not
     /// count (the loader's default one among them).

@@ -628,12 +628,14 @@ fn materials_the_kernel_hands_over() -> Vec<(&'static str, Material)> {
     ]
 }
 
-/// A path that reaches a surface the kernel does not shade is finished by the scalar path from
-/// that hit (`integrator::radiance_from_hit`): at its camera ray (the sphere in view), after
-/// diffuse, glossy and glass bounces (the walls, a metal wall, glass spheres of the kernel's
-/// own, where η² is carried), at the depth limit, under roulette from the first bounce, with
-/// its MIS state for the emission it may find there. Same bits and ray counts as the scalar
-/// path's render, for each material in turn as the sphere, and all of them at once as walls.
+/// A lane whose ray reaches a surface the kernel does not shade has that vertex shaded by the
+/// scalar path's code (`integrator::bounce_from_hit`) and goes on in its lane: at its camera ray
+/// (the sphere in view), after diffuse, glossy and glass bounces (the walls, a metal wall, glass
+/// spheres of the kernel's own, where η² is carried), at the depth limit, under roulette from
+/// the first bounce, with its MIS state for the emission it may find there, and back in the
+/// kernel with the state the scalar path left (or on through an absorbing medium first). Same
+/// bits and ray counts as the scalar path's render, for each material in turn as the sphere, and
+/// all of them at once as walls.
 #[test]
 fn eight_lanes_hand_the_surfaces_they_do_not_shade_to_the_scalar_path() {
     let glass = Material { transmission: 1.0, metallic: 0.0, ..metal(Vec3::ONE, 0.0) };

@@ -211,14 +211,11 @@ impl Scene {
     /// The eight-lane kernel's material table when it renders this scene with `settings`
     /// ([`crate::spmd::radiance8`]): some surface a metallic-roughness material the kernel shades
     /// ([`crate::spmd::LaneMaterial::table`]; it hands the others' vertices to the scalar path),
-    /// no alpha blending (MASK cut-outs pass rays the same way whatever a sample's numbers, BLEND
-    /// surfaces by them), the MIS integrator and some light to sample.
+    /// the MIS integrator and some light to sample.
     pub fn lanes(&self, settings: &crate::RenderSettings) -> Option<&crate::spmd::LaneTable> {
-        let blends = || self.materials.iter().any(|m| m.alpha_mode == AlphaMode::Blend);
         let usable = cfg!(all(target_arch = "x86_64", target_feature = "avx2"))
             && self.lanes
             && settings.integrator == crate::settings::IntegratorKind::Mis
-            && !(self.transparent && blends())
             && !self.lights.is_empty();
         if usable {
             self.lane_materials.as_ref()
@@ -444,6 +441,12 @@ impl Scene {
     #[inline]
     pub fn has_transparency(&self) -> bool {
         self.transparent
+    }
+
+    /// Whether some surface is alpha-blended (BLEND: it passes a ray by the sample's numbers and
+    /// shadow rays in part).
+    pub fn blends(&self) -> bool {
+        self.transparent && self.materials.iter().any(|m| m.alpha_mode == AlphaMode::Blend)
     }
 
     /// How a hit surface treats a ray: (passes, attenuation for shadow rays).

@@ -8,8 +8,9 @@
 //! eight-wide shading takes the numbers per lane. A vertex on a surface the eight-wide BSDF does
 //! not know (coated, sheened, partly transmissive, absorbing, unlit) is shaded by the scalar
 //! path's own code (`integrator::bounce_from_hit`) and its path goes on in its lane; a scene
-//! with alpha-blended surfaces stays with the scalar path whole (MASK cut-outs do not: a ray
-//! passes them the same way whatever its sample's numbers, so the kernel traces with seed 0).
+//! with alpha-blended or masked surfaces traces its rays through them as the scalar path does
+//! (`Scene::intersect_surface` with the bounce's stochastic-transparency seed,
+//! `integrator::transparency_seed`; shadow rays' partial visibility multiplied in).
 //!
 //! Each lane runs exactly [`crate::integrator::radiance`]'s arithmetic for its path, in its
 //! order, so a lane's radiance is bit-equal to the scalar path's (`renderer/tests/spmd.rs`
@@ -201,6 +202,7 @@ impl LaneMaterial {
         }
         let hit_detail = !mesh.instances.is_empty()
             || table.iter().any(|m| m.per_lane || m.scalar)
+            || materials.iter().any(|m| m.alpha_mode == crate::material::AlphaMode::Blend)
             || materials.iter().any(|m| m.emissive_texture.is_some());
         Some(LaneTable { entries: table, hit_detail })
     }
@@ -540,13 +542,27 @@ fn mis_weight(h: MisHeuristic, f: F8, g: F8) -> F8 {
 /// scalar path's bit for bit.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[inline(always)]
-fn camera_group(scene: &Scene, o: Vec3, d: &[Vec3], hits: &mut [Option<crate::accel::Hit>; LANES], out: &mut [Vec3]) {
-    let n = d.len().min(out.len()).min(LANES);
+fn camera_group(
+    scene: &Scene,
+    o: Vec3,
+    (d, samplers): (&[Vec3], &[PixelSample]),
+    blends: bool,
+    hits: &mut [Option<crate::accel::Hit>; LANES],
+    out: &mut [Vec3],
+) {
+    let n = d.len().min(samplers.len()).min(out.len()).min(LANES);
     let hits = &mut hits[..n];
-    // (`Scene::intersect_bundle` declines where cut-outs may pass the rays.)
+    // (`Scene::intersect_bundle` declines where cut-outs or blended surfaces may pass the rays.)
     if !scene.intersect_bundle(o, &d[..n], hits) {
         let none = crate::convex_solid::NONE;
-        scene.intersect_surface_batch(&[o; LANES][..n], &d[..n], &[0; LANES][..n], &[none; LANES][..n], hits);
+        // BLEND surfaces pass a ray by its sample's numbers (`Path::begin_bounce`'s seed).
+        let mut seeds = [0u32; LANES];
+        if blends {
+            for (seed, sampler) in seeds.iter_mut().zip(samplers) {
+                *seed = crate::integrator::transparency_seed(sampler, 0);
+            }
+        }
+        scene.intersect_surface_batch(&[o; LANES][..n], &d[..n], &seeds[..n], &[none; LANES][..n], hits);
     }
     let escaped = || hits.iter().enumerate().filter(|(_, h)| h.is_none()).map(|(j, _)| j);
     match &scene.lights.environment {
@@ -636,6 +652,8 @@ pub fn radiance8<const DETAIL: bool>(
     // Each lane's hit triangle, where its next ray starts (`Path::from`; none for the camera's).
     let mut tri = [none; LANES];
     let scale = scene.offset_scale();
+    // Whether BLEND surfaces pass rays by the samples' numbers and shadow rays in part.
+    let blends = DETAIL && scene.blends();
     // The lanes that ran the last bounce: those of them not alive now ended there.
     let mut started = 0u32;
     // The lanes whose vertex the scalar path shades this bounce (`integrator::bounce_from_hit`),
@@ -685,7 +703,8 @@ pub fn radiance8<const DETAIL: bool>(
                         break 'refill;
                     }
                     group = next_path..(next_path + LANES).min(total);
-                    camera_group(scene, o, &d[group.clone()], &mut group_hits, &mut out[group.clone()]);
+                    let camera_rays = (&d[group.clone()], &samplers[group.clone()]);
+                    camera_group(scene, o, camera_rays, blends, &mut group_hits, &mut out[group.clone()]);
                     *rays += group.len() as u64;
                 }
                 let j = next_path;
@@ -741,10 +760,18 @@ pub fn radiance8<const DETAIL: bool>(
         }
         if count > 0 {
             let mut found = [None; LANES];
+            // BLEND surfaces pass a ray by its sample's numbers (`Path::begin_bounce`'s seed).
+            let mut seeds = [0u32; LANES];
+            if blends {
+                for j in 0..count {
+                    let k = lane[j] as usize;
+                    seeds[j] = crate::integrator::transparency_seed(&lane_samplers[k], depth[k]);
+                }
+            }
             scene.intersect_surface_batch(
                 &qo[..count],
                 &qd[..count],
-                &[0; LANES][..count],
+                &seeds[..count],
                 &qf[..count],
                 &mut found[..count],
             );
@@ -1310,16 +1337,18 @@ pub fn radiance8<const DETAIL: bool>(
                 }
                 let mut seen = [0f32; LANES];
                 scene.visibility_batch(&qo[..count], &qd[..count], &qt[..count], &qf[..count], &mut seen[..count]);
-                let mut visible = 0u32;
+                let (mut visible, mut fraction) = (0u32, [1f32; LANES]);
                 for j in 0..count {
                     if seen[j] != 0.0 {
                         visible |= 1 << lane[j];
                     }
+                    fraction[lane[j] as usize] = seen[j];
                 }
                 let shadow = ok & M8::from_bits(visible);
                 // `Path::add_direct`: β·f·Le, times visibility, times |cos|·w/pdf; the visibility
-                // of an opaque scene is 1, and x·1 = x exactly, so it is left out.
-                let add = unshadowed.scale(sc);
+                // of a scene without BLEND surfaces is 0 or 1, and x·1 = x exactly, so there it
+                // is left out.
+                let add = if blends { unshadowed.scale(F8::from_array(fraction)) } else { unshadowed }.scale(sc);
                 l = V8::select(shadow, l.add(add), l);
             }
         }

@@ -557,19 +557,14 @@ fn eight_lanes_match_on_instances() {
     same_by_power_and_tree(&mut scene, 5, "instances");
 }
 
-/// MASK cut-outs: a ray passes where the texel's alpha is under the cutoff whatever its
-/// sample's numbers, so the kernel takes such scenes (camera rays one at a time through the
-/// layers rather than as a bundle, bounce rays through `Scene::intersect_surface`'s layers,
-/// shadow rays through the holes). Cut-outs before the camera, under the lamp and two deep;
-/// same bits and ray counts as the scalar path.
-#[test]
-fn eight_lanes_match_through_cut_outs() {
+/// A room with leaves of `alpha_mode` textured with alpha 0, ⅓, ⅔ and 1 in a checker: before
+/// the camera, under the lamp, and two deep.
+fn leafy_room(alpha_mode: AlphaMode) -> Scene {
     let mut b = SceneBuilder::default();
     let wall = b.material(lambert(Vec3::splat(0.7)));
     let shiny = b.material(metal(Vec3::new(0.9, 0.2, 0.1), 0.3));
     let e = b.material(emitter(Vec3::splat(8.0)));
-    let leaf =
-        Material { alpha_mode: AlphaMode::Mask(0.5), base_color_texture: feed(0), ..lambert(Vec3::new(0.3, 0.8, 0.2)) };
+    let leaf = Material { alpha_mode, base_color_texture: feed(0), ..lambert(Vec3::new(0.3, 0.8, 0.2)) };
     let leaf = b.material(leaf);
     for (c, u, v, m) in [
         (Vec3::new(0.0, -1.0, 0.0), Vec3::X, Vec3::NEG_Z, wall),
@@ -582,7 +577,6 @@ fn eight_lanes_match_through_cut_outs() {
     }
     let (first_vertex, first_triangle) = (b.mesh.positions.len(), b.mesh.triangles.len());
     for (c, u, v) in [
-        // Before the camera, under the lamp, and two layers deep.
         (Vec3::new(0.1, 0.0, 1.2), Vec3::X * 0.6, Vec3::Y * 0.6),
         (Vec3::new(0.0, 0.7, 0.0), Vec3::X * 0.5, Vec3::Z * 0.5),
         (Vec3::new(-0.4, -0.5, 0.0), Vec3::Z * 0.4, Vec3::Y * 0.4),
@@ -598,13 +592,26 @@ fn eight_lanes_match_through_cut_outs() {
     }
     b.quad(Vec3::new(0.0, 0.99, 0.0), Vec3::X * 0.3, Vec3::Z * 0.3, e);
     b.look_at(Vec3::new(0.0, 0.0, 3.5), Vec3::ZERO, 45.0);
-    let holes = texture(std::array::from_fn(|i| [200, 255, 120, if (i + i / 4) % 2 == 0 { 255 } else { 0 }]), true);
-    let mut scene = Scene::new(b.mesh, b.materials, vec![holes], b.cameras);
-    assert!(scene.has_transparency());
-    same_by_power_and_tree(&mut scene, 4, "cut-outs");
-    let settings =
-        RenderSettings { width: 32, height: 24, spp: 16, seed: 6, max_depth: 2, ..RenderSettings::default() };
-    same_with_lanes_or_not(&mut scene, &settings, "cut-outs, two bounces");
+    let alpha = [255, 0, 85, 170];
+    let holes = texture(std::array::from_fn(|i| [200, 255, 120, alpha[(i + i / 4) % 4]]), true);
+    Scene::new(b.mesh, b.materials, vec![holes], b.cameras)
+}
+
+/// Leaves the rays pass: MASK cut-outs where the texel's alpha is under the cutoff, BLEND
+/// surfaces with probability 1 − alpha by the bounce's stochastic-transparency seed (shadow
+/// rays carry 1 − alpha of the light). The kernel traces them as the scalar path does (camera
+/// rays one at a time through the layers rather than as a bundle, each ray with its sample's
+/// seed, partial visibility multiplied in); same bits and ray counts.
+#[test]
+fn eight_lanes_match_through_cut_outs_and_blended_surfaces() {
+    for (alpha_mode, what) in [(AlphaMode::Mask(0.5), "cut-outs"), (AlphaMode::Blend, "blended leaves")] {
+        let mut scene = leafy_room(alpha_mode);
+        assert!(scene.has_transparency());
+        same_by_power_and_tree(&mut scene, 4, what);
+        let settings =
+            RenderSettings { width: 32, height: 24, spp: 16, seed: 6, max_depth: 2, ..RenderSettings::default() };
+        same_with_lanes_or_not(&mut scene, &settings, &format!("{what}, two bounces"));
+    }
 }
 
 /// The materials the kernel does not shade (`LaneMaterial::table`'s scalar entries), textured
@@ -722,8 +729,8 @@ fn eight_lanes_take_only_what_they_render() {
             assert_eq!(scene.lanes(&s).is_some(), shades || *lamp_shaded, "{what} (lamp shaded: {lamp_shaded})");
         }
     }
-    // Cut-outs pass rays whatever the sample; BLEND surfaces by its numbers: the scalar path's.
-    for (alpha_mode, taken) in [(AlphaMode::Mask(0.5), true), (AlphaMode::Blend, false)] {
+    // Cut-outs and blended surfaces.
+    for (alpha_mode, taken) in [(AlphaMode::Mask(0.5), true), (AlphaMode::Blend, true)] {
         let mut b = SceneBuilder::default();
         let m = b.material(Material { alpha_mode, base_color_texture: feed(0), ..lambert(Vec3::ONE) });
         let e = b.material(emitter(Vec3::ONE));

@@ -109,6 +109,12 @@ fn lookup(textures: &[Texture], r: &Option<TextureRef>, uv: TexCoords) -> Option
     r.as_ref().map(|r| textures[r.texture as usize].sample(r.coords(&uv), r))
 }
 
+/// Whether some material is alpha-blended (BLEND: it passes a ray by the sample's numbers and
+/// shadow rays in part).
+pub fn any_blends(materials: &[Material]) -> bool {
+    materials.iter().any(|m| m.alpha_mode == AlphaMode::Blend)
+}
+
 impl Material {
     pub fn is_emissive(&self) -> bool {
         self.emissive.max_element() > 0.0

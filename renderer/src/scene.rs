@@ -15,7 +15,8 @@ use crate::texture::Texture;
 
 pub struct Scene {
     pub mesh: Mesh,
-    /// Fixed once the scene is built: `transparent` and `uniform_bsdfs` are derived from it there.
+    /// Fixed once the scene is built: `transparent`, `blends` and `base_colour_bsdfs` are derived
+    /// from it there.
     pub materials: Vec<Material>,
     pub textures: Vec<Texture>,
     pub cameras: Vec<Camera>,
@@ -29,11 +30,12 @@ pub struct Scene {
     offset_scale: f32,
     /// Some material is MASK or BLEND (computed once: it is asked on every ray).
     transparent: bool,
-    /// Per material, its BSDF when no texture feeds it ([`Material::uniform_bsdf`]).
-    uniform_bsdfs: Vec<Option<Bsdf>>,
     /// Per material, its BSDF but for the base colour when no other texture feeds it
-    /// ([`Material::bsdf_but_base_colour`]).
+    /// ([`Material::bsdf_but_base_colour`]; with no base colour texture either, its BSDF
+    /// everywhere without vertex colours: [`Material::uniform_bsdf`]).
     base_colour_bsdfs: Vec<Option<Bsdf>>,
+    /// Some material is alpha-blended ([`crate::material::any_blends`]).
+    blends: bool,
     /// What the loader could not honour but rendered without (optional extensions), for the user.
     pub warnings: Vec<String>,
     /// The file's `asset.generator` (decides `--light-units auto`).
@@ -106,9 +108,9 @@ impl Scene {
         let lights = LightSet::build(&mesh, &materials, &textures, Vec::new(), None, (max - min).length() * 0.5);
         tracing::debug!(triangles = mesh.triangles.len(), lights = lights.lights.len(), "scene built");
         let transparent = materials.iter().any(|m| m.alpha_mode != AlphaMode::Opaque);
-        let uniform_bsdfs: Vec<Option<Bsdf>> = materials.iter().map(Material::uniform_bsdf).collect();
-        let base_colour_bsdfs = materials.iter().map(Material::bsdf_but_base_colour).collect();
-        let lane_materials = crate::spmd::LaneMaterial::table(&mesh, &materials, &uniform_bsdfs);
+        let base_colour_bsdfs: Vec<Option<Bsdf>> = materials.iter().map(Material::bsdf_but_base_colour).collect();
+        let blends = crate::material::any_blends(&materials);
+        let lane_materials = crate::spmd::LaneMaterial::table(&mesh, &materials, &base_colour_bsdfs);
         let solids = find_solids(&mesh, &materials, &mut accel);
         Scene {
             mesh,
@@ -121,8 +123,8 @@ impl Scene {
             bounds: (min, max),
             offset_scale: offset_scale_of((min, max)),
             transparent,
-            uniform_bsdfs,
             base_colour_bsdfs,
+            blends,
             warnings: Vec::new(),
             animator: None,
             time: 0.0,
@@ -446,7 +448,7 @@ impl Scene {
     /// Whether some surface is alpha-blended (BLEND: it passes a ray by the sample's numbers and
     /// shadow rays in part).
     pub fn blends(&self) -> bool {
-        self.transparent && self.materials.iter().any(|m| m.alpha_mode == AlphaMode::Blend)
+        self.blends
     }
 
     /// How a hit surface treats a ray: (passes, attenuation for shadow rays).
@@ -493,11 +495,10 @@ impl Scene {
         uv: impl FnOnce() -> crate::texture::TexCoords,
         color: crate::math::Vec4,
     ) -> Bsdf {
-        let (i, m) = (material as usize, &self.materials[material as usize]);
-        if let (Some(Some(b)), true) = (self.uniform_bsdfs.get(i), color == crate::math::Vec4::ONE) {
-            return *b;
-        }
-        match self.base_colour_bsdfs.get(i) {
+        let m = &self.materials[material as usize];
+        match self.base_colour_bsdfs.get(material as usize) {
+            // Nothing varies it here: the precomputed BSDF (a colour of ones multiplies exactly).
+            Some(Some(b)) if m.base_color_texture.is_none() && color == crate::math::Vec4::ONE => *b,
             Some(Some(b)) => {
                 let uv = if m.base_color_texture.is_some() { uv() } else { Default::default() };
                 Bsdf { base_color: m.base_color_at(&self.textures, uv, color), ..*b }

@@ -150,7 +150,8 @@ impl LaneMaterial {
         LaneMaterial::of(&b, false)
     }
 
-    /// The table for a scene (`uniform_bsdfs`: `Material::uniform_bsdf` of each material). A
+    /// The table for a scene (`base_colour_bsdfs`: `Material::bsdf_but_base_colour` of each
+    /// material, the BSDF everywhere where no base colour texture feeds it either). A
     /// material the kernel does not shade — unlit, coated or sheened, partly transmissive
     /// (transmission between 0 and 1, or metal over glass), an absorbing volume, or textured or
     /// vertex-coloured other than as [`LaneMaterial::textured_opaque`] allows — gets a `scalar`
@@ -158,7 +159,7 @@ impl LaneMaterial {
     /// material a triangle uses is such (the kernel would hand each path over at its first hit)
     /// or a triangle names a material that does not exist. Materials no triangle uses do not
     /// count (the loader's default one among them).
-    pub fn table(mesh: &Mesh, materials: &[Material], uniform_bsdfs: &[Option<Bsdf>]) -> Option<LaneTable> {
+    pub fn table(mesh: &Mesh, materials: &[Material], base_colour_bsdfs: &[Option<Bsdf>]) -> Option<LaneTable> {
         let n = materials.len();
         let (mut used, mut tangents, mut colors) = (vec![false; n], vec![false; n], vec![false; n]);
         for t in &mesh.triangles {
@@ -176,7 +177,7 @@ impl LaneMaterial {
                 table.push(LaneMaterial::SCALAR);
                 continue;
             }
-            let uniform = (*uniform_bsdfs.get(i)?).filter(|_| !colors[i]);
+            let uniform = (*base_colour_bsdfs.get(i)?).filter(|_| !colors[i] && m.base_color_texture.is_none());
             let Some(b) = uniform else {
                 // Textured or vertex-coloured: resolved lane by lane at each hit, where it is
                 // opaque whatever the texels and colours say.
@@ -202,7 +203,7 @@ impl LaneMaterial {
         }
         let hit_detail = !mesh.instances.is_empty()
             || table.iter().any(|m| m.per_lane || m.scalar)
-            || materials.iter().any(|m| m.alpha_mode == crate::material::AlphaMode::Blend)
+            || crate::material::any_blends(materials)
             || materials.iter().any(|m| m.emissive_texture.is_some());
         Some(LaneTable { entries: table, hit_detail })
     }
@@ -1211,19 +1212,17 @@ pub fn radiance8<const DETAIL: bool>(
             // radiance and pdf, and the side it faces (None when no lane chose an area light).
             let areas = (area != 0).then(|| {
                 let (b1, b2) = sample_uniform_triangle(F8::from_array(u_pos.0), F8::from_array(u_pos.1));
-                let le = if DETAIL && textured_light != 0 {
+                let mut lle = lle;
+                if DETAIL && textured_light != 0 {
                     // A textured emitter's radiance at the point (`LightSet::sample_selected`: the
                     // texture coordinates `Mesh::position_normal_uv` gives there).
                     let (b1, b2) = (b1.to_array(), b2.to_array());
-                    let mut lle = lle;
                     for k in lanes_of(textured_light) {
                         let uv = scene.mesh.tex_coords_at(ltri[k], b1[k], b2[k]);
                         lle[k] = scene.materials[lmat[k] as usize].emission(&scene.textures, uv);
                     }
-                    V8::from_lanes(&lle)
-                } else {
-                    V8::from_lanes(&lle)
-                };
+                }
+                let le = V8::from_lanes(&lle);
                 let lng = V8::from_lanes(&lng);
                 let lp = V8::from_lanes(&lp0).add(V8::from_lanes(&le1).scale(b1)).add(V8::from_lanes(&le2).scale(b2));
                 let to = lp.sub(pv);
@@ -1342,7 +1341,9 @@ pub fn radiance8<const DETAIL: bool>(
                     if seen[j] != 0.0 {
                         visible |= 1 << lane[j];
                     }
-                    fraction[lane[j] as usize] = seen[j];
+                    if blends {
+                        fraction[lane[j] as usize] = seen[j];
+                    }
                 }
                 let shadow = ok & M8::from_bits(visible);
                 // `Path::add_direct`: β·f·Le, times visibility, times |cos|·w/pdf; the visibility

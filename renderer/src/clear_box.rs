@@ -140,7 +140,17 @@ mod tests {
             let [p0, p1, p2] = m.vertices(i);
             let (e1, e2) = (p1 - p0, p2 - p0);
             let ng = e1.cross(e2).normalize();
-            AreaLight { p0, e1, e2, ng, triangle: i, area: 0.5 * e1.cross(e2).length(), two_sided: false, material: 0 }
+            AreaLight {
+                p0,
+                e1,
+                e2,
+                ng,
+                triangle: i,
+                area: 0.5 * e1.cross(e2).length(),
+                two_sided: false,
+                material: 0,
+                le: Vec3::ZERO,
+            }
         })
         .collect()
     }

@@ -30,6 +30,9 @@ pub struct AreaLight {
     pub area: f32,
     pub two_sided: bool,
     pub(crate) material: u32,
+    /// The material's emission where no texture coordinates are read (`Material::emission` at
+    /// the default ones): the radiance the SPMD kernel's samples start from, worked out once.
+    pub(crate) le: Vec3,
 }
 
 /// A point sampled on a light, seen from a reference point.
@@ -190,6 +193,7 @@ impl LightSet {
                 area,
                 two_sided: m.double_sided,
                 material: t.material,
+                le: m.emission(textures, Default::default()),
             });
             record_power.push(p);
         }
@@ -779,6 +783,13 @@ impl LightSet {
             }
             _ => tmax,
         }
+    }
+
+    /// Whether some area light has a clear box: without one [`Self::shadow_tmax`] is `tmax`
+    /// for every light, and a caller with many rays can skip asking it ray by ray.
+    #[inline]
+    pub fn has_clear_boxes(&self) -> bool {
+        !self.clear_boxes.is_empty()
     }
 
     /// True when triangle `tri` is in the light set (NEE can sample it).

@@ -1066,16 +1066,11 @@ pub fn radiance8<const DETAIL: bool>(
         if nee.any() {
             let u_pos = (u_light[(dims::LIGHT_POS % 4) as usize], u_light[(dims::LIGHT_POS % 4 + 1) as usize]);
             // An area light's triangle and emission, for the eight-wide sample.
-            let (mut lp0, mut le1, mut le2, mut lng) =
-                ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
-            let (mut larea, mut lpmf) = ([1f32; LANES], [0f32; LANES]);
-            // Each lane's area light (`LightSample::light`), for `LightSet::shadow_tmax`.
+            // Each lane's area light (`LightSample::light`), for `LightSet::shadow_tmax`, and the
+            // probability it was chosen with; the lanes that chose one.
             let mut lidx = [crate::clear_box::NONE; LANES];
-            let mut lle = [Vec3::ZERO; LANES];
-            let mut two_sided = 0u32;
+            let mut lpmf = [0f32; LANES];
             let mut area = 0u32;
-            // The area lanes whose light is emissive-textured, its triangle and material.
-            let (mut textured_light, mut ltri, mut lmat) = (0u32, [0u32; LANES], [0u32; LANES]);
             // Any other light's sample (`LightSet::sample_selected`, one lane at a time): its
             // direction, radiance, pdf and point; which are delta (punctual) and which at infinity.
             let (mut owi, mut ole, mut op, mut opdf) =
@@ -1094,7 +1089,7 @@ pub fn radiance8<const DETAIL: bool>(
             for (j, &choice) in selected[..chose].iter().enumerate() {
                 let k = nee_lane[j] as usize;
                 let Some((idx, pmf)) = choice else { continue };
-                let Some(light) = scene.lights.area_light(idx) else {
+                if scene.lights.area_light(idx).is_none() {
                     // A bulb: its sure directions eight-wide below, the rest with the other lights.
                     if scene.lights.is_bulb(idx) {
                         bulb |= 1 << k;
@@ -1105,22 +1100,8 @@ pub fn radiance8<const DETAIL: bool>(
                     ocount += 1;
                     continue;
                 };
-                let Some(m) = scene.materials.get(light.material as usize) else { continue };
                 area |= 1 << k;
-                lidx[k] = idx as u32;
-                (lp0[k], le1[k], le2[k], lng[k]) = (light.p0, light.e1, light.e2, light.ng);
-                (larea[k], lle[k]) = (
-                    light.area,
-                    if m.is_emissive() { m.emission(&scene.textures, Default::default()) } else { Vec3::ZERO },
-                );
-                if DETAIL && m.emissive_texture.is_some() && m.is_emissive() {
-                    // Its radiance is read at the sampled point, once that is drawn.
-                    (textured_light, ltri[k], lmat[k]) = (textured_light | 1 << k, light.triangle, light.material);
-                }
-                lpmf[k] = pmf;
-                if m.double_sided {
-                    two_sided |= 1 << k;
-                }
+                (lidx[k], lpmf[k]) = (idx as u32, pmf);
             }
             // `Bulb::sample`'s cone and `LightSet::sample_selected`'s sure direction, eight-wide
             // in the same arithmetic: (the lanes that took one, the direction, the shadow ray's
@@ -1211,20 +1192,43 @@ pub fn radiance8<const DETAIL: bool>(
             // `LightSet::sample_selected`'s area light: the point, the direction to it, its
             // radiance and pdf, and the side it faces (None when no lane chose an area light).
             let areas = (area != 0).then(|| {
+                // Each area lane's triangle, area, radiance and sidedness, its vectors one
+                // register each (`lanes::xyz_register`: the transposes read what was stored whole).
+                let none3 = [crate::lanes::xyz_register(&Vec3::ZERO); LANES];
+                let (mut lp0, mut le1, mut le2, mut lng, mut lle) = (none3, none3, none3, none3, none3);
+                let mut larea = [1f32; LANES];
+                let (mut two_sided, mut textured_light) = (0u32, 0u32);
+                for k in lanes_of(area) {
+                    let Some(light) = scene.lights.area_light(lidx[k] as usize) else { continue };
+                    let xyz = crate::lanes::xyz_register;
+                    (lp0[k], le1[k], le2[k], lng[k]) = (xyz(&light.p0), xyz(&light.e1), xyz(&light.e2), xyz(&light.ng));
+                    // Every area light's material is emissive (`LightSet::build`).
+                    (larea[k], lle[k]) = (light.area, xyz(&light.le));
+                    two_sided |= u32::from(light.two_sided) << k;
+                    if DETAIL
+                        && scene.materials.get(light.material as usize).is_some_and(|m| m.emissive_texture.is_some())
+                    {
+                        // Its radiance is read at the sampled point, once that is drawn.
+                        textured_light |= 1 << k;
+                    }
+                }
                 let (b1, b2) = sample_uniform_triangle(F8::from_array(u_pos.0), F8::from_array(u_pos.1));
-                let mut lle = lle;
                 if DETAIL && textured_light != 0 {
                     // A textured emitter's radiance at the point (`LightSet::sample_selected`: the
                     // texture coordinates `Mesh::position_normal_uv` gives there).
                     let (b1, b2) = (b1.to_array(), b2.to_array());
                     for k in lanes_of(textured_light) {
-                        let uv = scene.mesh.tex_coords_at(ltri[k], b1[k], b2[k]);
-                        lle[k] = scene.materials[lmat[k] as usize].emission(&scene.textures, uv);
+                        let Some(light) = scene.lights.area_light(lidx[k] as usize) else { continue };
+                        let uv = scene.mesh.tex_coords_at(light.triangle, b1[k], b2[k]);
+                        let le = scene.materials[light.material as usize].emission(&scene.textures, uv);
+                        lle[k] = crate::lanes::xyz_register(&le);
                     }
                 }
-                let le = V8::from_lanes(&lle);
-                let lng = V8::from_lanes(&lng);
-                let lp = V8::from_lanes(&lp0).add(V8::from_lanes(&le1).scale(b1)).add(V8::from_lanes(&le2).scale(b2));
+                let le = V8::from_registers(&lle);
+                let lng = V8::from_registers(&lng);
+                let lp = V8::from_registers(&lp0)
+                    .add(V8::from_registers(&le1).scale(b1))
+                    .add(V8::from_registers(&le2).scale(b2));
                 let to = lp.sub(pv);
                 let dist2 = to.dot(to);
                 let ok = nee & M8::from_bits(area) & dist2.gt(zero) & dist2.is_finite();
@@ -1328,9 +1332,10 @@ pub fn radiance8<const DETAIL: bool>(
                 let (mut lane, mut count) = ([0u8; LANES], 0);
                 let (mut qo, mut qd, mut qt) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [0f32; LANES]);
                 let mut qf = [0u32; LANES];
+                let clear = scene.lights.has_clear_boxes();
                 for k in lanes_of(ok.bits()) {
                     // An area light's ray may stop at its clear box (as the scalar path's).
-                    let t = scene.lights.shadow_tmax(lidx[k], so[k], sdl[k], tm[k]);
+                    let t = if clear { scene.lights.shadow_tmax(lidx[k], so[k], sdl[k], tm[k]) } else { tm[k] };
                     (lane[count], qo[count], qd[count], qt[count], qf[count]) = (k as u8, so[k], sdl[k], t, tri[k]);
                     count += 1;
                 }

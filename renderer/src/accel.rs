@@ -540,6 +540,28 @@ fn with_stack<R>(len: usize, f: impl FnOnce(&mut [MaybeUninit<Deferred>]) -> R) 
     f(stack)
 }
 
+/// The bits `0..n` set (n ≤ 32).
+#[inline(always)]
+fn low_bits(n: usize) -> u32 {
+    if n >= 32 {
+        u32::MAX
+    } else {
+        (1u32 << n) - 1
+    }
+}
+
+/// The indices of the bits set in `bits`, lowest first.
+#[inline(always)]
+fn bits_of(mut bits: u32) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (bits != 0).then(|| {
+            let k = bits.trailing_zeros() as usize;
+            bits &= bits - 1;
+            k
+        })
+    })
+}
+
 /// A batch's rays (at most [`MAX_BATCH`]) for the node tests and the leaf tests, ray k ending at
 /// `tmax(k)`.
 fn batch_rays(
@@ -1619,25 +1641,48 @@ impl Accel {
     /// for all the rays (ARCHITECTURE.md, twenty-second round).
     pub fn intersect_lanes(&self, o: &[Vec3], d: &[Vec3], out: &mut [Option<Hit>]) {
         let n = o.len().min(d.len()).min(out.len());
+        self.intersect_lanes_of(&o[..n], &d[..n], 0..n, &mut out[..n]);
+    }
+
+    /// [`Self::intersect_lanes`] for the rays whose bits are set in `lanes` (bit k: ray k, below
+    /// `o.len()` and the other slices' lengths), into their entries of `out`; the other entries
+    /// are not touched. For the SPMD kernel, whose rays stay in their lanes rather than being
+    /// packed into a batch and unpacked again (ARCHITECTURE.md, thirty-third round).
+    pub fn intersect_lanes_where(&self, o: &[Vec3], d: &[Vec3], lanes: u32, out: &mut [Option<Hit>]) {
+        let n = o.len().min(d.len()).min(out.len()).min(32);
+        self.intersect_lanes_of(o, d, bits_of(lanes & low_bits(n)), out);
+    }
+
+    /// The walks of [`Self::intersect_lanes`] and [`Self::intersect_lanes_where`]: rays `lanes`,
+    /// each index below the slices' lengths.
+    #[inline(always)]
+    fn intersect_lanes_of(&self, o: &[Vec3], d: &[Vec3], lanes: impl Iterator<Item = usize>, out: &mut [Option<Hit>]) {
         if self.top.is_some() || self.own.is_some() || self.tris.is_empty() {
-            for k in 0..n {
+            for k in lanes {
                 out[k] = self.intersect(o[k], d[k], f32::INFINITY);
             }
         } else if self.wide.is_empty() {
-            self.intersect_nodes_lanes(&self.bvh.nodes, &o[..n], &d[..n], &mut out[..n]);
+            self.intersect_nodes_lanes(&self.bvh.nodes, o, d, lanes, out);
         } else {
-            self.intersect_nodes_lanes(&self.wide, &o[..n], &d[..n], &mut out[..n]);
+            self.intersect_nodes_lanes(&self.wide, o, d, lanes, out);
         }
     }
 
     /// [`Self::intersect_lanes`]' walks over `nodes`, generic and not inlined for the reasons
     /// [`Self::intersect_nodes`] is.
     #[inline(never)]
-    fn intersect_nodes_lanes<N: TraversalNode>(&self, nodes: &[N], o: &[Vec3], d: &[Vec3], out: &mut [Option<Hit>]) {
+    fn intersect_nodes_lanes<N: TraversalNode>(
+        &self,
+        nodes: &[N],
+        o: &[Vec3],
+        d: &[Vec3],
+        lanes: impl Iterator<Item = usize>,
+        out: &mut [Option<Hit>],
+    ) {
         with_stack(self.stack_len, |stack| {
-            for ((&o, &d), out) in o.iter().zip(d).zip(out.iter_mut()) {
-                let (oa, da) = (Vec3A::from(o), Vec3A::from(d));
-                *out = if finite(oa, da) {
+            for k in lanes {
+                let (oa, da) = (Vec3A::from(o[k]), Vec3A::from(d[k]));
+                out[k] = if finite(oa, da) {
                     self.closest_walk::<N, false>(nodes, stack, oa, da, 0.0, f32::INFINITY, |_| false)
                 } else {
                     None
@@ -1650,14 +1695,41 @@ impl Accel {
     /// one walk after another in one call, as [`Self::intersect_lanes`] for closest hits.
     pub fn occluded_lanes(&self, o: &[Vec3], d: &[Vec3], tmax: &[f32], out: &mut [bool]) {
         let n = o.len().min(d.len()).min(tmax.len()).min(out.len());
+        out[..n].fill(false);
+        let mut blocked = |k: usize| out[k] = true;
+        self.occluded_lanes_of(&o[..n], &d[..n], &tmax[..n], 0..n, &mut blocked);
+    }
+
+    /// [`Self::occluded_lanes`] for the rays whose bits are set in `lanes` (as
+    /// [`Self::intersect_lanes_where`]): the bits of those something blocks.
+    pub fn occluded_lanes_where(&self, o: &[Vec3], d: &[Vec3], tmax: &[f32], lanes: u32) -> u32 {
+        let n = o.len().min(d.len()).min(tmax.len()).min(32);
+        let mut bits = 0u32;
+        self.occluded_lanes_of(o, d, tmax, bits_of(lanes & low_bits(n)), &mut |k| bits |= 1 << k);
+        bits
+    }
+
+    /// The walks of [`Self::occluded_lanes`] and [`Self::occluded_lanes_where`]: rays `lanes`,
+    /// `blocked(k)` for each one something blocks.
+    #[inline(always)]
+    fn occluded_lanes_of(
+        &self,
+        o: &[Vec3],
+        d: &[Vec3],
+        tmax: &[f32],
+        lanes: impl Iterator<Item = usize>,
+        blocked: &mut impl FnMut(usize),
+    ) {
         if self.top.is_some() || self.own.is_some() || self.tris.is_empty() {
-            for k in 0..n {
-                out[k] = self.occluded(o[k], d[k], tmax[k]);
+            for k in lanes {
+                if self.occluded(o[k], d[k], tmax[k]) {
+                    blocked(k);
+                }
             }
         } else if self.wide.is_empty() {
-            self.occluded_nodes_lanes(&self.bvh.nodes, &o[..n], &d[..n], &tmax[..n], &mut out[..n]);
+            self.occluded_nodes_lanes(&self.bvh.nodes, o, d, tmax, lanes, blocked);
         } else {
-            self.occluded_nodes_lanes(&self.wide, &o[..n], &d[..n], &tmax[..n], &mut out[..n]);
+            self.occluded_nodes_lanes(&self.wide, o, d, tmax, lanes, blocked);
         }
     }
 
@@ -1669,12 +1741,15 @@ impl Accel {
         o: &[Vec3],
         d: &[Vec3],
         tmax: &[f32],
-        out: &mut [bool],
+        lanes: impl Iterator<Item = usize>,
+        blocked: &mut impl FnMut(usize),
     ) {
         with_stack(self.stack_len, |stack| {
-            for (((&o, &d), &tmax), out) in o.iter().zip(d).zip(tmax).zip(out.iter_mut()) {
-                let (oa, da) = (Vec3A::from(o), Vec3A::from(d));
-                *out = finite(oa, da) && self.any_walk(nodes, stack, oa, da, tmax, |_| false);
+            for k in lanes {
+                let (oa, da) = (Vec3A::from(o[k]), Vec3A::from(d[k]));
+                if finite(oa, da) && self.any_walk(nodes, stack, oa, da, tmax[k], |_| false) {
+                    blocked(k);
+                }
             }
         });
     }
@@ -1967,6 +2042,14 @@ mod tests {
                 accel.intersect_lanes(&o, &d, &mut got);
                 let mut got_blocked = vec![false; n];
                 accel.occluded_lanes(&o, &d, &tmax, &mut got_blocked);
+                // The in-place forms on some of the rays (bits past `n` ignored); the others'
+                // entries keep what they held.
+                let lanes = crate::sampler::hash_u64(i) as u32;
+                let untouched = Some(Hit { t: -1.0, triangle: u32::MAX, b1: 0.0, b2: 0.0, instance: NO_INSTANCE });
+                let mut got_where = vec![untouched; n];
+                accel.intersect_lanes_where(&o, &d, lanes, &mut got_where);
+                let blocked_where = accel.occluded_lanes_where(&o, &d, &tmax, lanes);
+                assert_eq!(blocked_where >> n, 0, "bits past the rays");
                 for k in 0..n {
                     let want = accel.intersect(o[k], d[k], f32::INFINITY);
                     let bits = |h: Option<Hit>| h.map(|h| (h.t.to_bits(), h.triangle, h.b1.to_bits(), h.b2.to_bits()));
@@ -1977,7 +2060,11 @@ mod tests {
                         o[k],
                         d[k]
                     );
-                    assert_eq!(got_blocked[k], accel.occluded(o[k], d[k], tmax[k]), "ray {k} of {n}, tmax {}", tmax[k]);
+                    let want_blocked = accel.occluded(o[k], d[k], tmax[k]);
+                    assert_eq!(got_blocked[k], want_blocked, "ray {k} of {n}, tmax {}", tmax[k]);
+                    let on = lanes & (1 << k) != 0;
+                    assert_eq!(bits(got_where[k]), bits(if on { want } else { untouched }), "in place, ray {k} of {n}");
+                    assert_eq!(blocked_where & (1 << k) != 0, on && want_blocked, "in place, ray {k} of {n}");
                     hits += want.is_some() as usize;
                     blocked += got_blocked[k] as usize;
                 }

@@ -561,7 +561,7 @@ impl Scene {
     pub fn intersect_surface_batch(&self, o: &[Vec3], d: &[Vec3], seed: &[u32], from: &[u32], out: &mut [Option<Hit>]) {
         let n = o.len().min(d.len()).min(seed.len()).min(from.len()).min(out.len());
         if !self.batches_rays() {
-            if self.solids.is_empty() && !self.has_transparency() {
+            if self.walks_lanes() {
                 // The walks one after another in one call (`Accel::intersect_lanes`).
                 self.accel.intersect_lanes(&o[..n], &d[..n], &mut out[..n]);
             } else {
@@ -620,7 +620,7 @@ impl Scene {
     /// else one query each. The same fractions every way.
     pub fn visibility_batch(&self, o: &[Vec3], d: &[Vec3], tmax: &[f32], from: &[u32], out: &mut [f32]) {
         let n = o.len().min(d.len()).min(tmax.len()).min(from.len()).min(out.len());
-        if self.solids.is_empty() && !self.has_transparency() && !self.batches_rays() {
+        if self.walks_lanes() {
             // The walks one after another in one call (`Accel::occluded_lanes`).
             const B: usize = crate::accel::MAX_BATCH;
             let mut blocked = [false; B];
@@ -661,6 +661,16 @@ impl Scene {
                 out[at[j]] = passes(!blocked[j]);
             }
         }
+    }
+
+    /// Whether a batch's rays are answered by the BVH's walks alone, one after another
+    /// ([`Accel::intersect_lanes`], [`Accel::occluded_lanes`]): no glass solid and no transparent
+    /// surface stands between, and the BVH is too small to batch them. The SPMD kernel then
+    /// walks its rays where they lie in its lanes (`Accel::intersect_lanes_where`,
+    /// `Accel::occluded_lanes_where`), the same answers as [`Self::intersect_surface_batch`] and
+    /// [`Self::visibility_batch`] give.
+    pub fn walks_lanes(&self) -> bool {
+        self.solids.is_empty() && !self.has_transparency() && !self.batches_rays()
     }
 
     /// Whether the BVH traces a batch's rays together ([`Self::intersect_surface_batch`],

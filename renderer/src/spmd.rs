@@ -655,6 +655,8 @@ pub fn radiance8<const DETAIL: bool>(
     let scale = scene.offset_scale();
     // Whether BLEND surfaces pass rays by the samples' numbers and shadow rays in part.
     let blends = DETAIL && scene.blends();
+    // Whether the lanes' rays go straight to the BVH's walks (`Scene::walks_lanes`).
+    let walks_lanes = scene.walks_lanes();
     // The lanes that ran the last bounce: those of them not alive now ended there.
     let mut started = 0u32;
     // The lanes whose vertex the scalar path shades this bounce (`integrator::bounce_from_hit`),
@@ -750,14 +752,29 @@ pub fn radiance8<const DETAIL: bool>(
         let mut hits = [None; LANES];
         let (mut lane, mut count) = ([0u8; LANES], 0);
         let (mut qo, mut qd, mut qf) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [0u32; LANES]);
-        for k in lanes_of(alive) {
-            if depth[k] == 0 {
-                hits[k] = fresh_hit[k];
-                continue;
+        if walks_lanes {
+            // Nothing between the rays and the BVH's walks: they are walked where they lie
+            // (`Accel::intersect_lanes_where`, as `Scene::intersect_surface_batch` would).
+            let mut bounce = 0u32;
+            for k in lanes_of(alive) {
+                if depth[k] == 0 {
+                    hits[k] = fresh_hit[k];
+                } else {
+                    bounce |= 1 << k;
+                }
             }
-            *rays += 1;
-            (lane[count], qo[count], qd[count], qf[count]) = (k as u8, ro[k], dirs[k], tri[k]);
-            count += 1;
+            *rays += u64::from(bounce.count_ones());
+            scene.accel.intersect_lanes_where(&ro, &dirs, bounce, &mut hits);
+        } else {
+            for k in lanes_of(alive) {
+                if depth[k] == 0 {
+                    hits[k] = fresh_hit[k];
+                    continue;
+                }
+                *rays += 1;
+                (lane[count], qo[count], qd[count], qf[count]) = (k as u8, ro[k], dirs[k], tri[k]);
+                count += 1;
+            }
         }
         if count > 0 {
             let mut found = [None; LANES];
@@ -1328,26 +1345,36 @@ pub fn radiance8<const DETAIL: bool>(
                 let unshadowed = beta.mul(f).mul(lle);
                 let sc = wil.z.abs() * w / lpdf;
                 // The shadow rays together where the BVH batches them (`Scene::visibility_batch`).
-                let (so, sdl, tm) = (origin.to_lanes(), sd.to_lanes(), tmax.to_array());
-                let (mut lane, mut count) = ([0u8; LANES], 0);
-                let (mut qo, mut qd, mut qt) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [0f32; LANES]);
-                let mut qf = [0u32; LANES];
-                let clear = scene.lights.has_clear_boxes();
-                for k in lanes_of(ok.bits()) {
-                    // An area light's ray may stop at its clear box (as the scalar path's).
-                    let t = if clear { scene.lights.shadow_tmax(lidx[k], so[k], sdl[k], tm[k]) } else { tm[k] };
-                    (lane[count], qo[count], qd[count], qt[count], qf[count]) = (k as u8, so[k], sdl[k], t, tri[k]);
-                    count += 1;
-                }
-                let mut seen = [0f32; LANES];
-                scene.visibility_batch(&qo[..count], &qd[..count], &qt[..count], &qf[..count], &mut seen[..count]);
-                let (mut visible, mut fraction) = (0u32, [1f32; LANES]);
-                for j in 0..count {
-                    if seen[j] != 0.0 {
-                        visible |= 1 << lane[j];
+                let (so, sdl, mut tm) = (origin.to_lanes(), sd.to_lanes(), tmax.to_array());
+                // An area light's ray may stop at its clear box (as the scalar path's).
+                if scene.lights.has_clear_boxes() {
+                    for k in lanes_of(ok.bits()) {
+                        tm[k] = scene.lights.shadow_tmax(lidx[k], so[k], sdl[k], tm[k]);
                     }
-                    if blends {
-                        fraction[lane[j] as usize] = seen[j];
+                }
+                let (mut visible, mut fraction) = (0u32, [1f32; LANES]);
+                if walks_lanes {
+                    // Nothing between the rays and the BVH's walks: they are walked where they
+                    // lie (`Accel::occluded_lanes_where`, as `Scene::visibility_batch` would).
+                    visible = ok.bits() & !scene.accel.occluded_lanes_where(&so, &sdl, &tm, ok.bits());
+                } else {
+                    let (mut lane, mut count) = ([0u8; LANES], 0);
+                    let (mut qo, mut qd, mut qt) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [0f32; LANES]);
+                    let mut qf = [0u32; LANES];
+                    for k in lanes_of(ok.bits()) {
+                        (lane[count], qo[count], qd[count], qt[count], qf[count]) =
+                            (k as u8, so[k], sdl[k], tm[k], tri[k]);
+                        count += 1;
+                    }
+                    let mut seen = [0f32; LANES];
+                    scene.visibility_batch(&qo[..count], &qd[..count], &qt[..count], &qf[..count], &mut seen[..count]);
+                    for j in 0..count {
+                        if seen[j] != 0.0 {
+                            visible |= 1 << lane[j];
+                        }
+                        if blends {
+                            fraction[lane[j] as usize] = seen[j];
+                        }
                     }
                 }
                 let shadow = ok & M8::from_bits(visible);

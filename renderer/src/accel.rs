@@ -552,7 +552,7 @@ fn low_bits(n: usize) -> u32 {
 
 /// The indices of the bits set in `bits`, lowest first.
 #[inline(always)]
-fn bits_of(mut bits: u32) -> impl Iterator<Item = usize> {
+pub(crate) fn bits_of(mut bits: u32) -> impl Iterator<Item = usize> {
     std::iter::from_fn(move || {
         (bits != 0).then(|| {
             let k = bits.trailing_zeros() as usize;

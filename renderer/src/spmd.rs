@@ -292,14 +292,8 @@ fn shade_handed_lanes(
 /// The lanes whose bits are set in `bits`, in lane order.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[inline(always)]
-fn lanes_of(mut bits: u32) -> impl Iterator<Item = usize> {
-    std::iter::from_fn(move || {
-        (bits != 0).then(|| {
-            let k = bits.trailing_zeros() as usize;
-            bits &= bits - 1;
-            k
-        })
-    })
+fn lanes_of(bits: u32) -> impl Iterator<Item = usize> {
+    crate::accel::bits_of(bits)
 }
 
 /// `dst[..n] = src[..n]` for n ≤ [`LANES`], as register moves where n is eight (a pixel's batch

@@ -1076,9 +1076,9 @@ pub fn radiance8<const DETAIL: bool>(
         // Next-event estimation: each chosen light read one lane at a time, the rest eight-wide.
         if nee.any() {
             let u_pos = (u_light[(dims::LIGHT_POS % 4) as usize], u_light[(dims::LIGHT_POS % 4 + 1) as usize]);
-            // An area light's triangle and emission, for the eight-wide sample.
-            // Each lane's area light (`LightSample::light`), for `LightSet::shadow_tmax`, and the
-            // probability it was chosen with; the lanes that chose one.
+            // Each lane's area light (`LightSample::light`), for `LightSet::shadow_tmax` and the
+            // eight-wide sample below, and the probability it was chosen with; the lanes that
+            // chose one.
             let mut lidx = [crate::clear_box::NONE; LANES];
             let mut lpmf = [0f32; LANES];
             let mut area = 0u32;
@@ -1110,7 +1110,7 @@ pub fn radiance8<const DETAIL: bool>(
                     (olane[ocount], oref[ocount], ochoice[ocount], ou[ocount]) = (k as u8, p[k], choice, u);
                     ocount += 1;
                     continue;
-                };
+                }
                 area |= 1 << k;
                 (lidx[k], lpmf[k]) = (idx as u32, pmf);
             }

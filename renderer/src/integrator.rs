@@ -73,12 +73,12 @@ pub struct PathState {
 }
 
 /// The stochastic-transparency seed bounce `depth`'s ray is traced with ([`Path::begin_bounce`]:
-/// the spare dimension of the bounce's light set, as [`Path::draw_sets`] draws it), for the SPMD
-/// kernel, which draws a bounce's sets after its rays are traced.
+/// the spare dimension of the bounce's light set, as [`Path::draw_sets`] draws it; the light set
+/// alone, which `get_4d_pair` gives bit for bit), for the SPMD kernel, which draws a bounce's
+/// sets after its rays are traced.
 pub fn transparency_seed(sampler: &PixelSample, depth: u32) -> u32 {
     let base = dims::BOUNCE_BASE + dims::BOUNCE_STRIDE * depth;
-    let (_, u_light) = sampler.get_4d_pair((base + dims::BSDF_DIR) / 4, (base + dims::LIGHT_POS) / 4);
-    u_light[(dims::SPARE % 4) as usize].to_bits()
+    sampler.get_4d((base + dims::LIGHT_POS) / 4)[(dims::SPARE % 4) as usize].to_bits()
 }
 
 /// One bounce of a path whose ray (`state.o + t state.d`) found `hit`, as [`radiance`] does it:

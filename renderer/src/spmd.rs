@@ -744,42 +744,33 @@ pub fn radiance8<const DETAIL: bool>(
         // The live lanes past their camera ray, in lane order, and their rays; a fresh lane's
         // camera ray was answered when it took its path (`camera_group`).
         let mut hits = [None; LANES];
-        let (mut lane, mut count) = ([0u8; LANES], 0);
-        let (mut qo, mut qd, mut qf) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [0u32; LANES]);
+        let mut bounce = 0u32;
+        for k in lanes_of(alive) {
+            if depth[k] == 0 {
+                hits[k] = fresh_hit[k];
+            } else {
+                bounce |= 1 << k;
+            }
+        }
+        *rays += u64::from(bounce.count_ones());
         if walks_lanes {
             // Nothing between the rays and the BVH's walks: they are walked where they lie
             // (`Accel::intersect_lanes_where`, as `Scene::intersect_surface_batch` would).
-            let mut bounce = 0u32;
-            for k in lanes_of(alive) {
-                if depth[k] == 0 {
-                    hits[k] = fresh_hit[k];
-                } else {
-                    bounce |= 1 << k;
-                }
-            }
-            *rays += u64::from(bounce.count_ones());
             scene.accel.intersect_lanes_where(&ro, &dirs, bounce, &mut hits);
-        } else {
-            for k in lanes_of(alive) {
-                if depth[k] == 0 {
-                    hits[k] = fresh_hit[k];
-                    continue;
-                }
-                *rays += 1;
+        } else if bounce != 0 {
+            // Packed into a batch (solids and transparent layers answer some rays themselves;
+            // a large BVH walks them together), each with its BLEND seed (`Path::begin_bounce`'s).
+            let (mut lane, mut count) = ([0u8; LANES], 0);
+            let (mut qo, mut qd, mut qf, mut seeds) =
+                ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [0u32; LANES], [0u32; LANES]);
+            for k in lanes_of(bounce) {
                 (lane[count], qo[count], qd[count], qf[count]) = (k as u8, ro[k], dirs[k], tri[k]);
+                if blends {
+                    seeds[count] = crate::integrator::transparency_seed(&lane_samplers[k], depth[k]);
+                }
                 count += 1;
             }
-        }
-        if count > 0 {
             let mut found = [None; LANES];
-            // BLEND surfaces pass a ray by its sample's numbers (`Path::begin_bounce`'s seed).
-            let mut seeds = [0u32; LANES];
-            if blends {
-                for j in 0..count {
-                    let k = lane[j] as usize;
-                    seeds[j] = crate::integrator::transparency_seed(&lane_samplers[k], depth[k]);
-                }
-            }
             scene.intersect_surface_batch(
                 &qo[..count],
                 &qd[..count],

@@ -729,14 +729,14 @@ fn eight_lanes_take_only_what_they_render() {
             assert_eq!(scene.lanes(&s).is_some(), shades || *lamp_shaded, "{what} (lamp shaded: {lamp_shaded})");
         }
     }
-    // Cut-outs and blended surfaces.
-    for (alpha_mode, taken) in [(AlphaMode::Mask(0.5), true), (AlphaMode::Blend, true)] {
+    // Cut-outs and blended surfaces: both taken.
+    for alpha_mode in [AlphaMode::Mask(0.5), AlphaMode::Blend] {
         let mut b = SceneBuilder::default();
         let m = b.material(Material { alpha_mode, base_color_texture: feed(0), ..lambert(Vec3::ONE) });
         let e = b.material(emitter(Vec3::ONE));
         b.quad(Vec3::ZERO, Vec3::X, Vec3::Y, m);
         b.quad(Vec3::Z, Vec3::X, Vec3::NEG_Y, e);
         let scene = Scene::new(b.mesh, b.materials, vec![texture([[128; 4]; 16], true)], Vec::new());
-        assert_eq!(scene.lanes(&s).is_some(), taken, "{alpha_mode:?}");
+        assert!(scene.lanes(&s).is_some(), "{alpha_mode:?}");
     }
 }

@@ -460,6 +460,21 @@ impl LightSet {
         }
     }
 
+    /// [`Self::select`] for the eight lanes of `u` where the choice reads `u` alone (the power
+    /// table: [`AliasTable::sample_lanes`]), into `out` lane for lane; false, with nothing
+    /// written, where it does not (a tree, uniform choice, no light). For the SPMD kernel, whose
+    /// lanes then choose where they lie, not packed into [`Self::select_batch`]'s slices and
+    /// unpacked again (ARCHITECTURE.md, thirty-fourth round).
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[inline(always)]
+    pub fn select_by_table_lanes(&self, u: &[f32; 8], out: &mut [(usize, f32); 8]) -> bool {
+        if !self.chooses_by_table() {
+            return false;
+        }
+        self.selection.sample_lanes(u, out);
+        true
+    }
+
     /// Asks the cache for light `g`'s record and clear-box entry: the caller reads them next,
     /// and a walk's pick is a random one of thousands of records (a sphere bulb's triangles),
     /// so each read missed the cache on its own (`perf annotate` of `scenes/sphere_lights`:

@@ -1017,25 +1017,39 @@ pub fn radiance8<const DETAIL: bool>(
         // BSDF's sample, which does not read them, so the chosen lights' records (asked of the
         // cache as they are chosen: `LightSet::select_batch`) arrive while it is computed.
         let nee = act & M8::from_bits(nee_bits);
-        // The NEE lanes in order, and the light each chose (`selected[..chose]`).
-        let (mut nee_lane, mut chose) = ([0u8; LANES], 0);
+        // The light each NEE lane chose, lane by lane.
         let mut selected = [None; LANES];
         if nee.any() {
             let u_sel = u_light[(dims::LIGHT_SELECT % 4) as usize];
-            let (mut qp, mut qn, mut qu) = ([Vec3::ZERO; LANES], [None; LANES], [0f32; LANES]);
-            if scene.lights.walks_tree() {
+            let mut by_table = [(0usize, 0f32); LANES];
+            if scene.lights.select_by_table_lanes(&u_sel, &mut by_table) {
+                // The power table's choices where the lanes lie (a lane not choosing ignores its own).
                 for k in lanes_of(nee.bits()) {
-                    (nee_lane[chose], qp[chose], qn[chose], qu[chose]) = (k as u8, p[k], Some(ns_flipped[k]), u_sel[k]);
-                    chose += 1;
+                    selected[k] = Some(by_table[k]);
                 }
             } else {
-                // Power and uniform choices read `u` alone, not the point and normal.
-                for k in lanes_of(nee.bits()) {
-                    (nee_lane[chose], qu[chose]) = (k as u8, u_sel[k]);
-                    chose += 1;
+                // The NEE lanes packed in order, and their choices unpacked.
+                let (mut nee_lane, mut chose) = ([0u8; LANES], 0);
+                let (mut qp, mut qn, mut qu) = ([Vec3::ZERO; LANES], [None; LANES], [0f32; LANES]);
+                if scene.lights.walks_tree() {
+                    for k in lanes_of(nee.bits()) {
+                        (nee_lane[chose], qp[chose], qn[chose], qu[chose]) =
+                            (k as u8, p[k], Some(ns_flipped[k]), u_sel[k]);
+                        chose += 1;
+                    }
+                } else {
+                    // Uniform choices read `u` alone, not the point and normal.
+                    for k in lanes_of(nee.bits()) {
+                        (nee_lane[chose], qu[chose]) = (k as u8, u_sel[k]);
+                        chose += 1;
+                    }
+                }
+                let mut found = [None; LANES];
+                scene.lights.select_batch(&qp[..chose], &qn[..chose], &qu[..chose], &mut found[..chose]);
+                for j in 0..chose {
+                    selected[nee_lane[j] as usize] = found[j];
                 }
             }
-            scene.lights.select_batch(&qp[..chose], &qn[..chose], &qu[..chose], &mut selected[..chose]);
         }
 
         // BSDF sample, drawn before NEE as the scalar path does.
@@ -1088,8 +1102,8 @@ pub fn radiance8<const DETAIL: bool>(
             let (mut olane, mut ocount) = ([0u8; LANES], 0);
             let (mut oref, mut ochoice, mut ou) =
                 ([Vec3::ZERO; LANES], [None; LANES], [crate::math::Vec2::ZERO; LANES]);
-            for (j, &choice) in selected[..chose].iter().enumerate() {
-                let k = nee_lane[j] as usize;
+            for k in lanes_of(nee.bits()) {
+                let choice = selected[k];
                 let Some((idx, pmf)) = choice else { continue };
                 if scene.lights.area_light(idx).is_none() {
                     // A bulb: its sure directions eight-wide below, the rest with the other lights.
@@ -1116,8 +1130,8 @@ pub fn radiance8<const DETAIL: bool>(
                     ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES]);
                 let (mut br2, mut bi2, mut bpmf) = ([1f32; LANES], [0f32; LANES], [0f32; LANES]);
                 let mut isolated = 0u32;
-                for (j, &choice) in selected[..chose].iter().enumerate() {
-                    let k = nee_lane[j] as usize;
+                for k in lanes_of(nee.bits()) {
+                    let choice = selected[k];
                     let (true, Some((idx, pmf))) = (bulb & (1 << k) != 0, choice) else { continue };
                     let Some(b) = scene.lights.bulb_lane(idx, &scene.materials) else { continue };
                     isolated |= 1 << k;
@@ -1156,8 +1170,8 @@ pub fn radiance8<const DETAIL: bool>(
             });
             if let Some((sure, ..)) = bulbs {
                 let unsure = bulb & !sure.bits();
-                for (j, &choice) in selected[..chose].iter().enumerate() {
-                    let k = nee_lane[j] as usize;
+                for k in lanes_of(nee.bits()) {
+                    let choice = selected[k];
                     if unsure & (1 << k) != 0 {
                         let u = crate::math::Vec2::new(u_pos.0[k], u_pos.1[k]);
                         (olane[ocount], oref[ocount], ochoice[ocount], ou[ocount]) = (k as u8, p[k], choice, u);

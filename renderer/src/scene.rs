@@ -564,6 +564,23 @@ impl Scene {
             if self.walks_lanes() {
                 // The walks one after another in one call (`Accel::intersect_lanes`).
                 self.accel.intersect_lanes(&o[..n], &d[..n], &mut out[..n]);
+            } else if !self.has_transparency() && n <= 32 {
+                // A ray inside a glass solid or leaving one is answered as `intersect_surface`
+                // answers it; the others' walks go one after another in one call
+                // (`Accel::intersect_lanes_where`): a call and a walk's setup each cost glass
+                // more than the walk's own work on most of its rays (ARCHITECTURE.md,
+                // thirty-fourth round).
+                let mut walked = 0u32;
+                for k in 0..n {
+                    if let Some((tmin, solid)) = self.solids.bound(from[k], o[k], d[k]) {
+                        out[k] = self.solids.closest(solid, o[k], d[k], tmin);
+                    } else if let Some(solid) = self.solids.leaving(&self.mesh, from[k], d[k]) {
+                        out[k] = self.accel.intersect_leaving(o[k], d[k], solid);
+                    } else {
+                        walked |= 1 << k;
+                    }
+                }
+                self.accel.intersect_lanes_where(&o[..n], &d[..n], walked, &mut out[..n]);
             } else {
                 for k in 0..n {
                     out[k] = self.intersect_surface(o[k], d[k], seed[k], from[k]);
@@ -630,6 +647,26 @@ impl Scene {
                 for k in s..e {
                     out[k] = passes(!blocked[k - s]);
                 }
+            }
+            return;
+        }
+        if !self.has_transparency() && !self.batches_rays() && n <= 32 {
+            // As `visibility_from` answers each ray, the walks of those no solid answers one
+            // after another in one call (`Accel::occluded_lanes_where`; see
+            // `intersect_surface_batch`).
+            let mut walked = 0u32;
+            for k in 0..n {
+                if self.solid_blocks(o[k], d[k], tmax[k]) {
+                    out[k] = 0.0;
+                } else if let Some(solid) = self.solids.leaving(&self.mesh, from[k], d[k]) {
+                    out[k] = passes(!self.accel.occluded_leaving(o[k], d[k], tmax[k], solid));
+                } else {
+                    walked |= 1 << k;
+                }
+            }
+            let blocked = self.accel.occluded_lanes_where(&o[..n], &d[..n], &tmax[..n], walked);
+            for k in crate::accel::bits_of(walked) {
+                out[k] = passes(blocked & (1 << k) == 0);
             }
             return;
         }

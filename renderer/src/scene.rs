@@ -561,26 +561,8 @@ impl Scene {
     pub fn intersect_surface_batch(&self, o: &[Vec3], d: &[Vec3], seed: &[u32], from: &[u32], out: &mut [Option<Hit>]) {
         let n = o.len().min(d.len()).min(seed.len()).min(from.len()).min(out.len());
         if !self.batches_rays() {
-            if self.walks_lanes() {
-                // The walks one after another in one call (`Accel::intersect_lanes`).
-                self.accel.intersect_lanes(&o[..n], &d[..n], &mut out[..n]);
-            } else if !self.has_transparency() && n <= 32 {
-                // A ray inside a glass solid or leaving one is answered as `intersect_surface`
-                // answers it; the others' walks go one after another in one call
-                // (`Accel::intersect_lanes_where`): a call and a walk's setup each cost glass
-                // more than the walk's own work on most of its rays (ARCHITECTURE.md,
-                // thirty-fourth round).
-                let mut walked = 0u32;
-                for k in 0..n {
-                    if let Some((tmin, solid)) = self.solids.bound(from[k], o[k], d[k]) {
-                        out[k] = self.solids.closest(solid, o[k], d[k], tmin);
-                    } else if let Some(solid) = self.solids.leaving(&self.mesh, from[k], d[k]) {
-                        out[k] = self.accel.intersect_leaving(o[k], d[k], solid);
-                    } else {
-                        walked |= 1 << k;
-                    }
-                }
-                self.accel.intersect_lanes_where(&o[..n], &d[..n], walked, &mut out[..n]);
+            if self.walks_lanes() && n <= 32 {
+                self.intersect_lanes_where(o, d, from, ((1u64 << n) - 1) as u32, out);
             } else {
                 for k in 0..n {
                     out[k] = self.intersect_surface(o[k], d[k], seed[k], from[k]);
@@ -637,36 +619,10 @@ impl Scene {
     /// else one query each. The same fractions every way.
     pub fn visibility_batch(&self, o: &[Vec3], d: &[Vec3], tmax: &[f32], from: &[u32], out: &mut [f32]) {
         let n = o.len().min(d.len()).min(tmax.len()).min(from.len()).min(out.len());
-        if self.walks_lanes() {
-            // The walks one after another in one call (`Accel::occluded_lanes`).
-            const B: usize = crate::accel::MAX_BATCH;
-            let mut blocked = [false; B];
-            for s in (0..n).step_by(B) {
-                let e = (s + B).min(n);
-                self.accel.occluded_lanes(&o[s..e], &d[s..e], &tmax[s..e], &mut blocked[..e - s]);
-                for k in s..e {
-                    out[k] = passes(!blocked[k - s]);
-                }
-            }
-            return;
-        }
-        if !self.has_transparency() && !self.batches_rays() && n <= 32 {
-            // As `visibility_from` answers each ray, the walks of those no solid answers one
-            // after another in one call (`Accel::occluded_lanes_where`; see
-            // `intersect_surface_batch`).
-            let mut walked = 0u32;
-            for k in 0..n {
-                if self.solid_blocks(o[k], d[k], tmax[k]) {
-                    out[k] = 0.0;
-                } else if let Some(solid) = self.solids.leaving(&self.mesh, from[k], d[k]) {
-                    out[k] = passes(!self.accel.occluded_leaving(o[k], d[k], tmax[k], solid));
-                } else {
-                    walked |= 1 << k;
-                }
-            }
-            let blocked = self.accel.occluded_lanes_where(&o[..n], &d[..n], &tmax[..n], walked);
-            for k in crate::accel::bits_of(walked) {
-                out[k] = passes(blocked & (1 << k) == 0);
+        if self.walks_lanes() && n <= 32 {
+            let blocked = self.occluded_lanes_where(o, d, tmax, from, ((1u64 << n) - 1) as u32);
+            for (k, out) in out.iter_mut().enumerate().take(n) {
+                *out = passes(blocked & (1 << k) == 0);
             }
             return;
         }
@@ -700,14 +656,78 @@ impl Scene {
         }
     }
 
-    /// Whether a batch's rays are answered by the BVH's walks alone, one after another
-    /// ([`Accel::intersect_lanes`], [`Accel::occluded_lanes`]): no glass solid and no transparent
-    /// surface stands between, and the BVH is too small to batch them. The SPMD kernel then
-    /// walks its rays where they lie in its lanes (`Accel::intersect_lanes_where`,
-    /// `Accel::occluded_lanes_where`), the same answers as [`Self::intersect_surface_batch`] and
-    /// [`Self::visibility_batch`] give.
+    /// Whether a batch's rays are answered one by one where they lie, the BVH's walks one after
+    /// another in one call ([`Self::intersect_lanes_where`], [`Self::occluded_lanes_where`]): no
+    /// transparent surface stands between, and the BVH is too small to batch them. The SPMD
+    /// kernel then asks for its rays where they lie in its lanes, the same answers as
+    /// [`Self::intersect_surface_batch`] and [`Self::visibility_batch`] give.
     pub fn walks_lanes(&self) -> bool {
-        self.solids.is_empty() && !self.has_transparency() && !self.batches_rays()
+        !self.has_transparency() && !self.batches_rays()
+    }
+
+    /// [`Self::intersect_surface`] (its seed unread: no surface is transparent where
+    /// [`Self::walks_lanes`]) for the rays whose bits are set in `lanes` (ray k from triangle
+    /// `from[k]`, k below 32 and every slice's length), into their entries of `out`. A ray inside
+    /// a glass solid or leaving one is answered as `intersect_surface` answers it; the others'
+    /// walks go one after another in one call ([`Accel::intersect_lanes_where`]): on a small
+    /// BVH a call and a walk's setup cost more than most walks' own work (ARCHITECTURE.md,
+    /// thirty-third and thirty-fourth rounds).
+    #[inline(always)]
+    pub fn intersect_lanes_where(&self, o: &[Vec3], d: &[Vec3], from: &[u32], lanes: u32, out: &mut [Option<Hit>]) {
+        if self.solids.is_empty() {
+            self.accel.intersect_lanes_where(o, d, lanes, out);
+        } else {
+            self.intersect_lanes_among_solids(o, d, from, lanes, out);
+        }
+    }
+
+    /// [`Self::intersect_lanes_where`] where the scene has solids (out of line: the kernel of a
+    /// scene without them keeps its direct call, which it had before this existed).
+    #[inline(never)]
+    fn intersect_lanes_among_solids(&self, o: &[Vec3], d: &[Vec3], from: &[u32], lanes: u32, out: &mut [Option<Hit>]) {
+        let n = o.len().min(d.len()).min(from.len()).min(out.len()).min(32);
+        let mut walked = 0u32;
+        for k in crate::accel::bits_of(lanes & (((1u64 << n) - 1) as u32)) {
+            if let Some((tmin, solid)) = self.solids.bound(from[k], o[k], d[k]) {
+                out[k] = self.solids.closest(solid, o[k], d[k], tmin);
+            } else if let Some(solid) = self.solids.leaving(&self.mesh, from[k], d[k]) {
+                out[k] = self.accel.intersect_leaving(o[k], d[k], solid);
+            } else {
+                walked |= 1 << k;
+            }
+        }
+        self.accel.intersect_lanes_where(o, d, walked, out);
+    }
+
+    /// Whether something blocks each ray whose bit is set in `lanes` (ray k from triangle
+    /// `from[k]` to `tmax[k]`), as [`Self::visibility_from`] answers it where
+    /// [`Self::walks_lanes`] (0 or 1): the bits of the blocked rays. As
+    /// [`Self::intersect_lanes_where`], the walks of the rays no solid answers go in one call.
+    #[inline(always)]
+    pub fn occluded_lanes_where(&self, o: &[Vec3], d: &[Vec3], tmax: &[f32], from: &[u32], lanes: u32) -> u32 {
+        if self.solids.is_empty() {
+            self.accel.occluded_lanes_where(o, d, tmax, lanes)
+        } else {
+            self.occluded_lanes_among_solids(o, d, tmax, from, lanes)
+        }
+    }
+
+    /// [`Self::occluded_lanes_where`] where the scene has solids (out of line, as
+    /// [`Self::intersect_lanes_among_solids`]).
+    #[inline(never)]
+    fn occluded_lanes_among_solids(&self, o: &[Vec3], d: &[Vec3], tmax: &[f32], from: &[u32], lanes: u32) -> u32 {
+        let n = o.len().min(d.len()).min(tmax.len()).min(from.len()).min(32);
+        let (mut walked, mut blocked) = (0u32, 0u32);
+        for k in crate::accel::bits_of(lanes & (((1u64 << n) - 1) as u32)) {
+            if self.solid_blocks(o[k], d[k], tmax[k]) {
+                blocked |= 1 << k;
+            } else if let Some(solid) = self.solids.leaving(&self.mesh, from[k], d[k]) {
+                blocked |= u32::from(self.accel.occluded_leaving(o[k], d[k], tmax[k], solid)) << k;
+            } else {
+                walked |= 1 << k;
+            }
+        }
+        blocked | self.accel.occluded_lanes_where(o, d, tmax, walked)
     }
 
     /// Whether the BVH traces a batch's rays together ([`Self::intersect_surface_batch`],

@@ -649,7 +649,7 @@ pub fn radiance8<const DETAIL: bool>(
     let scale = scene.offset_scale();
     // Whether BLEND surfaces pass rays by the samples' numbers and shadow rays in part.
     let blends = DETAIL && scene.blends();
-    // Whether the lanes' rays go straight to the BVH's walks (`Scene::walks_lanes`).
+    // Whether the lanes' rays are answered where they lie (`Scene::walks_lanes`).
     let walks_lanes = scene.walks_lanes();
     // The lanes that ran the last bounce: those of them not alive now ended there.
     let mut started = 0u32;
@@ -754,9 +754,9 @@ pub fn radiance8<const DETAIL: bool>(
         }
         *rays += u64::from(bounce.count_ones());
         if walks_lanes {
-            // Nothing between the rays and the BVH's walks: they are walked where they lie
-            // (`Accel::intersect_lanes_where`, as `Scene::intersect_surface_batch` would).
-            scene.accel.intersect_lanes_where(&ro, &dirs, bounce, &mut hits);
+            // No transparent surface and a small BVH: the rays are answered where they lie
+            // (`Scene::intersect_lanes_where`, as `Scene::intersect_surface_batch` would).
+            scene.intersect_lanes_where(&ro, &dirs, &tri, bounce, &mut hits);
         } else if bounce != 0 {
             // Packed into a batch (solids and transparent layers answer some rays themselves;
             // a large BVH walks them together), each with its BLEND seed (`Path::begin_bounce`'s).
@@ -1353,9 +1353,9 @@ pub fn radiance8<const DETAIL: bool>(
                 }
                 let (mut visible, mut fraction) = (0u32, [1f32; LANES]);
                 if walks_lanes {
-                    // Nothing between the rays and the BVH's walks: they are walked where they
-                    // lie (`Accel::occluded_lanes_where`, as `Scene::visibility_batch` would).
-                    visible = ok.bits() & !scene.accel.occluded_lanes_where(&so, &sdl, &tm, ok.bits());
+                    // No transparent surface and a small BVH: the rays are answered where they
+                    // lie (`Scene::occluded_lanes_where`, as `Scene::visibility_batch` would).
+                    visible = ok.bits() & !scene.occluded_lanes_where(&so, &sdl, &tm, &tri, ok.bits());
                 } else {
                     let (mut lane, mut count) = ([0u8; LANES], 0);
                     let (mut qo, mut qd, mut qt) = ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [0f32; LANES]);

@@ -81,17 +81,27 @@ impl AliasTable {
     /// paid a call, the bin's bounds checks and a branch on the kept or aliased bin.
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     pub fn sample_lanes(&self, u: &[f32], out: &mut [(usize, f32)]) {
-        use std::arch::x86_64::*;
         let count = u.len().min(out.len()).min(8);
+        let (mut ua, mut all) = ([0f32; 8], [(0, 0.0); 8]);
+        ua[..count].copy_from_slice(&u[..count]);
+        self.sample_eight(&ua, &mut all);
+        out[..count].copy_from_slice(&all[..count]);
+    }
+
+    /// [`Self::sample_lanes`] for exactly eight numbers, inlined: the SPMD kernel's form, whose
+    /// lanes are eight (a slice of unknown length cost it a call, two copies of unknown length
+    /// and about 200 instructions a choice of eight: callgrind, Cornell).
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[inline(always)]
+    pub fn sample_eight(&self, ua: &[f32; 8], out: &mut [(usize, f32); 8]) {
+        use std::arch::x86_64::*;
         let n = self.bins.len();
         if n == 0 || n >= 1 << 24 {
-            for k in 0..count {
-                out[k] = self.sample(u[k]);
+            for k in 0..8 {
+                out[k] = self.sample(ua[k]);
             }
             return;
         }
-        let mut ua = [0f32; 8];
-        ua[..count].copy_from_slice(&u[..count]);
         let (mut idx, mut p) = ([0i32; 8], [0f32; 8]);
         // SAFETY: AVX2 is enabled at compile time. Every gathered index is a bin's field: `i` is
         // at most n − 1 in every lane (the unsigned minimum also catches the truncation's
@@ -121,8 +131,15 @@ impl AliasTable {
             _mm256_storeu_ps(p.as_mut_ptr(), pmf);
             _mm256_movemask_ps(valid) as u32
         };
-        for k in 0..count {
-            out[k] = if valid & (1 << k) != 0 { (idx[k] as usize, p[k]) } else { self.sample(u[k]) };
+        for k in 0..8 {
+            out[k] = (idx[k] as usize, p[k]);
+        }
+        if valid != 0xff {
+            for k in 0..8 {
+                if valid & (1 << k) == 0 {
+                    out[k] = self.sample(ua[k]);
+                }
+            }
         }
     }
 

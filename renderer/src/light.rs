@@ -461,7 +461,7 @@ impl LightSet {
     }
 
     /// [`Self::select`] for the eight lanes of `u` where the choice reads `u` alone (the power
-    /// table: [`AliasTable::sample_lanes`]), into `out` lane for lane; false, with nothing
+    /// table: [`AliasTable::sample_eight`]), into `out` lane for lane; false, with nothing
     /// written, where it does not (a tree, uniform choice, no light). For the SPMD kernel, whose
     /// lanes then choose where they lie, not packed into [`Self::select_batch`]'s slices and
     /// unpacked again (ARCHITECTURE.md, thirty-fourth round).
@@ -471,7 +471,7 @@ impl LightSet {
         if !self.chooses_by_table() {
             return false;
         }
-        self.selection.sample_lanes(u, out);
+        self.selection.sample_eight(u, out);
         true
     }
 

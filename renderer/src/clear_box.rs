@@ -150,6 +150,7 @@ mod tests {
                 two_sided: false,
                 material: 0,
                 le: Vec3::ZERO,
+                textured: false,
             }
         })
         .collect()

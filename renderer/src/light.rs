@@ -33,6 +33,9 @@ pub struct AreaLight {
     /// The material's emission where no texture coordinates are read (`Material::emission` at
     /// the default ones): the radiance the SPMD kernel's samples start from, worked out once.
     pub(crate) le: Vec3,
+    /// Whether an emissive texture makes the radiance vary over the triangle (then it is read at
+    /// the sampled point): known when the set is built, so a sample does not look the material up.
+    pub(crate) textured: bool,
 }
 
 /// A point sampled on a light, seen from a reference point.
@@ -194,6 +197,7 @@ impl LightSet {
                 two_sided: m.double_sided,
                 material: t.material,
                 le: m.emission(textures, Default::default()),
+                textured: m.emissive_texture.is_some(),
             });
             record_power.push(p);
         }

@@ -1221,11 +1221,9 @@ pub fn radiance8<const DETAIL: bool>(
                     // Every area light's material is emissive (`LightSet::build`).
                     (larea[k], lle[k]) = (light.area, xyz(&light.le));
                     two_sided |= u32::from(light.two_sided) << k;
-                    if DETAIL
-                        && scene.materials.get(light.material as usize).is_some_and(|m| m.emissive_texture.is_some())
-                    {
-                        // Its radiance is read at the sampled point, once that is drawn.
-                        textured_light |= 1 << k;
+                    // A textured emitter's radiance is read at the sampled point, once that is drawn.
+                    if DETAIL {
+                        textured_light |= u32::from(light.textured) << k;
                     }
                 }
                 let (b1, b2) = sample_uniform_triangle(F8::from_array(u_pos.0), F8::from_array(u_pos.1));

@@ -83,6 +83,9 @@ pub const MAX_BATCH: usize = 16;
 const BUNDLE_NODES: usize = 64;
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 const BUNDLE_GROUPS: usize = 32;
+/// The most rays [`Accel::intersect_bundle`] takes at once: a pixel's sixteen camera rays share
+/// one walk of the nodes (a pass's samples of a pixel, `RenderSettings::pass_spp`'s default).
+pub const BUNDLE_RAYS: usize = 16;
 
 /// A node's leaf children a bundle may reach ([`Accel::intersect_bundle`]): a lower bound on any
 /// ray's entry into them, the node's first primitive slot, their primitive mask.
@@ -1171,8 +1174,9 @@ impl Accel {
     /// leaves, are done once for all. A bundle that reaches no leaf (a background) is answered
     /// "none" for every ray without more work. False, with nothing written, where the test does
     /// not apply (compressed or instanced BVHs, the own BVH, non-finite values, the scalar
-    /// reference) or the bundle reaches more than [`BUNDLE_NODES`] nodes or [`BUNDLE_GROUPS`] leaf
-    /// groups: the rays are then traced one by one.
+    /// reference, more than [`BUNDLE_RAYS`] rays) or the bundle reaches more than
+    /// [`BUNDLE_NODES`] nodes or [`BUNDLE_GROUPS`] leaf groups: the rays are then traced one by
+    /// one. Rays beyond the eighth are tested eight at a time against the same groups.
     ///
     /// The answers are the walks' own, bit for bit. The bundle's groups contain every triangle a
     /// ray's walk can test, and maybe more, grouped otherwise; a walk keeps the nearest hit, and
@@ -1186,9 +1190,20 @@ impl Accel {
             return false;
         }
         let n = directions.len().min(out.len());
-        // The directions one register per axis, for the bundle's bounds and the rays' shears.
-        let Some(lanes) = Directions8::new(&directions[..n]) else { return false };
-        let Some(bundle) = RayBundle::from_lanes(origin, &lanes) else { return false };
+        if n > BUNDLE_RAYS {
+            return false;
+        }
+        // The directions one register per axis, eight at a time, for the bundle's bounds and
+        // the rays' shears.
+        let (first, rest) = directions[..n].split_at(n.min(LANES));
+        let Some(lanes) = Directions8::new(first) else { return false };
+        let more = if rest.is_empty() {
+            None
+        } else {
+            let Some(more) = Directions8::new(rest) else { return false };
+            Some(more)
+        };
+        let Some(bundle) = RayBundle::from_lanes2(origin, &lanes, more.as_ref()) else { return false };
         let mut groups = [(0f32, 0u32, 0u32); BUNDLE_GROUPS];
         let Some(count) = self.bundle_groups(&bundle, &mut groups) else { return false };
         // No leaf in reach (a background): no ray hits anything, which is each ray's walk's answer.
@@ -1198,24 +1213,44 @@ impl Accel {
         }
         let groups = &mut groups[..count];
         groups.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        let (out_first, out_rest) = out[..n].split_at_mut(first.len());
+        self.bundle_answers(groups, origin, first, &lanes, out_first);
+        if let Some(more) = &more {
+            self.bundle_answers(groups, origin, rest, more, out_rest);
+        }
+        true
+    }
+
+    /// Up to eight rays of a bundle (their directions `d`, also as `lanes`), each answered from
+    /// `groups` where that answer is its walk's, else by its walk, into `out`.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[inline(always)]
+    fn bundle_answers(
+        &self,
+        groups: &[LeafGroup],
+        origin: Vec3,
+        d: &[Vec3],
+        lanes: &Directions8,
+        out: &mut [Option<Hit>],
+    ) {
         let oa = Vec3A::from(origin);
+        let n = d.len().min(out.len()).min(LANES);
         let mut answers = [None; LANES];
-        match RayLanes8::from_lanes(oa, &lanes) {
+        match RayLanes8::from_lanes(oa, lanes) {
             // The rays' tests a triangle at a time, all rays at once (where they share their axes).
             Some(lanes) => self.bundle_rays8(groups, &lanes, n, &mut answers),
             None => {
-                for (d, a) in directions[..n].iter().zip(&mut answers) {
+                for (d, a) in d[..n].iter().zip(&mut answers) {
                     *a = self.bundle_ray(groups, &WatertightRay::new(oa, Vec3A::from(*d)));
                 }
             }
         }
-        for ((d, hit), answer) in directions[..n].iter().zip(out.iter_mut()).zip(answers) {
+        for ((d, hit), answer) in d[..n].iter().zip(out.iter_mut()).zip(answers) {
             *hit = match answer {
                 Some(h) => h,
                 None => self.intersect(origin, *d, f32::INFINITY),
             };
         }
-        true
     }
 
     /// The leaf groups (one a node: a lower bound on any ray's entry into its hit leaf children,
@@ -2225,9 +2260,14 @@ mod tests {
     /// Bundle `i`'s camera position, and its eight directions towards `aim`, `spread` apart.
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     fn bundle_rays(i: u64, aim: Vec3, spread: f32) -> (Vec3, Vec<Vec3>) {
+        bundle_rays_n(i, aim, spread, 8)
+    }
+
+    /// [`bundle_rays`] with `n` rays (up to 17).
+    fn bundle_rays_n(i: u64, aim: Vec3, spread: f32, n: u64) -> (Vec3, Vec<Vec3>) {
         let u = crate::sampler::hash_unit;
         let o = Vec3::new(u(64 * i) * 16.0 - 8.0, u(64 * i + 1) * 10.0 - 3.0, 8.0 + u(64 * i + 2) * 4.0);
-        let dirs = (0..8u64)
+        let dirs = (0..n)
             .map(|k| {
                 let j = Vec3::new(u(64 * i + 8 + 3 * k), u(64 * i + 9 + 3 * k), u(64 * i + 10 + 3 * k));
                 ((aim - o).normalize() + (j - 0.5) * spread).normalize()
@@ -2289,6 +2329,7 @@ mod tests {
         let vertices = &b.mesh.positions;
         let u = crate::sampler::hash_unit;
         let (mut answered, mut hits) = (0, 0);
+        let (mut answered_long, mut refused_long) = (0, 0);
         for i in 0..6000u64 {
             let aim = match i % 3 {
                 0 => vertices[(u(64 * i + 3) * vertices.len() as f32) as usize % vertices.len()],
@@ -2302,14 +2343,21 @@ mod tests {
             } else {
                 0.004
             };
-            let (o, dirs) = bundle_rays(i, aim, spread);
-            let mut out = [Some(Hit { t: -1.0, triangle: u32::MAX, b1: 0.0, b2: 0.0, instance: 0 }); 8];
-            if !accel.intersect_bundle(o, &dirs, &mut out) {
+            // Eight rays (one call's register), sixteen (a pixel's pass), any count up to
+            // sixteen, and seventeen (refused).
+            let count = [8, 16, 1 + i % 17][(i / 3 % 3) as usize];
+            let (o, dirs) = bundle_rays_n(i, aim, spread, count);
+            let mut out = [Some(Hit { t: -1.0, triangle: u32::MAX, b1: 0.0, b2: 0.0, instance: 0 }); 17];
+            let out = &mut out[..dirs.len()];
+            if !accel.intersect_bundle(o, &dirs, out) {
                 assert!(out.iter().all(|h| h.is_some_and(|h| h.t == -1.0)), "bundle {i}: refused, yet wrote");
+                refused_long += usize::from(dirs.len() > BUNDLE_RAYS);
                 continue;
             }
+            assert!(dirs.len() <= BUNDLE_RAYS, "bundle {i}: {} rays answered", dirs.len());
+            answered_long += usize::from(dirs.len() > LANES);
             answered += 1;
-            for (k, (&d, got)) in dirs.iter().zip(&out).enumerate() {
+            for (k, (&d, got)) in dirs.iter().zip(out.iter()).enumerate() {
                 let want = accel.intersect(o, d, f32::INFINITY);
                 let bits = |h: Option<Hit>| h.map(|h| (h.t.to_bits(), h.triangle, h.b1.to_bits(), h.b2.to_bits()));
                 assert_eq!(bits(*got), bits(want), "bundle {i} ray {k} from {o:?} along {d:?}");
@@ -2317,6 +2365,10 @@ mod tests {
             }
         }
         assert!(answered > 4000 && hits > 5000, "{answered} bundles answered, {hits} hits");
+        assert!(
+            answered_long > 1500 && refused_long > 50,
+            "{answered_long} long bundles answered, {refused_long} refused"
+        );
         let o = Vec3::new(0.0, 10.0, 10.0);
         let down = [Vec3::new(0.0, -1.0, -0.9).normalize(); 8];
         for kind in [AccelKind::ObvhsCompressed, AccelKind::Own] {

@@ -93,7 +93,32 @@ impl RayBundle {
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[inline(always)]
     pub fn from_lanes(origin: Vec3, d: &Directions8) -> Option<Self> {
+        let (lo, hi) = d.range()?;
+        Self::from_range(origin, lo, hi)
+    }
+
+    /// [`Self::from_lanes`] for the directions of `d` and, where given, of `more` too: the
+    /// bundle of up to sixteen rays (the same bundle as [`Self::new`] of them all, for the
+    /// reason `from_lanes` gives).
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[inline(always)]
+    pub fn from_lanes2(origin: Vec3, d: &Directions8, more: Option<&Directions8>) -> Option<Self> {
+        let (mut lo, mut hi) = d.range()?;
+        if let Some(more) = more {
+            let (l, h) = more.range()?;
+            (lo, hi) = (lo.min(l), hi.max(h));
+        }
+        Self::from_range(origin, lo, hi)
+    }
+}
+
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+impl Directions8 {
+    /// The least and greatest component on each axis; None where one is not finite.
+    #[inline(always)]
+    fn range(&self) -> Option<(Vec3, Vec3)> {
         use std::arch::x86_64::*;
+        let d = self;
         // SAFETY: AVX is enabled at compile time.
         unsafe {
             let inf = _mm256_set1_ps(f32::INFINITY);
@@ -111,10 +136,12 @@ impl RayBundle {
             let [x, y, z] = d.xyz;
             let lo = Vec3::new(reduce(x, _mm256_min_ps), reduce(y, _mm256_min_ps), reduce(z, _mm256_min_ps));
             let hi = Vec3::new(reduce(x, _mm256_max_ps), reduce(y, _mm256_max_ps), reduce(z, _mm256_max_ps));
-            Self::from_range(origin, lo, hi)
+            Some((lo, hi))
         }
     }
+}
 
+impl RayBundle {
     /// The bundle whose directions' components lie in `lo`..`hi` (finite).
     fn from_range(origin: Vec3, lo: Vec3, hi: Vec3) -> Option<Self> {
         if !origin.is_finite() {
@@ -263,7 +290,7 @@ mod tests {
     }
 
     /// `from_lanes` builds `new`'s bundle, bit for bit, from one to eight directions held a
-    /// register per axis: every sign, zero and tiny components, near-ties; and refuses a NaN or
+    /// register per axis, and `from_lanes2` from nine to sixteen in two: every sign, zero and tiny components, near-ties; and refuses a NaN or
     /// an infinity in any lane, or an origin that is not finite, as `new` does.
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[test]
@@ -277,15 +304,16 @@ mod tests {
         };
         let mut built = 0;
         for i in 0..20_000u64 {
-            let n = 1 + (i % 8) as usize;
-            let origin = Vec3::new(u(i * 40) * 20.0 - 10.0, u(i * 40 + 1) * 4.0, -u(i * 40 + 2) * 8.0);
+            // One to eight directions (one register), then nine to sixteen (two: `from_lanes2`).
+            let n = 1 + (i % 16) as usize;
+            let origin = Vec3::new(u(i * 64) * 20.0 - 10.0, u(i * 64 + 1) * 4.0, -u(i * 64 + 2) * 8.0);
             let mut dirs: Vec<Vec3> = (0..n as u64)
                 .map(|l| {
                     let c = |j: u64| match (i + j) % 9 {
                         0 => 0.0,
                         1 => -0.0,
                         2 => 1e-9,
-                        _ => u(i * 40 + 3 + 3 * l + j) * 2.0 - 0.9,
+                        _ => u(i * 64 + 3 + 3 * l + j) * 2.0 - 0.9,
                     };
                     Vec3::new(c(0), c(1), c(2))
                 })
@@ -295,7 +323,12 @@ mod tests {
                 dirs[n - 1].y = if i % 2 == 0 { f32::NAN } else { f32::NEG_INFINITY };
             }
             let want = RayBundle::new(origin, &dirs);
-            let got = Directions8::new(&dirs).and_then(|d| RayBundle::from_lanes(origin, &d));
+            let (first, rest) = dirs.split_at(n.min(8));
+            let got = match Directions8::new(first) {
+                Some(d) if rest.is_empty() => RayBundle::from_lanes(origin, &d),
+                Some(d) => Directions8::new(rest).and_then(|more| RayBundle::from_lanes2(origin, &d, Some(&more))),
+                None => None,
+            };
             assert_eq!(bits(got), bits(want), "bundle {i}: {dirs:?} from {origin:?}");
             built += want.is_some() as usize;
         }

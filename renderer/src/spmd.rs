@@ -530,8 +530,13 @@ fn mis_weight(h: MisHeuristic, f: F8, g: F8) -> F8 {
     select(f.abs().eq(F8::splat(f32::INFINITY)), one, w)
 }
 
-/// The camera rays `d` from `o` (a group of at most [`LANES`] of a stream's paths): their hits
-/// into `hits`, found together (a bundle where the BVH has one: `Scene::intersect_bundle`); the
+/// How many of a stream's paths have their camera rays traced together (one pass's samples of a
+/// pixel at the default `pass_spp`: one walk of the bundle's nodes for sixteen rays, where it
+/// was one for eight before the thirty-fourth round).
+const CAMERA_GROUP: usize = crate::accel::BUNDLE_RAYS;
+
+/// The camera rays `d` from `o` (a group of at most [`CAMERA_GROUP`] of a stream's paths): their
+/// hits into `hits`, found together (a bundle where the BVH has one: `Scene::intersect_bundle`); the
 /// radiance of those that escape into `out`, the environment they see or black. That radiance is
 /// the kernel's `add_emission` on a fresh lane (0 + 1·Le·1, where Le is not zero), so it is the
 /// scalar path's bit for bit.
@@ -542,29 +547,29 @@ fn camera_group(
     o: Vec3,
     (d, samplers): (&[Vec3], &[PixelSample]),
     blends: bool,
-    hits: &mut [Option<crate::accel::Hit>; LANES],
+    hits: &mut [Option<crate::accel::Hit>; CAMERA_GROUP],
     out: &mut [Vec3],
 ) {
-    let n = d.len().min(samplers.len()).min(out.len()).min(LANES);
+    let n = d.len().min(samplers.len()).min(out.len()).min(CAMERA_GROUP);
     let hits = &mut hits[..n];
     // (`Scene::intersect_bundle` declines where cut-outs or blended surfaces may pass the rays.)
     if !scene.intersect_bundle(o, &d[..n], hits) {
         let none = crate::convex_solid::NONE;
         // BLEND surfaces pass a ray by its sample's numbers (`Path::begin_bounce`'s seed).
-        let mut seeds = [0u32; LANES];
+        let mut seeds = [0u32; CAMERA_GROUP];
         if blends {
             for (seed, sampler) in seeds.iter_mut().zip(samplers) {
                 *seed = crate::integrator::transparency_seed(sampler, 0);
             }
         }
-        scene.intersect_surface_batch(&[o; LANES][..n], &d[..n], &seeds[..n], &[none; LANES][..n], hits);
+        scene.intersect_surface_batch(&[o; CAMERA_GROUP][..n], &d[..n], &seeds[..n], &[none; CAMERA_GROUP][..n], hits);
     }
     let escaped = || hits.iter().enumerate().filter(|(_, h)| h.is_none()).map(|(j, _)| j);
     match &scene.lights.environment {
         Some(env) => {
             // Every escaped ray's map lines asked for first, so the misses overlap
             // (`Environment::prefetch`).
-            let mut points = [MapPoint::default(); LANES];
+            let mut points = [MapPoint::default(); CAMERA_GROUP];
             for j in escaped() {
                 points[j] = env.map_point(d[j]);
                 env.prefetch(&points[j]);
@@ -595,7 +600,7 @@ pub const STREAM: usize = 256;
 /// long paths (the twenty-second round counted 4.13 live lanes a bounce on cornell). Each lane
 /// keeps its own bounce (its sample dimensions, roulette and depth limit); a path's numbers do
 /// not depend on its lane or its neighbours, so each path's radiance is still the scalar path's,
-/// bit for bit. The camera rays are traced eight at a time as the lanes reach them (a bundle
+/// bit for bit. The camera rays are traced sixteen at a time as the lanes reach them (a bundle
 /// where they share an origin: `Scene::intersect_bundle`; the caller lays a pixel's samples out
 /// together), and a path whose camera ray escapes ends there without taking a lane.
 ///
@@ -639,9 +644,9 @@ pub fn radiance8<const DETAIL: bool>(
     let mut lane_samplers = [first_sampler; LANES];
     let mut depth = [0u32; LANES];
     let mut next_path = 0usize;
-    // The camera rays' hits of the stream's paths `group`, traced eight at a time as the lanes
+    // The camera rays' hits of the stream's paths `group`, traced sixteen at a time as the lanes
     // reach them; each fresh lane's hit.
-    let (mut group, mut group_hits) = (0..0, [None; LANES]);
+    let (mut group, mut group_hits) = (0..0, [None; CAMERA_GROUP]);
     let mut fresh_hit = [None; LANES];
     let mut alive = 0u32;
     // Each lane's hit triangle, where its next ray starts (`Path::from`; none for the camera's).
@@ -699,7 +704,7 @@ pub fn radiance8<const DETAIL: bool>(
                     if next_path == total {
                         break 'refill;
                     }
-                    group = next_path..(next_path + LANES).min(total);
+                    group = next_path..(next_path + CAMERA_GROUP).min(total);
                     let camera_rays = (&d[group.clone()], &samplers[group.clone()]);
                     camera_group(scene, o, camera_rays, blends, &mut group_hits, &mut out[group.clone()]);
                     *rays += group.len() as u64;

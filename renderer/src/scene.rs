@@ -555,9 +555,9 @@ impl Scene {
 
     /// [`Self::intersect_surface`] for up to [`crate::accel::MAX_BATCH`] rays into `out`: traced
     /// together ([`Accel::intersect_batch`]) where the BVH batches them; a ray that meets a
-    /// transparent layer goes on through the others alone. On a smaller BVH, in one call one
-    /// after another ([`Accel::intersect_lanes`]) where the scene has no solids and no
-    /// transparency, else one query each. The same hits every way.
+    /// transparent layer goes on through the others alone. On a smaller BVH without transparency,
+    /// as [`Self::intersect_lanes_where`] answers them (a solid's rays by the solid, the others'
+    /// walks in one call), else one query each. The same hits every way.
     pub fn intersect_surface_batch(&self, o: &[Vec3], d: &[Vec3], seed: &[u32], from: &[u32], out: &mut [Option<Hit>]) {
         let n = o.len().min(d.len()).min(seed.len()).min(from.len()).min(out.len());
         if !self.batches_rays() {
@@ -614,9 +614,9 @@ impl Scene {
 
     /// [`Self::visibility_from`] for up to [`crate::accel::MAX_BATCH`] rays, ray k to `tmax[k]`
     /// from triangle `from[k]`, into `out`: traced together ([`Accel::occluded_batch`]) where the
-    /// BVH batches them and no surface is transparent; on a smaller BVH, in one call one after
-    /// another ([`Accel::occluded_lanes`]) where the scene has no solids and no transparency;
-    /// else one query each. The same fractions every way.
+    /// BVH batches them and no surface is transparent; on a smaller BVH without transparency, as
+    /// [`Self::occluded_lanes_where`] answers them; else one query each. The same fractions
+    /// every way.
     pub fn visibility_batch(&self, o: &[Vec3], d: &[Vec3], tmax: &[f32], from: &[u32], out: &mut [f32]) {
         let n = o.len().min(d.len()).min(tmax.len()).min(from.len()).min(out.len());
         if self.walks_lanes() && n <= 32 {

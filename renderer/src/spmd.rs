@@ -763,8 +763,9 @@ pub fn radiance8<const DETAIL: bool>(
             // (`Scene::intersect_lanes_where`, as `Scene::intersect_surface_batch` would).
             scene.intersect_lanes_where(&ro, &dirs, &tri, bounce, &mut hits);
         } else if bounce != 0 {
-            // Packed into a batch (solids and transparent layers answer some rays themselves;
-            // a large BVH walks them together), each with its BLEND seed (`Path::begin_bounce`'s).
+            // Packed into a batch (transparent layers, and solids on a large BVH, answer some
+            // rays themselves; a large BVH walks them together), each with its BLEND seed
+            // (`Path::begin_bounce`'s).
             let (mut lane, mut count) = ([0u8; LANES], 0);
             let (mut qo, mut qd, mut qf, mut seeds) =
                 ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [0u32; LANES], [0u32; LANES]);

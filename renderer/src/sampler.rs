@@ -512,6 +512,30 @@ const fn hash_u32(x: u32) -> u32 {
 
 #[cfg(test)]
 mod tests {
+    /// The eight-lane bit reversal is `u32::reverse_bits` on every lane: single bits, all ones,
+    /// every byte value in every byte position, and hashed words.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[test]
+    fn eight_lane_bit_reversal_is_reverse_bits() {
+        use std::arch::x86_64::*;
+        let mut words: Vec<u32> = (0..32).map(|b| 1u32 << b).chain([0, u32::MAX, 0x8000_0001]).collect();
+        words.extend((0..256u32).flat_map(|v| (0..4).map(move |p| v << (8 * p))));
+        words.extend((0..4096u64).map(|k| super::hash_u32(k as u32) ^ (k as u32).rotate_left(7)));
+        for chunk in words.chunks(8) {
+            let mut lanes = [0u32; 8];
+            lanes[..chunk.len()].copy_from_slice(chunk);
+            let mut got = [0u32; 8];
+            // SAFETY: AVX2 is enabled at compile time; unaligned loads and stores of eight u32.
+            unsafe {
+                let r = super::reverse_bits_avx2(_mm256_loadu_si256(lanes.as_ptr() as *const __m256i));
+                _mm256_storeu_si256(got.as_mut_ptr() as *mut __m256i, r);
+            }
+            for (x, y) in lanes.iter().zip(got) {
+                assert_eq!(y, x.reverse_bits(), "{x:#010x}");
+            }
+        }
+    }
+
     #[test]
     fn table_sobol_equals_the_crate_bit_for_bit() {
         // Every index of the 2^16 the crate supports, for a few seeds (0, all ones, hashes).

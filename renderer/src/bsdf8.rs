@@ -378,16 +378,20 @@ impl Glass8 {
 
     /// `Bsdf::sample` through `sample_base` (glass weight 1: `u_lobe` is the glass's own choice
     /// between reflection and transmission) and `Dielectric::sample_direction`, for a `wo` above
-    /// the surface; a rough direction takes f and pdf from [`Self::eval_pdf`] (`finish`).
+    /// the surface; a rough direction takes f and pdf from [`Self::eval_pdf`] (`finish`). Only
+    /// the lanes `lanes` are read (the caller's glass lanes; the others' answers are meaningless):
+    /// where none of them is rough, the rough sample is not computed, and where none is smooth,
+    /// the smooth one (a scene's other surfaces left the rough path running wherever one glass
+    /// lane was smooth: ARCHITECTURE.md, thirty-fourth round).
     #[inline(always)]
-    pub fn sample(&self, wo: V8, u_lobe: F8, ux: F8, uy: F8) -> Sample8 {
+    pub fn sample(&self, lanes: M8, wo: V8, u_lobe: F8, ux: F8, uy: F8) -> Sample8 {
         let (zero, one) = (F8::zero(), F8::splat(1.0));
         let ggx = Ggx8 { alpha: self.alpha };
         let delta = self.is_delta();
         let z_axis = V8 { x: zero, y: zero, z: one };
         let mirror = |w: V8| V8 { x: -w.x, y: -w.y, z: w.z };
         // Rough: a visible microfacet, then reflection or refraction through it by Fresnel.
-        let rough = !delta;
+        let rough = lanes.and_not(delta);
         let (wi_rough, ok_rough, f_rough, pdf_rough) = if rough.any() {
             let wm = ggx.sample_visible_normal(wo, ux, uy);
             let r = fresnel_dielectric(wo.dot(wm), self.eta);
@@ -401,7 +405,7 @@ impl Glass8 {
         } else {
             (z_axis, M8::from_bits(0), V8::zero(), zero)
         };
-        if !delta.any() {
+        if !(lanes & delta).any() {
             return Sample8 { wi: wi_rough, f: f_rough, pdf: pdf_rough, delta, ok: ok_rough };
         }
         // Smooth: the mirror with probability R, else the refracted direction.

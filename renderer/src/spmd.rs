@@ -1080,7 +1080,7 @@ pub fn radiance8<const DETAIL: bool>(
         });
         let next = match &glass8 {
             None => next,
-            Some(g) => Sample8::select(glass, g.sample(wo, u_lobe, u_dir.0, u_dir.1), next),
+            Some(g) => Sample8::select(glass, g.sample(glass, wo, u_lobe, u_dir.0, u_dir.1), next),
         };
         let has_next = act & next.ok;
 

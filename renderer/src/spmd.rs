@@ -643,10 +643,10 @@ pub fn radiance8<const DETAIL: bool>(
     let mut path = [0usize; LANES];
     let mut lane_samplers = [first_sampler; LANES];
     let mut depth = [0u32; LANES];
-    let mut next_path = 0usize;
     // The camera rays' hits of the stream's paths `group`, traced sixteen at a time as the lanes
-    // reach them; each fresh lane's hit.
-    let (mut group, mut group_hits) = (0..0, [None; CAMERA_GROUP]);
+    // reach them, and the bits of those of the group that hit something and have no lane yet
+    // (found by their bits, so the escaped ones cost no step each); each fresh lane's hit.
+    let (mut group, mut group_hits, mut group_waiting) = (0..0, [None; CAMERA_GROUP], 0u32);
     let mut fresh_hit = [None; LANES];
     let mut alive = 0u32;
     // Each lane's hit triangle, where its next ray starts (`Path::from`; none for the camera's).
@@ -700,19 +700,23 @@ pub fn radiance8<const DETAIL: bool>(
         'refill: for k in lanes_of(!alive & ((1 << LANES) - 1)) {
             // The next path whose camera ray hits something; those that escape end at once.
             let (j, hit) = loop {
-                if next_path == group.end {
-                    if next_path == total {
+                if group_waiting == 0 {
+                    if group.end == total {
                         break 'refill;
                     }
-                    group = next_path..(next_path + CAMERA_GROUP).min(total);
+                    group = group.end..(group.end + CAMERA_GROUP).min(total);
                     let camera_rays = (&d[group.clone()], &samplers[group.clone()]);
                     camera_group(scene, o, camera_rays, blends, &mut group_hits, &mut out[group.clone()]);
                     *rays += group.len() as u64;
+                    for (i, hit) in group_hits.iter().enumerate().take(group.len()) {
+                        group_waiting |= u32::from(hit.is_some()) << i;
+                    }
+                    continue;
                 }
-                let j = next_path;
-                next_path += 1;
-                if let Some(hit) = group_hits[j - group.start] {
-                    break (j, hit);
+                let i = group_waiting.trailing_zeros() as usize;
+                group_waiting &= group_waiting - 1;
+                if let Some(hit) = group_hits[i] {
+                    break (group.start + i, hit);
                 }
             };
             (path[k], lane_samplers[k], dirs[k], depth[k]) = (j, samplers[j], d[j], 0);

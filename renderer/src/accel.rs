@@ -543,9 +543,9 @@ fn with_stack<R>(len: usize, f: impl FnOnce(&mut [MaybeUninit<Deferred>]) -> R) 
     f(stack)
 }
 
-/// The bits `0..n` set (n ≤ 32).
+/// The bits `0..n` set (all of them for n ≥ 32).
 #[inline(always)]
-fn low_bits(n: usize) -> u32 {
+pub(crate) fn low_bits(n: usize) -> u32 {
     if n >= 32 {
         u32::MAX
     } else {
@@ -1197,12 +1197,8 @@ impl Accel {
         // the rays' shears.
         let (first, rest) = directions[..n].split_at(n.min(LANES));
         let Some(lanes) = Directions8::new(first) else { return false };
-        let more = if rest.is_empty() {
-            None
-        } else {
-            let Some(more) = Directions8::new(rest) else { return false };
-            Some(more)
-        };
+        // None for no more rays (`rest` holds at most eight).
+        let more = Directions8::new(rest);
         let Some(bundle) = RayBundle::from_lanes2(origin, &lanes, more.as_ref()) else { return false };
         let mut groups = [(0f32, 0u32, 0u32); BUNDLE_GROUPS];
         let Some(count) = self.bundle_groups(&bundle, &mut groups) else { return false };
@@ -2264,6 +2260,7 @@ mod tests {
     }
 
     /// [`bundle_rays`] with `n` rays (up to 17).
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     fn bundle_rays_n(i: u64, aim: Vec3, spread: f32, n: u64) -> (Vec3, Vec<Vec3>) {
         let u = crate::sampler::hash_unit;
         let o = Vec3::new(u(64 * i) * 16.0 - 8.0, u(64 * i + 1) * 10.0 - 3.0, 8.0 + u(64 * i + 2) * 4.0);

@@ -24,6 +24,9 @@
 //! The table of what the kernel can render is built on every target; the kernel itself needs AVX2
 //! (`Scene::lanes` answers None without it).
 
+// The lanes whose bits are set in a mask, in lane order.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+use crate::accel::bits_of as lanes_of;
 use crate::bsdf::Bsdf;
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 use crate::bsdf8::{normalize_or_zero, sample_cosine_hemisphere, Glass8, OpaqueBsdf8, Sample8};
@@ -287,13 +290,6 @@ fn shade_handed_lanes(
     }
     (*l, *beta) = (V8::from_lanes(&ls), V8::from_lanes(&bs));
     (*eta_scale, *rd) = (F8::from_array(es), V8::from_lanes(&ds));
-}
-
-/// The lanes whose bits are set in `bits`, in lane order.
-#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-#[inline(always)]
-fn lanes_of(bits: u32) -> impl Iterator<Item = usize> {
-    crate::accel::bits_of(bits)
 }
 
 /// `dst[..n] = src[..n]` for n ≤ [`LANES`], as register moves where n is eight (a pixel's batch
@@ -1351,7 +1347,8 @@ pub fn radiance8<const DETAIL: bool>(
                 };
                 let unshadowed = beta.mul(f).mul(lle);
                 let sc = wil.z.abs() * w / lpdf;
-                // The shadow rays together where the BVH batches them (`Scene::visibility_batch`).
+                // The shadow rays: where the lanes lie (`Scene::walks_lanes`), else packed for
+                // `Scene::visibility_batch`.
                 let (so, sdl, mut tm) = (origin.to_lanes(), sd.to_lanes(), tmax.to_array());
                 // An area light's ray may stop at its clear box (as the scalar path's).
                 if scene.lights.has_clear_boxes() {

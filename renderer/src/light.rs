@@ -464,6 +464,44 @@ impl LightSet {
         }
     }
 
+    /// [`Self::select`] for the lanes of `lanes` (bits) when the lights are a light tree of one
+    /// node (eight lights or fewer; `scenes/sphere_lights`' four bulbs): the tree's choices at
+    /// the eight points at once, the points in the lanes ([`LightTree::sample_root_lanes`]),
+    /// into `out` lane for lane. The same choices and probabilities as `select`, bit for bit;
+    /// false, with nothing written, for any other light sampler.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+    pub fn select_root_lanes(
+        &self,
+        p: &[Vec3; 8],
+        n: &[Vec3; 8],
+        u: &[f32; 8],
+        lanes: u32,
+        out: &mut [Option<(usize, f32)>; 8],
+    ) -> bool {
+        let (LightSamplerKind::Tree, Some(tree)) = (self.kind, self.tree.as_ref().filter(|t| t.is_one_node())) else {
+            return false;
+        };
+        // The choices between infinite lights and the tree as `select` makes them.
+        let (mut u_tree, mut walks) = ([0f32; 8], 0u32);
+        for k in crate::accel::bits_of(lanes & 0xff) {
+            match self.infinite_or_tree(u[k]) {
+                Ok(infinite) => out[k] = Some(infinite),
+                Err(x) => (u_tree[k], walks) = (x, walks | 1 << k),
+            }
+        }
+        if walks != 0 {
+            let mut found = [None; 8];
+            tree.sample_root_lanes(p, n, &u_tree, &mut found);
+            for k in crate::accel::bits_of(walks) {
+                out[k] = self.global_of_tree_choice(found[k]);
+                if let Some((g, _)) = out[k] {
+                    self.prefetch_light(g);
+                }
+            }
+        }
+        true
+    }
+
     /// [`Self::select`] for the eight lanes of `u` where the choice reads `u` alone (the power
     /// table: [`AliasTable::sample_eight`]), into `out` lane for lane; false, with nothing
     /// written, where it does not (a tree, uniform choice, no light). For the SPMD kernel, whose

@@ -210,58 +210,122 @@ impl Family {
     #[inline(always)]
     unsafe fn importance_avx(&self, p: Vec3, n: Option<Vec3>) -> std::arch::x86_64::__m256 {
         use std::arch::x86_64::*;
-        let ld = |a: &[f32; 8]| _mm256_load_ps(a.as_ptr());
         let splat = _mm256_set1_ps;
-        let (zero, one) = (_mm256_setzero_ps(), splat(1.0));
-        // safe_sqrt: max(x, 0) first (VMAXPS returns its second operand for a NaN, as f32::max does).
-        let safe_sqrt = |x: __m256| _mm256_sqrt_ps(_mm256_max_ps(x, zero));
-        let select = |m: __m256, a: __m256, b: __m256| _mm256_blendv_ps(b, a, m);
-        // `dot_fma`: z·z + (y·y + x·x), each sum fused with its product.
-        let dot = |ax: __m256, ay: __m256, az: __m256, bx: __m256, by: __m256, bz: __m256| {
-            _mm256_fmadd_ps(az, bz, _mm256_fmadd_ps(ay, by, _mm256_mul_ps(ax, bx)))
-        };
-        let gt = |a: __m256, b: __m256| _mm256_cmp_ps::<_CMP_GT_OQ>(a, b);
-        let (vx, vy, vz) = (
-            _mm256_sub_ps(splat(p.x), ld(&self.c[0])),
-            _mm256_sub_ps(splat(p.y), ld(&self.c[1])),
-            _mm256_sub_ps(splat(p.z), ld(&self.c[2])),
-        );
-        let dist2 = dot(vx, vy, vz, vx, vy, vz);
-        let half_diag = ld(&self.half_diag);
-        let inv_dist2 = _mm256_div_ps(one, dist2);
-        let abs = |x: __m256| _mm256_andnot_ps(splat(-0.0), x);
-        // VMINPS returns its second operand for a NaN, as f32::min returns the other one.
-        let phi_d2 = _mm256_mul_ps(ld(&self.phi), _mm256_min_ps(inv_dist2, ld(&self.inv_half_diag)));
-        let cos_w = dot(ld(&self.w[0]), ld(&self.w[1]), ld(&self.w[2]), vx, vy, vz);
-        let two_sided = _mm256_castsi256_ps(_mm256_load_si256(self.two_sided.as_ptr() as *const __m256i));
-        let cos_w = _mm256_andnot_ps(two_sided, cos_w);
-        // −(a·b) + c rounded once (VFNMADD) is (−a).mul_add(b, c).
-        let sin_w = safe_sqrt(_mm256_fnmadd_ps(cos_w, cos_w, dist2));
-        let cos_b2 = _mm256_fnmadd_ps(half_diag, half_diag, dist2);
-        let inside = _mm256_cmp_ps::<_CMP_LE_OQ>(cos_b2, zero);
-        let cos_b = safe_sqrt(cos_b2);
-        let (sin_o, cos_o) = (ld(&self.sin_o), ld(&self.cos_o));
-        let in_cone = gt(_mm256_mul_ps(cos_w, abs(cos_w)), _mm256_mul_ps(_mm256_mul_ps(cos_o, abs(cos_o)), dist2));
-        let cos_x = _mm256_fmadd_ps(cos_w, cos_o, _mm256_mul_ps(sin_w, sin_o));
-        let sin_x = _mm256_fmsub_ps(sin_w, cos_o, _mm256_mul_ps(cos_w, sin_o));
-        // cos(max(0, θa − θb)) from d-scaled sines and cosines, 1 where θa ≤ θb or inside.
-        let cos_sub = |sa: __m256, ca: __m256, clamped: __m256| {
-            let unclamped = _mm256_fmadd_ps(ca, cos_b, _mm256_mul_ps(sa, half_diag));
-            select(_mm256_or_ps(clamped, gt(ca, cos_b)), one, _mm256_mul_ps(unclamped, inv_dist2))
-        };
-        let cos_p = cos_sub(sin_x, cos_x, _mm256_or_ps(in_cone, inside));
-        let lit = gt(cos_p, ld(&self.cos_e));
-        let mut imp = _mm256_mul_ps(phi_d2, cos_p);
-        if let Some(n) = n {
-            let cos_i = abs(dot(splat(n.x), splat(n.y), splat(n.z), vx, vy, vz));
-            let sin_i = safe_sqrt(_mm256_fnmadd_ps(cos_i, cos_i, dist2));
-            imp = _mm256_mul_ps(imp, cos_sub(sin_i, cos_i, inside));
-        }
-        // `is_finite` then max(·, 0): below +∞ (false for a NaN), and VMAXPS returns its second
-        // operand, 0, for a NaN; −∞ is below +∞ and its max with 0 is 0, as the reference's.
-        let finite = _mm256_cmp_ps::<_CMP_LT_OQ>(imp, splat(f32::INFINITY));
-        _mm256_and_ps(_mm256_and_ps(lit, finite), _mm256_max_ps(imp, zero))
+        let n = n.map(|n| [splat(n.x), splat(n.y), splat(n.z)]);
+        importance_lanes(self, [splat(p.x), splat(p.y), splat(p.z)], n)
     }
+}
+
+/// Light bounds in the eight lanes of AVX registers, as [`importance_lanes`] reads them, each
+/// read where it is used (a family's loads stay memory operands of the arithmetic, as the
+/// walks' sixteen interleaved evaluations want): a family's eight children, each lane its own
+/// bounds ([`Family`]), or one child in every lane ([`SlotLanes`]).
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+trait BoundsLanes {
+    /// Field `f` of the bounds, as eight lanes.
+    fn lanes(&self, f: fn(&Family) -> &[f32; 8]) -> std::arch::x86_64::__m256;
+    /// The sign bit (−0.0) in a two-sided lane, 0 in a one-sided one (as `Family::two_sided`).
+    fn two_sided(&self) -> std::arch::x86_64::__m256;
+}
+
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+impl BoundsLanes for Family {
+    #[inline(always)]
+    fn lanes(&self, f: fn(&Family) -> &[f32; 8]) -> std::arch::x86_64::__m256 {
+        // SAFETY: AVX is enabled at compile time; every field is a 32-byte-aligned [f32; 8].
+        unsafe { std::arch::x86_64::_mm256_load_ps(f(self).as_ptr()) }
+    }
+    #[inline(always)]
+    fn two_sided(&self) -> std::arch::x86_64::__m256 {
+        use std::arch::x86_64::*;
+        // SAFETY: as above; `two_sided` is a 32-byte-aligned [u32; 8].
+        unsafe { _mm256_castsi256_ps(_mm256_load_si256(self.two_sided.as_ptr() as *const __m256i)) }
+    }
+}
+
+/// One slot of a family in every lane: what [`importance_lanes`] needs to evaluate one light
+/// (or node) at eight points, [`LightTree::sample_root_lanes`]'s transposed evaluation.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+struct SlotLanes<'a> {
+    family: &'a Family,
+    slot: usize,
+}
+
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+impl BoundsLanes for SlotLanes<'_> {
+    #[inline(always)]
+    fn lanes(&self, f: fn(&Family) -> &[f32; 8]) -> std::arch::x86_64::__m256 {
+        // SAFETY: AVX is enabled at compile time.
+        unsafe { std::arch::x86_64::_mm256_set1_ps(f(self.family)[self.slot]) }
+    }
+    #[inline(always)]
+    fn two_sided(&self) -> std::arch::x86_64::__m256 {
+        // SAFETY: as above.
+        unsafe { std::arch::x86_64::_mm256_set1_ps(f32::from_bits(self.family.two_sided[self.slot])) }
+    }
+}
+
+/// `LightBounds::importance`, lane by lane, of bounds `b` at points `p` (normals `n`): whether
+/// the lanes hold eight bounds at one point or one bounds at eight points, every lane takes the
+/// reference's steps in its order, so every lane is its number bit for bit (a test checks both
+/// forms on random points, normals and bounds).
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+#[inline(always)]
+unsafe fn importance_lanes(
+    b: &impl BoundsLanes,
+    p: [std::arch::x86_64::__m256; 3],
+    n: Option<[std::arch::x86_64::__m256; 3]>,
+) -> std::arch::x86_64::__m256 {
+    use std::arch::x86_64::*;
+    let splat = _mm256_set1_ps;
+    let (zero, one) = (_mm256_setzero_ps(), splat(1.0));
+    // safe_sqrt: max(x, 0) first (VMAXPS returns its second operand for a NaN, as f32::max does).
+    let safe_sqrt = |x: __m256| _mm256_sqrt_ps(_mm256_max_ps(x, zero));
+    let select = |m: __m256, a: __m256, b: __m256| _mm256_blendv_ps(b, a, m);
+    // `dot_fma`: z·z + (y·y + x·x), each sum fused with its product.
+    let dot = |ax: __m256, ay: __m256, az: __m256, bx: __m256, by: __m256, bz: __m256| {
+        _mm256_fmadd_ps(az, bz, _mm256_fmadd_ps(ay, by, _mm256_mul_ps(ax, bx)))
+    };
+    let gt = |a: __m256, b: __m256| _mm256_cmp_ps::<_CMP_GT_OQ>(a, b);
+    let (vx, vy, vz) = (
+        _mm256_sub_ps(p[0], b.lanes(|f| &f.c[0])),
+        _mm256_sub_ps(p[1], b.lanes(|f| &f.c[1])),
+        _mm256_sub_ps(p[2], b.lanes(|f| &f.c[2])),
+    );
+    let dist2 = dot(vx, vy, vz, vx, vy, vz);
+    let half_diag = b.lanes(|f| &f.half_diag);
+    let inv_dist2 = _mm256_div_ps(one, dist2);
+    let abs = |x: __m256| _mm256_andnot_ps(splat(-0.0), x);
+    // VMINPS returns its second operand for a NaN, as f32::min returns the other one.
+    let phi_d2 = _mm256_mul_ps(b.lanes(|f| &f.phi), _mm256_min_ps(inv_dist2, b.lanes(|f| &f.inv_half_diag)));
+    let cos_w = dot(b.lanes(|f| &f.w[0]), b.lanes(|f| &f.w[1]), b.lanes(|f| &f.w[2]), vx, vy, vz);
+    let cos_w = _mm256_andnot_ps(b.two_sided(), cos_w);
+    // −(a·b) + c rounded once (VFNMADD) is (−a).mul_add(b, c).
+    let sin_w = safe_sqrt(_mm256_fnmadd_ps(cos_w, cos_w, dist2));
+    let cos_b2 = _mm256_fnmadd_ps(half_diag, half_diag, dist2);
+    let inside = _mm256_cmp_ps::<_CMP_LE_OQ>(cos_b2, zero);
+    let cos_b = safe_sqrt(cos_b2);
+    let (sin_o, cos_o) = (b.lanes(|f| &f.sin_o), b.lanes(|f| &f.cos_o));
+    let in_cone = gt(_mm256_mul_ps(cos_w, abs(cos_w)), _mm256_mul_ps(_mm256_mul_ps(cos_o, abs(cos_o)), dist2));
+    let cos_x = _mm256_fmadd_ps(cos_w, cos_o, _mm256_mul_ps(sin_w, sin_o));
+    let sin_x = _mm256_fmsub_ps(sin_w, cos_o, _mm256_mul_ps(cos_w, sin_o));
+    // cos(max(0, θa − θb)) from d-scaled sines and cosines, 1 where θa ≤ θb or inside.
+    let cos_sub = |sa: __m256, ca: __m256, clamped: __m256| {
+        let unclamped = _mm256_fmadd_ps(ca, cos_b, _mm256_mul_ps(sa, half_diag));
+        select(_mm256_or_ps(clamped, gt(ca, cos_b)), one, _mm256_mul_ps(unclamped, inv_dist2))
+    };
+    let cos_p = cos_sub(sin_x, cos_x, _mm256_or_ps(in_cone, inside));
+    let lit = gt(cos_p, b.lanes(|f| &f.cos_e));
+    let mut imp = _mm256_mul_ps(phi_d2, cos_p);
+    if let Some(n) = n {
+        let cos_i = abs(dot(n[0], n[1], n[2], vx, vy, vz));
+        let sin_i = safe_sqrt(_mm256_fnmadd_ps(cos_i, cos_i, dist2));
+        imp = _mm256_mul_ps(imp, cos_sub(sin_i, cos_i, inside));
+    }
+    // `is_finite` then max(·, 0): below +∞ (false for a NaN), and VMAXPS returns its second
+    // operand, 0, for a NaN; −∞ is below +∞ and its max with 0 is 0, as the reference's.
+    let finite = _mm256_cmp_ps::<_CMP_LT_OQ>(imp, splat(f32::INFINITY));
+    _mm256_and_ps(_mm256_and_ps(lit, finite), _mm256_max_ps(imp, zero))
 }
 
 /// Children a node of the walked tree holds: one AVX family of eight lanes.
@@ -530,6 +594,95 @@ impl LightTree {
             return self.walk(u, |at, u| unsafe { choose_avx(self.nodes[at].family.importance_avx(p, n), u) });
         }
         self.walk(u, |at, u| choose(&self.importances(at, p, n), u))
+    }
+
+    /// [`Self::sample`] of a one-node tree ([`Self::is_one_node`]) at eight shading points at
+    /// once, the points in the lanes (`p[k]`, normal `n[k]`, number `u[k]`; the answer into
+    /// `out[k]` for every lane). Walked one point at a time, each point costs an evaluation of
+    /// the node's family (eight lights at one point) and a choice among its lanes by shuffles;
+    /// here each light is evaluated at the eight points at once (one evaluation per light, four
+    /// for `scenes/sphere_lights`' bulbs) and the running sums, the count of those not above
+    /// `u · total` and the slot's share are the same additions lane for lane, so every lane's
+    /// answer is [`Self::sample`]'s bit for bit (`root_lanes_choose_what_single_walks_choose`).
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+    pub fn sample_root_lanes(&self, p: &[Vec3; 8], n: &[Vec3; 8], u: &[f32; 8], out: &mut [Option<(usize, f32)>; 8]) {
+        use std::arch::x86_64::*;
+        debug_assert!(self.is_one_node());
+        let node = &self.nodes[0];
+        let count = (node.count as usize).min(WIDTH);
+        let lanes = |f: &dyn Fn(usize) -> f32| {
+            let a: [f32; 8] = std::array::from_fn(f);
+            // SAFETY: AVX is enabled at compile time; an unaligned load of eight floats.
+            unsafe { _mm256_loadu_ps(a.as_ptr()) }
+        };
+        let points = [lanes(&|k| p[k].x), lanes(&|k| p[k].y), lanes(&|k| p[k].z)];
+        let normals = [lanes(&|k| n[k].x), lanes(&|k| n[k].y), lanes(&|k| n[k].z)];
+        // SAFETY (this block's intrinsics): AVX2 and FMA are enabled at compile time.
+        let (slot, prob, fallback) = unsafe {
+            let mut imp = [_mm256_setzero_ps(); WIDTH];
+            for (slot, x) in imp.iter_mut().enumerate().take(count) {
+                *x = importance_lanes(&SlotLanes { family: &node.family, slot }, points, Some(normals));
+            }
+            // `running_sums`' additions, each lane its own point's.
+            let add = |a, b| _mm256_add_ps(a, b);
+            let [x0, x1, x2, x3, x4, x5, x6, x7] = imp;
+            let (s01, s23, s45, s67) = (add(x0, x1), add(x2, x3), add(x4, x5), add(x6, x7));
+            let s03 = add(s01, s23);
+            let s46 = add(s45, x6);
+            let running =
+                [x0, s01, add(s01, x2), s03, add(s03, x4), add(s03, s45), add(s03, s46), add(s03, add(s45, s67))];
+            let total = running[WIDTH - 1];
+            // `choose`: t = u · total, and the count of running sums not above it (!(t < r), true
+            // for a NaN, as NLT is), each compare's all-ones lane subtracted as −1.
+            let t = _mm256_mul_ps(lanes(&|k| u[k]), total);
+            let mut below = _mm256_setzero_si256();
+            for r in running {
+                below = _mm256_sub_epi32(below, _mm256_castps_si256(_mm256_cmp_ps::<_CMP_NLT_UQ>(t, r)));
+            }
+            // `chosen`: the slot's importance over the total, where the count is a slot.
+            let mut x = _mm256_setzero_ps();
+            for (s, &xs) in imp.iter().enumerate() {
+                let here = _mm256_castsi256_ps(_mm256_cmpeq_epi32(below, _mm256_set1_epi32(s as i32)));
+                x = _mm256_blendv_ps(x, xs, here);
+            }
+            let prob = _mm256_div_ps(x, total);
+            let (mut slot, mut prob_lanes) = ([0i32; 8], [0f32; 8]);
+            _mm256_storeu_si256(slot.as_mut_ptr() as *mut __m256i, below);
+            _mm256_storeu_ps(prob_lanes.as_mut_ptr(), prob);
+            // Lanes with no choice (total not above 0, or NaN) and lanes whose count ran past
+            // the last slot (rounding: `chosen`'s fallback) are finished one at a time.
+            let ok = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(total, _mm256_setzero_ps())) as u32;
+            let past =
+                _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(below, _mm256_set1_epi32(WIDTH as i32))));
+            let mut fallback = [None::<([f32; WIDTH], f32)>; 8];
+            for k in crate::accel::bits_of(!ok & 0xff) {
+                slot[k] = -1;
+            }
+            if past as u32 & ok != 0 {
+                let mut lanes_imp = [[0f32; 8]; WIDTH];
+                for (row, x) in lanes_imp.iter_mut().zip(imp) {
+                    _mm256_storeu_ps(row.as_mut_ptr(), x);
+                }
+                let mut totals = [0f32; 8];
+                _mm256_storeu_ps(totals.as_mut_ptr(), total);
+                for k in crate::accel::bits_of(past as u32 & ok) {
+                    fallback[k] = Some((std::array::from_fn(|s| lanes_imp[s][k]), totals[k]));
+                }
+            }
+            (slot, prob_lanes, fallback)
+        };
+        for (k, answer) in out.iter_mut().enumerate() {
+            let choice = match (slot[k], fallback[k]) {
+                (s, _) if s < 0 => None,
+                (_, Some((imp, total))) => imp.iter().rposition(|&x| x > 0.0).map(|last| (last, imp[last] / total)),
+                (s, None) => Some((s as usize, prob[k])),
+            };
+            // The walk's one step down.
+            *answer = choice.and_then(|(slot, prob)| {
+                let mut pmf = 1.0;
+                self.descend(0, slot, prob, &mut pmf).err().flatten()
+            });
+        }
     }
 
     /// Whether the tree is a single node (eight lights or fewer): a walk is then one level, with
@@ -821,6 +974,64 @@ mod tests {
     /// batch again with a normal at each point, the form the kernel's batches take), points every
     /// light faces away from (None) among the rest, and trees deep enough for walks to end at
     /// different levels.
+    /// `sample_root_lanes` (one light at eight points per evaluation) against `sample` (eight
+    /// lights at one point) on one-node trees of 1 to 8 lights, bit for bit: lit and unlit points,
+    /// points inside a light's bounds, and the numbers at the ends of [0, 1).
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+    #[test]
+    fn root_lanes_choose_what_single_walks_choose() {
+        let h = |j: usize| crate::sampler::hash_unit(j as u64);
+        let (mut none, mut some, mut past_last, mut slots_seen) = (0, 0, 0, std::collections::HashSet::new());
+        // Subnormal powers make subnormal totals, where u · total can round up to the total
+        // itself: the count then runs past the last slot, `chosen`'s fallback.
+        for (count, phi) in (1..=WIDTH).map(|c| (c, 1.0)).chain([(3, 1e-41), (8, 1e-41)]) {
+            let lights: Vec<_> = (0..count)
+                .map(|i| {
+                    let down = if i % 3 == 0 { Vec3::new(0.3, -1.0, 0.2).normalize() } else { -Vec3::Y };
+                    let c = Vec3::new(i as f32 - 3.0, 2.0 + 0.1 * i as f32, 0.5 * i as f32);
+                    let mut b = tri_light(c, down, phi * (0.5 + i as f32));
+                    b.two_sided = i == 5;
+                    b
+                })
+                .collect();
+            let tree = LightTree::build(&lights).unwrap();
+            assert!(tree.is_one_node());
+            for batch in 0..200 {
+                let at = |k: usize| 1000 * count + 16 * batch + k;
+                let p: [Vec3; 8] = std::array::from_fn(|k| match at(k) % 9 {
+                    0 => Vec3::new(h(at(k)), 50.0, h(at(k) + 1)), // above every light: unlit
+                    1 => lights[k % count].centroid(),            // inside a light's bounds
+                    _ => Vec3::new(h(at(k)) * 8.0 - 4.0, h(at(k) + 1) * 3.0, h(at(k) + 2) * 6.0 - 3.0),
+                });
+                let n: [Vec3; 8] =
+                    std::array::from_fn(|k| Vec3::new(h(at(k) + 3) - 0.5, 1.0, h(at(k) + 4) - 0.5).normalize());
+                let u: [f32; 8] = std::array::from_fn(|k| match at(k) % 13 {
+                    0 => 0.0,
+                    1 => 1.0 - f32::EPSILON / 2.0,
+                    _ => h(at(k) + 5),
+                });
+                let mut out = [Some((usize::MAX, -1.0)); 8];
+                tree.sample_root_lanes(&p, &n, &u, &mut out);
+                for k in 0..8 {
+                    let alone = tree.sample(p[k], Some(n[k]), u[k]);
+                    let bits = |x: Option<(usize, f32)>| x.map(|(l, pmf)| (l, pmf.to_bits()));
+                    assert_eq!(bits(out[k]), bits(alone), "{count} lights, batch {batch}, lane {k}");
+                    match alone {
+                        Some((l, _)) => (some += 1, slots_seen.insert((count, l))),
+                        None => (none += 1, false),
+                    };
+                    // Where the fallback chose, the probability is the last lit slot's share.
+                    past_last += (phi < 1.0 && u[k] > 0.99999 && alone.is_some()) as usize;
+                }
+            }
+        }
+        assert!(
+            none > 50 && some > 5000 && past_last > 10 && slots_seen.len() == 36,
+            "{none} unlit, {some} lit, {past_last} near 1 with subnormal totals, {} picks: the test lost its cases",
+            slots_seen.len()
+        );
+    }
+
     #[test]
     fn batched_walks_choose_what_single_walks_choose() {
         let mut lights = Vec::new();

@@ -1033,6 +1033,8 @@ pub fn radiance8<const DETAIL: bool>(
                 for k in lanes_of(nee.bits()) {
                     selected[k] = Some(by_table[k]);
                 }
+            } else if scene.lights.select_root_lanes(&p, &ns_flipped, &u_sel, nee.bits(), &mut selected) {
+                // A one-node light tree's choices where the lanes lie.
             } else {
                 // The NEE lanes packed in order, and their choices unpacked.
                 let (mut nee_lane, mut chose) = ([0u8; LANES], 0);

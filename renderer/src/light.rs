@@ -481,12 +481,17 @@ impl LightSet {
         let (LightSamplerKind::Tree, Some(tree)) = (self.kind, self.tree.as_ref().filter(|t| t.is_one_node())) else {
             return false;
         };
-        // The choices between infinite lights and the tree as `select` makes them.
-        let (mut u_tree, mut walks) = ([0f32; 8], 0u32);
-        for k in crate::accel::bits_of(lanes & 0xff) {
-            match self.infinite_or_tree(u[k]) {
-                Ok(infinite) => out[k] = Some(infinite),
-                Err(x) => (u_tree[k], walks) = (x, walks | 1 << k),
+        // The choices between infinite lights and the tree as `select` makes them. Without
+        // infinite lights every lane walks, with `infinite_or_tree`'s number: (u − 0) / (1 − 0)
+        // is u exactly, so only its clamp below 1 is left.
+        let (mut u_tree, mut walks) = (u.map(|u| u.min(1.0 - f32::EPSILON)), lanes & 0xff);
+        if !self.infinite.is_empty() {
+            walks = 0;
+            for k in crate::accel::bits_of(lanes & 0xff) {
+                match self.infinite_or_tree(u[k]) {
+                    Ok(infinite) => out[k] = Some(infinite),
+                    Err(x) => (u_tree[k], walks) = (x, walks | 1 << k),
+                }
             }
         }
         if walks != 0 {

@@ -610,15 +610,17 @@ impl LightTree {
         debug_assert!(self.is_one_node());
         let node = &self.nodes[0];
         let count = (node.count as usize).min(WIDTH);
-        let lanes = |f: &dyn Fn(usize) -> f32| {
+        // Eight lanes from `f(0) … f(7)`.
+        fn lanes(f: impl Fn(usize) -> f32) -> __m256 {
             let a: [f32; 8] = std::array::from_fn(f);
             // SAFETY: AVX is enabled at compile time; an unaligned load of eight floats.
             unsafe { _mm256_loadu_ps(a.as_ptr()) }
-        };
-        let points = [lanes(&|k| p[k].x), lanes(&|k| p[k].y), lanes(&|k| p[k].z)];
-        let normals = [lanes(&|k| n[k].x), lanes(&|k| n[k].y), lanes(&|k| n[k].z)];
-        // SAFETY (this block's intrinsics): AVX2 and FMA are enabled at compile time.
-        let (slot, prob, fallback) = unsafe {
+        }
+        let points = [lanes(|k| p[k].x), lanes(|k| p[k].y), lanes(|k| p[k].z)];
+        let normals = [lanes(|k| n[k].x), lanes(|k| n[k].y), lanes(|k| n[k].z)];
+        // SAFETY (this block's intrinsics): AVX2 and FMA are enabled at compile time; the child
+        // slots are read as one unaligned load of eight u32.
+        let (light, prob, chose, fallback) = unsafe {
             let mut imp = [_mm256_setzero_ps(); WIDTH];
             for (slot, x) in imp.iter_mut().enumerate().take(count) {
                 *x = importance_lanes(&SlotLanes { family: &node.family, slot }, points, Some(normals));
@@ -634,7 +636,7 @@ impl LightTree {
             let total = running[WIDTH - 1];
             // `choose`: t = u · total, and the count of running sums not above it (!(t < r), true
             // for a NaN, as NLT is), each compare's all-ones lane subtracted as −1.
-            let t = _mm256_mul_ps(lanes(&|k| u[k]), total);
+            let t = _mm256_mul_ps(lanes(|k| u[k]), total);
             let mut below = _mm256_setzero_si256();
             for r in running {
                 below = _mm256_sub_epi32(below, _mm256_castps_si256(_mm256_cmp_ps::<_CMP_NLT_UQ>(t, r)));
@@ -645,43 +647,51 @@ impl LightTree {
                 let here = _mm256_castsi256_ps(_mm256_cmpeq_epi32(below, _mm256_set1_epi32(s as i32)));
                 x = _mm256_blendv_ps(x, xs, here);
             }
+            // The walk's step down (`descend`): pmf = 1 · prob, the slot's child, an answer where
+            // that child is a light (in a one-node tree every child is) and pmf > 0.
             let prob = _mm256_div_ps(x, total);
-            let (mut slot, mut prob_lanes) = ([0i32; 8], [0f32; 8]);
-            _mm256_storeu_si256(slot.as_mut_ptr() as *mut __m256i, below);
+            let child = _mm256_permutevar8x32_epi32(_mm256_loadu_si256(node.child.as_ptr() as *const __m256i), below);
+            let is_light = _mm256_cmpeq_epi32(_mm256_srli_epi32::<31>(child), _mm256_set1_epi32(1));
+            let positive = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_GT_OQ>(prob, _mm256_setzero_ps()));
+            let (mut light, mut prob_lanes) = ([0u32; 8], [0f32; 8]);
+            _mm256_storeu_si256(
+                light.as_mut_ptr() as *mut __m256i,
+                _mm256_and_si256(child, _mm256_set1_epi32(!LIGHT as i32)),
+            );
             _mm256_storeu_ps(prob_lanes.as_mut_ptr(), prob);
-            // Lanes with no choice (total not above 0, or NaN) and lanes whose count ran past
-            // the last slot (rounding: `chosen`'s fallback) are finished one at a time.
+            // Lanes with no choice: total not above 0 (or NaN). Lanes whose count ran past the
+            // last slot (u · total rounded up to a subnormal total: `chosen`'s fallback) are
+            // finished one at a time.
             let ok = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(total, _mm256_setzero_ps())) as u32;
             let past =
-                _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(below, _mm256_set1_epi32(WIDTH as i32))));
+                _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(below, _mm256_set1_epi32(WIDTH as i32))))
+                    as u32
+                    & ok;
+            let answered = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_and_si256(is_light, positive))) as u32;
+            let chose = answered & ok & !past;
             let mut fallback = [None::<([f32; WIDTH], f32)>; 8];
-            for k in crate::accel::bits_of(!ok & 0xff) {
-                slot[k] = -1;
-            }
-            if past as u32 & ok != 0 {
+            if past != 0 {
                 let mut lanes_imp = [[0f32; 8]; WIDTH];
                 for (row, x) in lanes_imp.iter_mut().zip(imp) {
                     _mm256_storeu_ps(row.as_mut_ptr(), x);
                 }
                 let mut totals = [0f32; 8];
                 _mm256_storeu_ps(totals.as_mut_ptr(), total);
-                for k in crate::accel::bits_of(past as u32 & ok) {
+                for k in crate::accel::bits_of(past) {
                     fallback[k] = Some((std::array::from_fn(|s| lanes_imp[s][k]), totals[k]));
                 }
             }
-            (slot, prob_lanes, fallback)
+            (light, prob_lanes, chose, fallback)
         };
         for (k, answer) in out.iter_mut().enumerate() {
-            let choice = match (slot[k], fallback[k]) {
-                (s, _) if s < 0 => None,
-                (_, Some((imp, total))) => imp.iter().rposition(|&x| x > 0.0).map(|last| (last, imp[last] / total)),
-                (s, None) => Some((s as usize, prob[k])),
+            *answer = match fallback[k] {
+                None => (chose & (1 << k) != 0).then_some((light[k] as usize, prob[k])),
+                // The last slot with any importance, as `chosen` takes it, then `descend`.
+                Some((imp, total)) => imp.iter().rposition(|&x| x > 0.0).and_then(|last| {
+                    let mut pmf = 1.0;
+                    self.descend(0, last, imp[last] / total, &mut pmf).err().flatten()
+                }),
             };
-            // The walk's one step down.
-            *answer = choice.and_then(|(slot, prob)| {
-                let mut pmf = 1.0;
-                self.descend(0, slot, prob, &mut pmf).err().flatten()
-            });
         }
     }
 
@@ -984,11 +994,16 @@ mod tests {
         let (mut none, mut some, mut past_last, mut slots_seen) = (0, 0, 0, std::collections::HashSet::new());
         // Subnormal powers make subnormal totals, where u · total can round up to the total
         // itself: the count then runs past the last slot, `chosen`'s fallback.
-        for (count, phi) in (1..=WIDTH).map(|c| (c, 1.0)).chain([(3, 1e-41), (8, 1e-41)]) {
+        // And one bright light among subnormal ones (`bright`): where u = 0 picks a faint one, its
+        // share x / total underflows to 0, and `descend` answers None.
+        let configs = (1..=WIDTH).map(|c| (c, 1.0, None)).chain([(3, 1e-41, None), (8, 1e-41, None)]);
+        let mut underflows = 0;
+        for (count, phi, bright) in configs.chain((0..4).map(|b| (4, 1e-41, Some(b)))) {
             let lights: Vec<_> = (0..count)
                 .map(|i| {
                     let down = if i % 3 == 0 { Vec3::new(0.3, -1.0, 0.2).normalize() } else { -Vec3::Y };
                     let c = Vec3::new(i as f32 - 3.0, 2.0 + 0.1 * i as f32, 0.5 * i as f32);
+                    let phi = if bright == Some(i) { 1e6 } else { phi };
                     let mut b = tri_light(c, down, phi * (0.5 + i as f32));
                     b.two_sided = i == 5;
                     b
@@ -1021,13 +1036,16 @@ mod tests {
                         None => (none += 1, false),
                     };
                     // Where the fallback chose, the probability is the last lit slot's share.
-                    past_last += (phi < 1.0 && u[k] > 0.99999 && alone.is_some()) as usize;
+                    past_last += (phi < 1.0 && bright.is_none() && u[k] > 0.99999 && alone.is_some()) as usize;
+                    let lit = tree.importances(0, p[k], Some(n[k])).iter().any(|&x| x > 0.0);
+                    underflows += (bright.is_some() && u[k] == 0.0 && lit && alone.is_none()) as usize;
                 }
             }
         }
         assert!(
-            none > 50 && some > 5000 && past_last > 10 && slots_seen.len() == 36,
-            "{none} unlit, {some} lit, {past_last} near 1 with subnormal totals, {} picks: the test lost its cases",
+            none > 50 && some > 5000 && past_last > 10 && underflows > 0 && slots_seen.len() == 36,
+            "{none} unlit, {some} lit, {past_last} near 1 with subnormal totals, {underflows} shares underflowed, {} \
+             picks: the test lost its cases",
             slots_seen.len()
         );
     }

@@ -265,6 +265,40 @@ impl BoundsLanes for SlotLanes<'_> {
     }
 }
 
+/// The root's choice at eight points ([`LightTree::root_lanes`]), lane for lane: the count of
+/// running sums not above u · total (the slot, where below 8) and the slot's share; the lanes
+/// with a choice (`ok`) and those past the last slot (`past`), which [`RootLanes::past_choice`]
+/// finishes from the importances and totals.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+struct RootLanes {
+    below: std::arch::x86_64::__m256i,
+    prob: std::arch::x86_64::__m256,
+    ok: u32,
+    past: u32,
+    imp: [std::arch::x86_64::__m256; WIDTH],
+    total: std::arch::x86_64::__m256,
+}
+
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+impl RootLanes {
+    /// `chosen`'s slot and share for lane `k` from its importances and total (the lanes past
+    /// the last slot go there).
+    fn past_choice(&self, k: usize) -> Option<(usize, f32)> {
+        let mut lanes = [[0f32; 8]; WIDTH + 1];
+        for (row, x) in lanes.iter_mut().zip(self.imp.iter().chain([&self.total])) {
+            // SAFETY: AVX is enabled at compile time; an unaligned store of eight lanes.
+            unsafe { std::arch::x86_64::_mm256_storeu_ps(row.as_mut_ptr(), *x) };
+        }
+        let imp: [f32; WIDTH] = std::array::from_fn(|s| lanes[s][k]);
+        let total = lanes[WIDTH][k];
+        if total.is_nan() || total <= 0.0 {
+            return None;
+        }
+        let last = imp.iter().rposition(|&x| x > 0.0)?;
+        Some((last, imp[last] / total))
+    }
+}
+
 /// `LightBounds::importance`, lane by lane, of bounds `b` at points `p` (normals `n`): whether
 /// the lanes hold eight bounds at one point or one bounds at eight points, every lane takes the
 /// reference's steps in its order, so every lane is its number bit for bit (a test checks both
@@ -596,18 +630,19 @@ impl LightTree {
         self.walk(u, |at, u| choose(&self.importances(at, p, n), u))
     }
 
-    /// [`Self::sample`] of a one-node tree ([`Self::is_one_node`]) at eight shading points at
-    /// once, the points in the lanes (`p[k]`, normal `n[k]`, number `u[k]`; the answer into
-    /// `out[k]` for every lane). Walked one point at a time, each point costs an evaluation of
-    /// the node's family (eight lights at one point) and a choice among its lanes by shuffles;
-    /// here each light is evaluated at the eight points at once (one evaluation per light, four
-    /// for `scenes/sphere_lights`' bulbs) and the running sums, the count of those not above
-    /// `u · total` and the slot's share are the same additions lane for lane, so every lane's
-    /// answer is [`Self::sample`]'s bit for bit (`root_lanes_choose_what_single_walks_choose`).
+    /// The root's choice (`choose` on its children's importances) at eight shading points at once,
+    /// the points in the lanes (`p[k]`, normal `n[k]`, number `u[k]`). Walked one point at a
+    /// time, each point costs an evaluation of the root's family (its eight children at one
+    /// point) and a choice among its lanes by shuffles (`choose_avx`); here each child is
+    /// evaluated at the eight points at once, and the running sums, the count of those not
+    /// above `u · total` and the slot's share are the same additions, compares and division
+    /// lane for lane, so every lane's slot and share are `choose`'s bit for bit. (For the
+    /// many-node trees' walks the same at their root cost more than it saved: many_lights
+    /// 85.15 → 87.31 M instructions, ARCHITECTURE.md's thirty-fifth round.)
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
-    pub fn sample_root_lanes(&self, p: &[Vec3; 8], n: &[Vec3; 8], u: &[f32; 8], out: &mut [Option<(usize, f32)>; 8]) {
+    #[inline(always)]
+    fn root_lanes(&self, p: &[Vec3; 8], n: &[Vec3; 8], u: &[f32; 8]) -> RootLanes {
         use std::arch::x86_64::*;
-        debug_assert!(self.is_one_node());
         let node = &self.nodes[0];
         let count = (node.count as usize).min(WIDTH);
         // Eight lanes from `f(0) … f(7)`.
@@ -618,9 +653,8 @@ impl LightTree {
         }
         let points = [lanes(|k| p[k].x), lanes(|k| p[k].y), lanes(|k| p[k].z)];
         let normals = [lanes(|k| n[k].x), lanes(|k| n[k].y), lanes(|k| n[k].z)];
-        // SAFETY (this block's intrinsics): AVX2 and FMA are enabled at compile time; the child
-        // slots are read as one unaligned load of eight u32.
-        let (light, prob, chose, fallback) = unsafe {
+        // SAFETY (this block's intrinsics): AVX2 and FMA are enabled at compile time.
+        unsafe {
             let mut imp = [_mm256_setzero_ps(); WIDTH];
             for (slot, x) in imp.iter_mut().enumerate().take(count) {
                 *x = importance_lanes(&SlotLanes { family: &node.family, slot }, points, Some(normals));
@@ -647,49 +681,53 @@ impl LightTree {
                 let here = _mm256_castsi256_ps(_mm256_cmpeq_epi32(below, _mm256_set1_epi32(s as i32)));
                 x = _mm256_blendv_ps(x, xs, here);
             }
-            // The walk's step down (`descend`): pmf = 1 · prob, the slot's child, an answer where
-            // that child is a light (in a one-node tree every child is) and pmf > 0.
             let prob = _mm256_div_ps(x, total);
-            let child = _mm256_permutevar8x32_epi32(_mm256_loadu_si256(node.child.as_ptr() as *const __m256i), below);
-            let is_light = _mm256_cmpeq_epi32(_mm256_srli_epi32::<31>(child), _mm256_set1_epi32(1));
-            let positive = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_GT_OQ>(prob, _mm256_setzero_ps()));
-            let (mut light, mut prob_lanes) = ([0u32; 8], [0f32; 8]);
-            _mm256_storeu_si256(
-                light.as_mut_ptr() as *mut __m256i,
-                _mm256_and_si256(child, _mm256_set1_epi32(!LIGHT as i32)),
-            );
-            _mm256_storeu_ps(prob_lanes.as_mut_ptr(), prob);
-            // Lanes with no choice: total not above 0 (or NaN). Lanes whose count ran past the
-            // last slot (u · total rounded up to a subnormal total: `chosen`'s fallback) are
-            // finished one at a time.
+            // Lanes with no choice: total not above 0 (or NaN); lanes whose count ran past the
+            // last slot (u · total rounded up to a subnormal total) take `chosen`'s fallback.
             let ok = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(total, _mm256_setzero_ps())) as u32;
             let past =
                 _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(below, _mm256_set1_epi32(WIDTH as i32))))
                     as u32
                     & ok;
+            RootLanes { below, prob, ok, past, imp, total }
+        }
+    }
+
+    /// [`Self::sample`] of a one-node tree ([`Self::is_one_node`]) at eight shading points at
+    /// once (`p[k]`, normal `n[k]`, number `u[k]`; the answer into `out[k]` for every lane): the
+    /// root's choice for the eight together ([`Self::root_lanes`]: one evaluation per light,
+    /// four for `scenes/sphere_lights`' bulbs, where one point at a time evaluated eight lights
+    /// for each), then the walk's one step down, also lane for lane. Every lane's answer is
+    /// [`Self::sample`]'s bit for bit (`root_lanes_choose_what_single_walks_choose`).
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+    pub fn sample_root_lanes(&self, p: &[Vec3; 8], n: &[Vec3; 8], u: &[f32; 8], out: &mut [Option<(usize, f32)>; 8]) {
+        use std::arch::x86_64::*;
+        debug_assert!(self.is_one_node());
+        let root = self.root_lanes(p, n, u);
+        // SAFETY (this block's intrinsics): AVX2 is enabled at compile time; the child slots are
+        // read as one unaligned load of eight u32.
+        let (light, prob, chose) = unsafe {
+            // The walk's step down (`descend`): pmf = 1 · prob, the slot's child, an answer where
+            // that child is a light (in a one-node tree every child is) and pmf > 0.
+            let child = _mm256_loadu_si256(self.nodes[0].child.as_ptr() as *const __m256i);
+            let child = _mm256_permutevar8x32_epi32(child, root.below);
+            let is_light = _mm256_cmpeq_epi32(_mm256_srli_epi32::<31>(child), _mm256_set1_epi32(1));
+            let positive = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_GT_OQ>(root.prob, _mm256_setzero_ps()));
+            let (mut light, mut prob) = ([0u32; 8], [0f32; 8]);
+            _mm256_storeu_si256(
+                light.as_mut_ptr() as *mut __m256i,
+                _mm256_and_si256(child, _mm256_set1_epi32(!LIGHT as i32)),
+            );
+            _mm256_storeu_ps(prob.as_mut_ptr(), root.prob);
             let answered = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_and_si256(is_light, positive))) as u32;
-            let chose = answered & ok & !past;
-            let mut fallback = [None::<([f32; WIDTH], f32)>; 8];
-            if past != 0 {
-                let mut lanes_imp = [[0f32; 8]; WIDTH];
-                for (row, x) in lanes_imp.iter_mut().zip(imp) {
-                    _mm256_storeu_ps(row.as_mut_ptr(), x);
-                }
-                let mut totals = [0f32; 8];
-                _mm256_storeu_ps(totals.as_mut_ptr(), total);
-                for k in crate::accel::bits_of(past) {
-                    fallback[k] = Some((std::array::from_fn(|s| lanes_imp[s][k]), totals[k]));
-                }
-            }
-            (light, prob_lanes, chose, fallback)
+            (light, prob, answered & root.ok & !root.past)
         };
         for (k, answer) in out.iter_mut().enumerate() {
-            *answer = match fallback[k] {
-                None => (chose & (1 << k) != 0).then_some((light[k] as usize, prob[k])),
-                // The last slot with any importance, as `chosen` takes it, then `descend`.
-                Some((imp, total)) => imp.iter().rposition(|&x| x > 0.0).and_then(|last| {
+            *answer = match root.past & (1 << k) {
+                0 => (chose & (1 << k) != 0).then_some((light[k] as usize, prob[k])),
+                _ => root.past_choice(k).and_then(|(slot, prob)| {
                     let mut pmf = 1.0;
-                    self.descend(0, last, imp[last] / total, &mut pmf).err().flatten()
+                    self.descend(0, slot, prob, &mut pmf).err().flatten()
                 }),
             };
         }

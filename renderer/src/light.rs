@@ -905,6 +905,72 @@ mod tests {
         }
     }
 
+    /// `select_root_lanes` makes `select`'s choices, bit for bit, on the lanes it is asked for
+    /// (and writes no other), for a one-node light tree with and without directional lights
+    /// beside it; it declines (false, nothing written) for the other sampler kinds.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+    #[test]
+    fn root_lanes_choose_what_one_at_a_time_chooses() {
+        let mut b = SceneBuilder::default();
+        for i in 0..5 {
+            let m = b.material(emitter(Vec3::splat(1.0 + i as f32)));
+            let (x, z) = (i as f32 - 2.0, 0.5 * i as f32 - 1.0);
+            b.triangles(
+                &[Vec3::new(x, 2.0, z), Vec3::new(x + 0.3, 2.0, z), Vec3::new(x, 2.0, z + 0.3)],
+                &[[0, 1, 2]],
+                m,
+            );
+        }
+        let mut scene = b.build();
+        let sun = |d: Vec3| PunctualLight {
+            kind: PunctualKind::Directional,
+            intensity: Vec3::splat(3.0),
+            position: Vec3::ZERO,
+            direction: d.normalize(),
+        };
+        let h = |j: u64| crate::sampler::hash_unit(j);
+        for suns in [false, true] {
+            scene.set_punctual(if suns { vec![sun(Vec3::new(0.2, -1.0, 0.1))] } else { Vec::new() });
+            scene.lights.set_kind_exact(LightSamplerKind::Tree, &scene.mesh);
+            assert!(scene.lights.tree.as_ref().is_some_and(|t| t.is_one_node()));
+            let (mut tree_picks, mut sun_picks) = (0, 0);
+            for batch in 0..100u64 {
+                let at = |k: usize| 64 * batch + 8 * k as u64;
+                let p: [Vec3; 8] =
+                    std::array::from_fn(|k| Vec3::new(h(at(k)) * 8.0 - 4.0, 0.0, h(at(k) + 1) * 6.0 - 3.0));
+                let n: [Vec3; 8] = std::array::from_fn(|k| Vec3::new(h(at(k) + 2) - 0.5, 1.0, 0.0).normalize());
+                let u: [f32; 8] = std::array::from_fn(|k| if k == 7 { 1.0 - f32::EPSILON / 2.0 } else { h(at(k) + 3) });
+                let lanes = (h(at(0) + 4) * 256.0) as u32 | 1;
+                let mut out = [Some((usize::MAX, -1.0)); 8];
+                assert!(scene.lights.select_root_lanes(&p, &n, &u, lanes, &mut out));
+                for k in 0..8 {
+                    let bits = |x: Option<(usize, f32)>| x.map(|(l, pmf)| (l, pmf.to_bits()));
+                    if lanes & (1 << k) == 0 {
+                        assert_eq!(bits(out[k]), Some((usize::MAX, (-1.0f32).to_bits())), "lane {k} not asked for");
+                        continue;
+                    }
+                    let alone = scene.lights.select(p[k], Some(n[k]), u[k]);
+                    assert_eq!(bits(out[k]), bits(alone), "suns {suns}, batch {batch}, lane {k}");
+                    match alone {
+                        Some((l, _)) if l >= scene.lights.lights.len() => sun_picks += 1,
+                        Some(_) => tree_picks += 1,
+                        None => {}
+                    }
+                }
+            }
+            assert!(
+                tree_picks > 100 && (sun_picks > 10) == suns,
+                "suns {suns}: {tree_picks} tree, {sun_picks} sun picks"
+            );
+        }
+        for kind in [LightSamplerKind::Power, LightSamplerKind::Uniform] {
+            scene.lights.set_kind_exact(kind, &scene.mesh);
+            let mut out = [None; 8];
+            assert!(!scene.lights.select_root_lanes(&[Vec3::ZERO; 8], &[Vec3::Y; 8], &[0.5; 8], 0xff, &mut out));
+            assert_eq!(out, [None; 8], "{kind:?}: nothing written");
+        }
+    }
+
     /// `select_batch` makes `select`'s choices, bit for bit, for every sampler kind, with two
     /// directional lights (chosen outside the tree) beside the tree's triangles, for batches
     /// longer than the walks interleaved at once.

@@ -868,6 +868,7 @@ impl LightSet {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::scene::Scene;
     use crate::testing::{emitter, SceneBuilder};
 
     /// A light sample is the point the mesh itself gives for the same barycentrics, bit for bit
@@ -905,29 +906,39 @@ mod tests {
         }
     }
 
-    /// `select_root_lanes` makes `select`'s choices, bit for bit, on the lanes it is asked for
-    /// (and writes no other), for a one-node light tree with and without directional lights
-    /// beside it; it declines (false, nothing written) for the other sampler kinds.
-    #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
-    #[test]
-    fn root_lanes_choose_what_one_at_a_time_chooses() {
+    /// A scene of `count` small emitting triangles in the plane y = 2, triangle i at (x, z) with
+    /// radiance r for `(x, z, r) = at(i)`.
+    fn emitter_triangles(count: usize, at: impl Fn(usize) -> (f32, f32, f32)) -> Scene {
         let mut b = SceneBuilder::default();
-        for i in 0..5 {
-            let m = b.material(emitter(Vec3::splat(1.0 + i as f32)));
-            let (x, z) = (i as f32 - 2.0, 0.5 * i as f32 - 1.0);
+        for i in 0..count {
+            let (x, z, r) = at(i);
+            let m = b.material(emitter(Vec3::splat(r)));
             b.triangles(
                 &[Vec3::new(x, 2.0, z), Vec3::new(x + 0.3, 2.0, z), Vec3::new(x, 2.0, z + 0.3)],
                 &[[0, 1, 2]],
                 m,
             );
         }
-        let mut scene = b.build();
-        let sun = |d: Vec3| PunctualLight {
+        b.build()
+    }
+
+    /// A directional light of radiance 3 along `d`.
+    fn sun(d: Vec3) -> PunctualLight {
+        PunctualLight {
             kind: PunctualKind::Directional,
             intensity: Vec3::splat(3.0),
             position: Vec3::ZERO,
             direction: d.normalize(),
-        };
+        }
+    }
+
+    /// `select_root_lanes` makes `select`'s choices, bit for bit, on the lanes it is asked for
+    /// (and writes no other), for a one-node light tree with and without directional lights
+    /// beside it; it declines (false, nothing written) for the other sampler kinds.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+    #[test]
+    fn root_lanes_choose_what_one_at_a_time_chooses() {
+        let mut scene = emitter_triangles(5, |i| (i as f32 - 2.0, 0.5 * i as f32 - 1.0, 1.0 + i as f32));
         let h = |j: u64| crate::sampler::hash_unit(j);
         for suns in [false, true] {
             scene.set_punctual(if suns { vec![sun(Vec3::new(0.2, -1.0, 0.1))] } else { Vec::new() });
@@ -976,23 +987,7 @@ mod tests {
     /// longer than the walks interleaved at once.
     #[test]
     fn choosing_together_chooses_what_one_at_a_time_chooses() {
-        let mut b = SceneBuilder::default();
-        for i in 0..40 {
-            let m = b.material(emitter(Vec3::splat(1.0 + (i % 5) as f32)));
-            let (x, z) = ((i % 8) as f32 - 3.5, (i / 8) as f32 - 2.0);
-            b.triangles(
-                &[Vec3::new(x, 2.0, z), Vec3::new(x + 0.3, 2.0, z), Vec3::new(x, 2.0, z + 0.3)],
-                &[[0, 1, 2]],
-                m,
-            );
-        }
-        let mut scene = b.build();
-        let sun = |d: Vec3| PunctualLight {
-            kind: PunctualKind::Directional,
-            intensity: Vec3::splat(3.0),
-            position: Vec3::ZERO,
-            direction: d.normalize(),
-        };
+        let mut scene = emitter_triangles(40, |i| ((i % 8) as f32 - 3.5, (i / 8) as f32 - 2.0, 1.0 + (i % 5) as f32));
         scene.set_punctual(vec![sun(Vec3::new(0.2, -1.0, 0.1)), sun(Vec3::new(-0.5, -1.0, 0.3))]);
         let count = 2 * MAX_WALKS + 5;
         let h = |j: u64| crate::sampler::hash_unit(j);

@@ -244,7 +244,7 @@ impl BoundsLanes for Family {
 }
 
 /// One slot of a family in every lane: what [`importance_lanes`] needs to evaluate one light
-/// (or node) at eight points, [`LightTree::sample_root_lanes`]'s transposed evaluation.
+/// (or node) at eight points, [`LightTree::root_lanes`]'s transposed evaluation.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
 struct SlotLanes<'a> {
     family: &'a Family,
@@ -301,8 +301,9 @@ impl RootLanes {
 
 /// `LightBounds::importance`, lane by lane, of bounds `b` at points `p` (normals `n`): whether
 /// the lanes hold eight bounds at one point or one bounds at eight points, every lane takes the
-/// reference's steps in its order, so every lane is its number bit for bit (a test checks both
-/// forms on random points, normals and bounds).
+/// reference's steps in its order, so every lane is its number bit for bit
+/// (`family_importance_equals_one_at_a_time` checks both forms on random points, normals and
+/// bounds).
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
 #[inline(always)]
 unsafe fn importance_lanes(
@@ -1186,7 +1187,7 @@ mod tests {
             });
         }
         let mut tree = LightTree::build(&lights).unwrap();
-        let (mut compared, mut nonzero) = (0usize, 0usize);
+        let (mut compared, mut nonzero, mut slot_compared) = (0usize, 0usize, 0usize);
         for k in 0..2000u64 {
             let p = if k % 50 == 0 { lights[k as usize % 300].centroid() } else { v(7 * k + 100_000) * 5.0 };
             let n = (k % 3 != 0).then(|| v(7 * k + 200_000).normalize_or(Vec3::Z));
@@ -1203,6 +1204,40 @@ mod tests {
                     nonzero += (s > 0.0) as usize;
                 }
             }
+            // The slot form: one child at eight points (this one and seven more), each lane the
+            // reference's number at its point.
+            #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+            if let Some(n) = n {
+                use std::arch::x86_64::*;
+                let pts: [Vec3; 8] =
+                    std::array::from_fn(|i| if i == 0 { p } else { v(7 * k + 300_000 + 3 * i as u64) * 5.0 });
+                let lanes = |f: &dyn Fn(Vec3) -> f32| {
+                    let a: [f32; 8] = std::array::from_fn(|i| f(pts[i]));
+                    // SAFETY: AVX is enabled at compile time; an unaligned load of eight floats.
+                    unsafe { _mm256_loadu_ps(a.as_ptr()) }
+                };
+                let at = [lanes(&|q| q.x), lanes(&|q| q.y), lanes(&|q| q.z)];
+                // SAFETY: as above.
+                let normal = unsafe { [_mm256_set1_ps(n.x), _mm256_set1_ps(n.y), _mm256_set1_ps(n.z)] };
+                for (i, node) in tree.nodes.iter().enumerate() {
+                    for slot in 0..node.count as usize {
+                        let mut out = [0f32; 8];
+                        // SAFETY: AVX2 and FMA are enabled at compile time; an unaligned store.
+                        unsafe {
+                            let x = importance_lanes(&SlotLanes { family: &node.family, slot }, at, Some(normal));
+                            _mm256_storeu_ps(out.as_mut_ptr(), x);
+                        }
+                        for (lane, &x) in out.iter().enumerate() {
+                            let s = tree.child_bounds[i][slot].importance(pts[lane], Some(n));
+                            assert!(
+                                x == s && (x == 0.0 || x.to_bits() == s.to_bits()),
+                                "slot form: node {i} slot {slot} lane {lane}"
+                            );
+                            slot_compared += 1;
+                        }
+                    }
+                }
+            }
             let uu = u(7 * k + 5);
             let family = (tree.sample(p, n, uu), (0..300).map(|l| tree.pmf(p, n, l).to_bits()).collect::<Vec<_>>());
             tree.set_scalar_reference(true);
@@ -1212,6 +1247,8 @@ mod tests {
             assert_eq!(family.1, scalar.1, "point {k}");
         }
         assert!(compared > 500_000 && nonzero > compared / 4, "{compared} compared, {nonzero} non-zero");
+        #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
+        assert!(slot_compared > 500_000, "{slot_compared} compared in the slot form");
     }
 
     /// pbrt-v4's `LightBounds::Importance`, step for step as it is written there (normalise

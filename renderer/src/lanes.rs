@@ -340,6 +340,15 @@ impl V8 {
     #[inline(always)]
     pub fn to_lanes(self) -> [Vec3; LANES] {
         let mut out = [Vec3::ZERO; LANES];
+        self.store_lanes(&mut out);
+        out
+    }
+
+    /// [`Self::to_lanes`] into `out` in place: three stores where the caller's vectors live, not
+    /// a local array copied there (which, for a slice of eight or fewer, LLVM makes a call to
+    /// `memcpy`: 0.7 % of a veach render, the camera rays' directions).
+    #[inline(always)]
+    pub fn store_lanes(self, out: &mut [Vec3; LANES]) {
         // SAFETY: as in `from_lanes`: the three 8-float stores fill `out`'s 24 floats exactly.
         unsafe {
             let (x, y, z) = (self.x.0, self.y.0, self.z.0);
@@ -356,7 +365,6 @@ impl V8 {
             _mm256_storeu_ps(p.add(8), _mm256_permute2f128_ps::<0x30>(r25, r03));
             _mm256_storeu_ps(p.add(16), _mm256_permute2f128_ps::<0x31>(r14, r25));
         }
-        out
     }
 
     /// [`Self::to_lanes`] a lane at a time: the reference.

@@ -152,8 +152,11 @@ fn camera_rays8(
     };
     let fx = F8::splat(x as f32 + 0.5) + offset(ux);
     let fy = F8::splat(y as f32 + 0.5) + offset(uy);
-    let lanes = raster.directions8(fx, fy).to_lanes();
-    crate::spmd::copy_lanes(dirs, &lanes, n);
+    let d = raster.directions8(fx, fy);
+    match <&mut [Vec3; crate::spmd::LANES]>::try_from(&mut dirs[..n]) {
+        Ok(all) => d.store_lanes(all),
+        Err(_) => dirs[..n].copy_from_slice(&d.to_lanes()[..n]),
+    }
 }
 
 /// Samples a filter offset from the pixel centre, in pixels (filter importance sampling).

@@ -292,18 +292,6 @@ fn shade_handed_lanes(
     (*eta_scale, *rd) = (F8::from_array(es), V8::from_lanes(&ds));
 }
 
-/// `dst[..n] = src[..n]` for n ≤ [`LANES`], as register moves where n is eight (a pixel's batch
-/// but its last): a slice copy of unknown length is a call to `memcpy`, 1.3 % of a veach render.
-#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-#[inline(always)]
-pub(crate) fn copy_lanes<T: Copy>(dst: &mut [T], src: &[T], n: usize) {
-    if n == LANES {
-        dst[..LANES].copy_from_slice(&src[..LANES]);
-    } else {
-        dst[..n].copy_from_slice(&src[..n]);
-    }
-}
-
 /// Emission found: l + β·Le·w on the lanes that met some (w = 1 after the camera ray).
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[inline(always)]

@@ -75,12 +75,24 @@ impl PartialSums {
         if self.rect != other.rect {
             return Err(format!("cannot merge sums of {:?} into {:?}", other.rect, self.rect));
         }
-        for i in 0..self.sum_rgb.len() {
+        let lengths = |s: &PartialSums| (s.sum_rgb.len(), s.sum_lum_sq.len(), s.count.len());
+        if lengths(self) != lengths(other) {
+            return Err(format!("cannot merge sums of {:?} pixels into {:?}", lengths(other), lengths(self)));
+        }
+        // Zipped rather than indexed: no bounds check a value, and the additions vectorise (each
+        // pixel's sum still gains `other`'s in one addition, so the bits are the same). A tile's
+        // pass is folded this way at every pass: 2.7 % of a depth-0 veach render's `perf`
+        // samples when indexed.
+        for (a, b) in self.sum_rgb.iter_mut().zip(&other.sum_rgb) {
             for c in 0..3 {
-                self.sum_rgb[i][c] += other.sum_rgb[i][c];
+                a[c] += b[c];
             }
-            self.sum_lum_sq[i] += other.sum_lum_sq[i];
-            self.count[i] += other.count[i];
+        }
+        for (a, b) in self.sum_lum_sq.iter_mut().zip(&other.sum_lum_sq) {
+            *a += b;
+        }
+        for (a, b) in self.count.iter_mut().zip(&other.count) {
+            *a += b;
         }
         Ok(())
     }
@@ -180,6 +192,37 @@ mod tests {
         let expect = 14.0 / 3.0 / 4.0;
         assert!((p.variance_of_mean(0) as f64 - expect).abs() < 1e-5);
         assert_eq!(p.mean(0), [3.0, 3.0, 3.0]);
+    }
+
+    /// Merging adds each pixel's sums and counts (the same additions as one pixel at a time), and
+    /// sums whose vectors do not fit their rect (a malformed message's) are refused with an error,
+    /// not a panic, leaving the target as it was.
+    #[test]
+    fn merge_adds_pixel_by_pixel_and_refuses_misshapen_sums() {
+        let rect = Rect { x0: 2, y0: 1, width: 3, height: 2 };
+        let (mut a, mut b) = (PartialSums::new(rect), PartialSums::new(rect));
+        for i in 0..6 {
+            a.add_sample(i, Vec3::new(0.1 * i as f32, 1e-7, 3.0));
+            b.add_sample(i, Vec3::new(1.0 / (i + 1) as f32, 2.5, 1e9));
+            b.add_sample(i, Vec3::splat(0.3));
+        }
+        let before = a.clone();
+        a.merge(&b).expect("same rect");
+        for i in 0..6 {
+            for c in 0..3 {
+                assert_eq!(a.sum_rgb[i][c].to_bits(), (before.sum_rgb[i][c] + b.sum_rgb[i][c]).to_bits());
+            }
+            assert_eq!(a.sum_lum_sq[i].to_bits(), (before.sum_lum_sq[i] + b.sum_lum_sq[i]).to_bits());
+            assert_eq!(a.count[i], 3);
+        }
+        let merged = a.clone();
+        let mut short = b.clone();
+        short.sum_lum_sq.pop();
+        assert!(a.merge(&short).is_err());
+        let mut long = b.clone();
+        long.count.push(1);
+        assert!(a.merge(&long).is_err());
+        assert_eq!((a.sum_rgb, a.sum_lum_sq, a.count), (merged.sum_rgb, merged.sum_lum_sq, merged.count));
     }
 
     #[test]

@@ -976,9 +976,10 @@ mod tests {
         }
         for kind in [LightSamplerKind::Power, LightSamplerKind::Uniform] {
             scene.lights.set_kind_exact(kind, &scene.mesh);
-            let mut out = [None; 8];
+            // A sentinel that no answer is, so that writing anything (None included) shows.
+            let mut out = [Some((usize::MAX, -1.0)); 8];
             assert!(!scene.lights.select_root_lanes(&[Vec3::ZERO; 8], &[Vec3::Y; 8], &[0.5; 8], 0xff, &mut out));
-            assert_eq!(out, [None; 8], "{kind:?}: nothing written");
+            assert_eq!(out, [Some((usize::MAX, -1.0)); 8], "{kind:?}: nothing written");
         }
     }
 

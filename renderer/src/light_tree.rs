@@ -281,21 +281,16 @@ struct RootLanes {
 
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
 impl RootLanes {
-    /// `chosen`'s slot and share for lane `k` from its importances and total (the lanes past
-    /// the last slot go there).
+    /// `chosen`'s slot and share for lane `k`, one of `past` (whose total is above 0: `past` is
+    /// within `ok`), from its importances and total.
     fn past_choice(&self, k: usize) -> Option<(usize, f32)> {
+        debug_assert!(self.past & self.ok & (1 << k) != 0);
         let mut lanes = [[0f32; 8]; WIDTH + 1];
         for (row, x) in lanes.iter_mut().zip(self.imp.iter().chain([&self.total])) {
             // SAFETY: AVX is enabled at compile time; an unaligned store of eight lanes.
             unsafe { std::arch::x86_64::_mm256_storeu_ps(row.as_mut_ptr(), *x) };
         }
-        let imp: [f32; WIDTH] = std::array::from_fn(|s| lanes[s][k]);
-        let total = lanes[WIDTH][k];
-        if total.is_nan() || total <= 0.0 {
-            return None;
-        }
-        let last = imp.iter().rposition(|&x| x > 0.0)?;
-        Some((last, imp[last] / total))
+        last_with_importance(&std::array::from_fn(|s| lanes[s][k]), lanes[WIDTH][k])
     }
 }
 
@@ -458,9 +453,16 @@ fn chosen(imp: &[f32; WIDTH], running: &[f32; WIDTH], t: f32, below: usize) -> O
         let before = if below == 0 { 0.0 } else { running[below - 1] };
         return Some((below, x / total, ((t - before) / x).clamp(0.0, 1.0 - f32::EPSILON)));
     }
-    // Rounding left t at or past the sum: the last slot that has any importance.
+    let (last, prob) = last_with_importance(imp, total)?;
+    Some((last, prob, 1.0 - f32::EPSILON))
+}
+
+/// `chosen`'s slot where rounding left t at or past the sum: the last slot that has any
+/// importance, and its share of `total`.
+#[inline(always)]
+fn last_with_importance(imp: &[f32; WIDTH], total: f32) -> Option<(usize, f32)> {
     let last = imp.iter().rposition(|&x| x > 0.0)?;
-    Some((last, imp[last] / total, 1.0 - f32::EPSILON))
+    Some((last, imp[last] / total))
 }
 
 /// `choose` on importances still in an AVX register, as the walk has them: the running sums by

@@ -425,11 +425,9 @@ pub fn render(scene: &Scene, settings: &RenderSettings, counters: &Counters) -> 
         // took fresh pages, each a page fault and a page of zeroes (`perf record`, depth-0 veach,
         // 256×192, 256 spp, one thread: `clear_page_erms` 5.5 %, page faults under
         // `Vec::from_iter` 3.7 % and `realloc` 1.4 %, with `kernel_pixels`' own vectors).
-        let mut on = vec![false; rects.len()];
-        for &t in &active {
-            on[t] = true;
-        }
-        tiles.par_iter_mut().zip(noise.par_iter_mut()).enumerate().filter(|(t, _)| on[*t]).for_each(
+        // (`active` stays in ascending order: it starts so and is only ever `retain`ed.)
+        let is_active = |t: &usize| active.binary_search(t).is_ok();
+        tiles.par_iter_mut().zip(noise.par_iter_mut()).enumerate().filter(|(t, _)| is_active(t)).for_each(
             |(t, ((tile, folded), noise))| {
                 let sums = render_tile_counted(scene, settings, rects[t], range.clone(), counters);
                 tile.merge(&sums).expect("a tile's pass has the tile's rect");

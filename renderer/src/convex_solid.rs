@@ -409,6 +409,37 @@ impl ConvexSolids {
             && self.solids[..self.glass].iter().take(MAX_OCCLUDERS).any(|s| s.blocks(o, d, tmax))
     }
 
+    /// [`Self::blocks`] for eight rays at once: the bits of the rays among `lanes` (ray k from
+    /// `o[k]` along `d[k]` to `tmax[k]`) that a glass solid certainly blocks. The same
+    /// arithmetic as [`Solid::blocks`], lane for lane in the same order and without fused
+    /// multiply-adds, so the same bits answer (`blocks_lanes_answer_as_blocks`). A shadow ray
+    /// through a scene of glass balls took some 45 instructions a ball one ray at a time
+    /// (callgrind, `glass`: 6.3 M of 189 M in 70 280 calls); eight at a time the balls' loads,
+    /// divisions and compares are shared.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[inline]
+    pub fn blocks_lanes(&self, o: &[Vec3; 8], d: &[Vec3; 8], tmax: &[f32; 8], lanes: u32) -> u32 {
+        use crate::lanes::{F8, M8, V8};
+        let (o, d, tmax) = (V8::from_lanes(o), V8::from_lanes(d), F8::from_array(*tmax));
+        let zero = F8::zero();
+        let dd = d.dot(d);
+        // `!tmax.is_nan() && tmax > 0.0` and `dd > 0.0` (ordered compares: false on NaN).
+        let live = tmax.gt(zero) & dd.gt(zero);
+        let unbounded = tmax.eq(F8::splat(f32::INFINITY));
+        let end = o + d.scale(tmax);
+        let mut blocked = M8::from_bits(0);
+        for s in self.solids[..self.glass].iter().take(MAX_OCCLUDERS) {
+            let c = V8::splat(s.center32);
+            let oc = c - o;
+            let t = oc.dot(d) / dd;
+            let near = oc - d.scale(t);
+            let far = end - c;
+            let inside = t.gt(zero) & t.lt(tmax) & near.dot(near).lt(F8::splat(s.inner_sq));
+            blocked = blocked | (inside & (unbounded | far.dot(far).gt(F8::splat(s.outer_sq))));
+        }
+        (live & blocked).bits() & lanes & 0xff
+    }
+
     /// How many solids the scene has, glass and opaque.
     pub fn len(&self) -> usize {
         self.solids.len()
@@ -680,5 +711,65 @@ mod tests {
         assert_eq!(solids(&touched).len(), 1);
         // Not glass: nothing looked for.
         assert!(ConvexSolids::find(&mesh_of(&whole), |_| false, |_| false).is_empty());
+    }
+
+    /// `blocks_lanes` answers each lane as `blocks` answers its ray, bit for bit, and only the
+    /// lanes asked: rays through one ball, two, none, ending inside a ball or past it, unbounded,
+    /// with zero, negative and NaN lengths, a zero direction, and more balls than are tried.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[test]
+    fn blocks_lanes_answer_as_blocks() {
+        use crate::sampler::hash_unit as u;
+        // Ten balls in a row (more than MAX_OCCLUDERS), of radii 0.3 to 0.48.
+        let mut tris = Vec::new();
+        let centers: Vec<Vec3> = (0..10).map(|i| Vec3::new(i as f32 * 1.5, 0.0, 0.0)).collect();
+        for (i, &c) in centers.iter().enumerate() {
+            tris.extend(ball(c, 0.3 + 0.02 * i as f32));
+        }
+        let s = solids(&tris);
+        assert_eq!(s.glass_len(), 10);
+        let (mut blocked, mut seen) = (0, 0);
+        let mut r = 7u64 << 32;
+        let mut next = || {
+            r += 1;
+            u(r)
+        };
+        for batch in 0..4000u32 {
+            let (mut o, mut d, mut tmax) = ([Vec3::ZERO; 8], [Vec3::ZERO; 8], [0f32; 8]);
+            for k in 0..8 {
+                // From around the row towards a point near some ball's centre, or anywhere.
+                let from = Vec3::new(next() * 16.0 - 1.5, next() * 4.0 - 2.0, next() * 4.0 - 2.0);
+                let target =
+                    centers[(next() * 10.0) as usize % 10] + Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5) * 0.8;
+                let to = if next() < 0.8 { target } else { Vec3::new(next(), next(), next()) * 20.0 - 10.0 };
+                o[k] = from;
+                d[k] = (to - from) * (0.25 + next() * 2.0);
+                // Past the target, short of it, or to its point.
+                tmax[k] = match (batch as usize + k) % 9 {
+                    0 => f32::INFINITY,
+                    1 => f32::NAN,
+                    2 => 0.0,
+                    3 => -1.0,
+                    4 => 1.0 / (0.25 + next() * 2.0) * 0.5,
+                    _ => next() * 3.0,
+                };
+                if (batch as usize + k).is_multiple_of(97) {
+                    d[k] = Vec3::ZERO;
+                }
+                // Along the row, unbounded: the far end's other coordinates are 0·∞ (NaN).
+                if (batch as usize + k).is_multiple_of(11) {
+                    (o[k].y, o[k].z, d[k], tmax[k]) = (next() * 0.2, next() * 0.2, Vec3::X, f32::INFINITY);
+                }
+            }
+            let lanes = if batch.is_multiple_of(5) { u32::from(next().to_bits() as u8) } else { 0xff };
+            let got = s.blocks_lanes(&o, &d, &tmax, lanes);
+            let want = (0..8).filter(|&k| lanes & (1 << k) != 0 && s.blocks(o[k], d[k], tmax[k]));
+            let want = want.fold(0u32, |b, k| b | 1 << k);
+            assert_eq!(got, want, "batch {batch}: {o:?} {d:?} {tmax:?}");
+            blocked += want.count_ones();
+            seen += lanes.count_ones();
+        }
+        // Both answers occur often.
+        assert!(blocked > seen / 10 && blocked < seen * 9 / 10, "{blocked} of {seen}");
     }
 }

@@ -67,8 +67,10 @@ impl AliasTable {
     pub fn sample(&self, u: f32) -> (usize, f32) {
         let n = self.bins.len();
         let x = u * n as f32;
-        let i = (x as usize).min(n - 1);
-        let up = (x - i as f32).min(1.0 - f32::EPSILON);
+        // Through u32 (both conversions saturate; n is far below 2^32): the same integer, without
+        // the unsigned 64-bit conversion's range fix-ups, which x86-64 does not have natively.
+        let i = (x as u32 as usize).min(n - 1);
+        let up = (x - i as u32 as f32).min(1.0 - f32::EPSILON);
         let idx = if up < self.bins[i].q { i } else { self.bins[i].alias as usize };
         (idx, self.bins[idx].p)
     }

@@ -75,7 +75,13 @@ impl Table<'_> {
     /// for a u outside [0, 1)). The first of a sample's dependent loads (`sample_batch`).
     #[inline(always)]
     fn search_range(&self, u: f32) -> (usize, usize) {
-        match self.guide_slot(u) {
+        self.range_of_slot(self.guide_slot(u))
+    }
+
+    /// [`Self::search_range`] given u's [`Self::guide_slot`].
+    #[inline(always)]
+    fn range_of_slot(&self, k: Option<usize>) -> (usize, usize) {
+        match k {
             Some(k) => (self.guide[k] as usize, self.guide[k + 1] as usize),
             None => (0, self.entries.len()),
         }
@@ -89,7 +95,9 @@ impl Table<'_> {
             return None;
         }
         let g = self.guide.len() - 1;
-        Some(((u * g as f32) as usize).min(g - 1))
+        // u·G is in [0, G] (G ≤ 2^20): its truncation as a u32 is the same integer as a usize,
+        // without the unsigned 64-bit conversion's range fix-ups (x86-64 has none native).
+        Some(((u * g as f32) as u32 as usize).min(g - 1))
     }
 
     /// [`Self::entries_at_most`] given its [`Self::search_range`].
@@ -130,7 +138,8 @@ impl Table<'_> {
     #[inline(always)]
     fn bin(&self, x: f32) -> usize {
         let n = self.bins();
-        ((x * n as f32) as usize).min(n - 1)
+        // As u32: the same integer for any x (both saturate; n is far below 2^32), cheaper.
+        ((x * n as f32) as u32 as usize).min(n - 1)
     }
 }
 
@@ -226,25 +235,29 @@ impl Distribution2D {
     pub fn sample_batch(&self, us: &[[f32; 2]], out: &mut [([f32; 2], f32)]) {
         let n = us.len().min(out.len());
         for (us, out) in us[..n].chunks(BATCH).zip(out[..n].chunks_mut(BATCH)) {
-            let mut rows = [(0f32, 0f32, 0usize, 0usize, 0usize); BATCH];
+            // Per sample: its v and density, its row's table and the guide slot of its u (made
+            // once here, read by the steps below; they were made again at each step, 7 % of an
+            // environment-lit render's instructions went to this function).
+            let empty = Table { entries: &[], guide: &[] };
+            let mut rows = [(0f32, 0f32, empty, None); BATCH];
             for (u, r) in us.iter().zip(&mut rows) {
                 let (v, pdf_v, row) = self.marginal.sample(u[1]);
                 let t = self.row(row);
-                if let Some(k) = t.guide_slot(u[0]) {
+                let k = t.guide_slot(u[0]);
+                if let Some(k) = k {
                     crate::accel::prefetch(&t.guide[k]);
                 }
-                *r = (v, pdf_v, row, 0, 0);
+                *r = (v, pdf_v, t, k);
             }
-            for (u, r) in us.iter().zip(&mut rows) {
-                let t = self.row(r.2);
-                let (lo, hi) = t.search_range(u[0]);
+            let mut ranges = [(0usize, 0usize); BATCH];
+            for (&(_, _, t, k), range) in rows.iter().zip(&mut ranges) {
+                let (lo, hi) = t.range_of_slot(k);
                 for e in [lo, hi.max(lo + 1) - 1] {
                     t.entries.get(e).map(crate::accel::prefetch);
                 }
-                (r.3, r.4) = (lo, hi);
+                *range = (lo, hi);
             }
-            for ((u, &(v, pdf_v, row, lo, hi)), o) in us.iter().zip(&rows).zip(out) {
-                let t = self.row(row);
+            for (((u, &(v, pdf_v, t, _)), &(lo, hi)), o) in us.iter().zip(&rows).zip(&ranges).zip(out) {
                 let (x, pdf_u, _) = t.sample_at(u[0], t.entries_at_most_in(u[0], lo, hi));
                 *o = ([x, v], pdf_u * pdf_v);
             }
@@ -265,7 +278,7 @@ impl Distribution2D {
     /// The row [`Self::pdf`] reads at v.
     #[inline(always)]
     fn row_at(&self, v: f32) -> Table<'_> {
-        self.row(((v * self.nv as f32) as usize).min(self.nv - 1))
+        self.row(((v * self.nv as f32) as u32 as usize).min(self.nv - 1))
     }
 
     /// Asks the cache for the row entry [`Self::pdf`]`(uv)` reads (the marginal is small enough

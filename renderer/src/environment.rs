@@ -375,9 +375,10 @@ impl Environment {
         let (fx, fy) = (x - x0, y - y0);
         // x0 is in −1 ..= width − 1 (u < 1); wrap without an integer division (two of them were
         // most of this function's own time). The `min` only guards a u that rounding put at 1.
-        let xa = if x0 < 0.0 { self.width - 1 } else { (x0 as usize).min(self.width - 1) };
+        // As u32 (both conversions saturate; a side is at most MAX_ENV_SIDE): the same integers.
+        let xa = if x0 < 0.0 { self.width - 1 } else { (x0 as u32 as usize).min(self.width - 1) };
         let xb = if xa + 1 == self.width { 0 } else { xa + 1 };
-        let ya = y0 as usize;
+        let ya = y0 as u32 as usize;
         let yb = (ya + 1).min(self.height - 1);
         ([xa, xb, ya, yb], fx, fy)
     }

@@ -150,7 +150,8 @@ impl SolidSurface {
         }
         let n = self.n;
         let scale = 0.5 * n as f32 / m;
-        let index = |x: f32| (((x + m) * scale) as usize).min(n - 1);
+        // Through u32: the same integer as `as usize` (both saturate, n is small), cheaper.
+        let index = |x: f32| (((x + m) * scale) as u32 as usize).min(n - 1);
         (face * n + index(u)) * n + index(v)
     }
 

@@ -477,12 +477,19 @@ impl ConvexSolids {
     /// in f64 on the f32 vertices). Such a ray cannot meet its solid again: the solid lies on or
     /// behind every facet's plane (within the hull test's allowance), the ray's points ahead of
     /// this one's. So its walk may skip the solid's subtrees ([`crate::accel::Accel::intersect_leaving`]).
-    #[inline]
+    #[inline(always)]
     pub(crate) fn leaving(&self, mesh: &Mesh, from: u32, d: Vec3) -> Option<u32> {
+        // Most rays start on no solid (a floor, a wall): answered here, without a call.
         let s = *self.of_triangle.get(from as usize)?;
         if s == NONE {
             return None;
         }
+        self.leaving_solid(mesh, from, d, s)
+    }
+
+    /// [`Self::leaving`] for a ray from facet `from` of solid `s`.
+    #[inline(never)]
+    fn leaving_solid(&self, mesh: &Mesh, from: u32, d: Vec3, s: u32) -> Option<u32> {
         let [a, b, c] = mesh.vertices(from).map(|v| v.as_dvec3());
         let n = (b - a).cross(c - a) * self.solids[s as usize].outward;
         let (d, nd) = (d.as_dvec3(), n.dot(d.as_dvec3()));

@@ -235,9 +235,9 @@ impl Distribution2D {
     pub fn sample_batch(&self, us: &[[f32; 2]], out: &mut [([f32; 2], f32)]) {
         let n = us.len().min(out.len());
         for (us, out) in us[..n].chunks(BATCH).zip(out[..n].chunks_mut(BATCH)) {
-            // Per sample: its v and density, its row's table and the guide slot of its u (made
-            // once here, read by the steps below; they were made again at each step, 7 % of an
-            // environment-lit render's instructions went to this function).
+            // Per sample: its v and density, its row's table and the guide slot of its u, made
+            // once here and read by the steps below (made again at each step, they cost envlit
+            // 1.1 % of its instructions: callgrind, 64×48, 16 spp, 180.66 → 178.74 M).
             let empty = Table { entries: &[], guide: &[] };
             let mut rows = [(0f32, 0f32, empty, None); BATCH];
             for (u, r) in us.iter().zip(&mut rows) {

@@ -715,19 +715,19 @@ impl Scene {
         }
     }
 
-    /// [`Self::solid_blocks`] for eight rays at once (the bits of those among `lanes` it
-    /// blocks), where the slices hold eight rays and the scene has glass solids; None otherwise
-    /// (the caller asks ray by ray).
+    /// The bits of the rays among `lanes` that [`Self::solid_blocks`] blocks (each slice holds at
+    /// least the rays `lanes` names): the kernel's eight rays at once
+    /// (`ConvexSolids::blocks_lanes`, the same answers), other batches ray by ray.
     #[inline(always)]
-    fn eight_blocked(&self, o: &[Vec3], d: &[Vec3], tmax: &[f32], lanes: u32) -> Option<u32> {
-        #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-        if self.solids.glass_len() != 0 {
-            if let (Ok(o), Ok(d), Ok(tmax)) = (o.try_into(), d.try_into(), tmax.try_into()) {
-                return Some(self.solids.blocks_lanes(o, d, tmax, lanes));
-            }
+    fn solid_blocked_lanes(&self, o: &[Vec3], d: &[Vec3], tmax: &[f32], lanes: u32) -> u32 {
+        if self.solids.glass_len() == 0 {
+            return 0;
         }
-        let _ = (o, d, tmax, lanes);
-        None
+        #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+        if let (Ok(o), Ok(d), Ok(tmax)) = (o.try_into(), d.try_into(), tmax.try_into()) {
+            return self.solids.blocks_lanes(o, d, tmax, lanes);
+        }
+        crate::accel::bits_of(lanes).filter(|&k| self.solid_blocks(o[k], d[k], tmax[k])).fold(0, |b, k| b | 1 << k)
     }
 
     /// [`Self::occluded_lanes_where`] where the scene has solids (out of line, as
@@ -735,16 +735,12 @@ impl Scene {
     #[inline(never)]
     fn occluded_lanes_among_solids(&self, o: &[Vec3], d: &[Vec3], tmax: &[f32], from: &[u32], lanes: u32) -> u32 {
         let n = o.len().min(d.len()).min(tmax.len()).min(from.len());
-        let (mut walked, mut blocked) = (0u32, 0u32);
-        // The glass balls' test for eight rays at once where the kernel's eight lanes ask
-        // (`ConvexSolids::blocks_lanes`, the same answers as `solid_blocks`).
-        let eight = self.eight_blocked(o, d, tmax, lanes);
-        blocked |= eight.unwrap_or(0);
+        let lanes = lanes & crate::accel::low_bits(n);
+        let mut blocked = self.solid_blocked_lanes(o, d, tmax, lanes);
+        let mut walked = 0u32;
         // `visibility_from`'s dispatch written out again (see `intersect_lanes_among_solids`).
-        for k in crate::accel::bits_of(lanes & crate::accel::low_bits(n) & !blocked) {
-            if eight.is_none() && self.solid_blocks(o[k], d[k], tmax[k]) {
-                blocked |= 1 << k;
-            } else if let Some(solid) = self.solids.leaving(&self.mesh, from[k], d[k]) {
+        for k in crate::accel::bits_of(lanes & !blocked) {
+            if let Some(solid) = self.solids.leaving(&self.mesh, from[k], d[k]) {
                 blocked |= u32::from(self.accel.occluded_leaving(o[k], d[k], tmax[k], solid)) << k;
             } else {
                 walked |= 1 << k;

@@ -571,7 +571,14 @@ impl Solid {
         let oc = o - self.center;
         let a = d.length_squared();
         let b = d.dot(oc);
-        let disc = b * b - a * (oc.length_squared() - self.radius * self.radius);
+        let c = oc.length_squared() - self.radius * self.radius;
+        // From outside the ball, heading away from its centre: both roots are ≤ 0, and the
+        // rounded ones too (`disc` ≤ b·b rounded, whose square root is b), so the answer is 0
+        // without the square root and the division, whose latency a leaving ray waited for.
+        if b >= 0.0 && c >= 0.0 {
+            return 0.0;
+        }
+        let disc = b * b - a * c;
         if !(disc > 0.0 && a > 0.0) {
             return 0.0;
         }
@@ -664,6 +671,49 @@ mod tests {
                 (u >= 0.0 && v >= 0.0 && u + v <= 1.0 && t > 0.0).then_some(t)
             })
             .min_by(f32::total_cmp)
+    }
+
+    /// `Solid::exit`'s root as written before its shortcut for rays from outside heading away:
+    /// the reference the shortcut must equal bit for bit.
+    fn exit_in_full(s: &Solid, o: Vec3, d: Vec3) -> f32 {
+        let (o, d) = (o.as_dvec3(), d.as_dvec3());
+        let oc = o - s.center;
+        let a = d.length_squared();
+        let b = d.dot(oc);
+        let disc = b * b - a * (oc.length_squared() - s.radius * s.radius);
+        if !(disc > 0.0 && a > 0.0) {
+            return 0.0;
+        }
+        let t = (disc.sqrt() - b) / a;
+        if t > 0.0 && t.is_finite() {
+            (t as f32).next_down().max(0.0)
+        } else {
+            0.0
+        }
+    }
+
+    /// The ball's exit with the shortcut is the full root's, bit for bit: origins inside, on and
+    /// outside the ball (and far away), directions towards, away from and across it, tiny and
+    /// huge ones, zero and NaN. Fails when the shortcut takes a ray heading in, or one from inside.
+    #[test]
+    fn the_balls_exit_shortcut_answers_as_the_full_root() {
+        use crate::sampler::hash_unit as u;
+        let c = Vec3::new(0.3, -0.2, 1.0);
+        let s = solids(&ball(c, 0.5));
+        let solid = &s.solids[0];
+        let r = solid.radius as f32;
+        let mut ahead = 0;
+        for i in 0..20_000u64 {
+            let dir = |k: u64| Vec3::new(u(k) - 0.5, u(k + 1) - 0.5, u(k + 2) - 0.5);
+            let dist = [0.0, 0.5, 0.999, 1.0, 1.001, 2.0, 1e4][(i % 7) as usize] * r;
+            let o = c + dir(8 * i).normalize_or_zero() * dist;
+            let scale = [1.0, 1e-20, 1e20, 0.0, f32::NAN][(i / 7 % 5) as usize];
+            let d = dir(8 * i + 3) * scale;
+            let (got, want) = (solid.exit(o, d), exit_in_full(solid, o, d));
+            assert_eq!(got.to_bits(), want.to_bits(), "o {o:?} d {d:?}");
+            ahead += usize::from(want > 0.0);
+        }
+        assert!(ahead > 5_000, "only {ahead} rays have a root ahead");
     }
 
     #[test]

@@ -45,7 +45,7 @@ pub struct SolidSurface {
     /// The facet across the edge from corner i to corner i + 1 (mod 3).
     across: Vec<[u32; 3]>,
     /// The start of a walk per direction from `center`: a cube map of `n` × `n` cells a face,
-    /// each holding a facet whose centroid lies in its direction (or a neighbouring cell's).
+    /// each holding the facet its centre's direction leaves through (`SolidSurface::new`).
     center: Vec3,
     n: usize,
     start: Vec<u32>,
@@ -97,8 +97,13 @@ impl SolidSurface {
         if s.across.iter().flatten().any(|&g| g == u32::MAX) {
             return None;
         }
-        // About two facets a cell.
-        s.n = ((corners.len() as f64 / 12.0).sqrt().ceil() as usize).max(1);
+        // About four cells a facet (6n² ≥ 4 facets; 4 bytes a cell, 22 KB for the glass scene's
+        // 1 280-facet spheres). With each cell starting on the facet its centre's direction
+        // leaves through (below), 73 % of that scene's walks end where they start, 25 % take one
+        // step and 2 % more; at two facets a cell with the centroid fill alone, 33 %, 44 % and
+        // 22 % (a counting build, 128×96, 64 spp). Twelve cells a facet timed the same (0.99,
+        // 0.97–1.02, nine pairs).
+        s.n = ((corners.len() as f64 / 1.5).sqrt().ceil() as usize).max(1);
         s.start = vec![u32::MAX; 6 * s.n * s.n];
         for (f, c) in corners.iter().enumerate() {
             let cell = s.cell((c[0] + c[1] + c[2]) / 3.0 - center);
@@ -131,7 +136,52 @@ impl SolidSurface {
         for f in s.start.iter_mut().filter(|f| **f == u32::MAX) {
             *f = 0;
         }
+        // Each cell then starts at the facet its centre's direction leaves through, found by
+        // walking there from the filled start: a query walk then starts on its exit facet or a
+        // neighbour.
+        for at in 0..s.start.len() {
+            if let Some(f) = s.facet_towards(s.cell_centre(at), s.start[at] as usize) {
+                s.start[at] = f as u32;
+            }
+        }
         Some(s)
+    }
+
+    /// The direction from `center` through the middle of cube-map cell `at` ([`Self::cell`]'s
+    /// inverse).
+    fn cell_centre(&self, at: usize) -> Vec3 {
+        let n = self.n;
+        let (face, i, j) = (at / (n * n), at / n % n, at % n);
+        let mid = |k: usize| (k as f32 + 0.5) * 2.0 / n as f32 - 1.0;
+        let (u, v, s) = (mid(i), mid(j), if face % 2 == 0 { 1.0 } else { -1.0 });
+        match face / 2 {
+            0 => Vec3::new(s, u, v),
+            1 => Vec3::new(u, s, v),
+            _ => Vec3::new(u, v, s),
+        }
+    }
+
+    /// The facet the ray from `center` along `q` leaves through, walked to from facet `from`: one
+    /// the line passes inside or on all three edges of (on an edge or a corner either facet
+    /// there is as good a start). None where the walk does not settle.
+    fn facet_towards(&self, q: Vec3, from: usize) -> Option<usize> {
+        let mut f = from;
+        let mut came_from = usize::MAX;
+        for _ in 0..self.edges.len() {
+            // From the centre the moment term vanishes: the side of edge (u, v) is q · v.
+            let side = self.edges.get(f)?.map(|[_, v]| q.dot(v));
+            let (k, least) =
+                side.iter().enumerate().fold((0, f32::INFINITY), |(k, m), (i, &s)| if s < m { (i, s) } else { (k, m) });
+            if least >= 0.0 {
+                return Some(f);
+            }
+            let next = self.across[f][k] as usize;
+            if next == came_from {
+                return None;
+            }
+            (came_from, f) = (f, next);
+        }
+        None
     }
 
     /// The cube-map cell of direction `q` (any length; the zero vector has cell 0).
@@ -255,6 +305,28 @@ mod tests {
                 }
             }
             assert!(answered * 100 > n * 97, "level {level}: the walk answered {answered} of {n}");
+        }
+    }
+
+    /// Every cube-map cell starts its walks on the facet its centre's direction leaves through
+    /// (where the line passes inside or on all three of that facet's edges: the icosphere's
+    /// symmetry puts some centres exactly on an edge): a walk from a point in that direction
+    /// has nowhere to go. The fill alone (a facet whose centroid lies in the cell or a
+    /// neighbour's) started 67 % of the glass scene's walks elsewhere.
+    #[test]
+    fn every_cell_starts_on_the_facet_its_centre_leaves_through() {
+        for level in [1, 3, 4] {
+            let c = Vec3::new(0.3, -1.2, 2.0);
+            let tris = ball(c, 0.7, level, false);
+            let (_, s) = surface(&tris, c);
+            let (mut exact, cells) = (0, s.start.len());
+            for at in 0..cells {
+                let q = s.cell_centre(at);
+                assert_eq!(s.cell(q), at, "level {level}: cell {at}'s centre lies in it");
+                let f = s.start[at] as usize;
+                exact += usize::from(s.edges[f].iter().all(|[_, v]| q.dot(*v) >= 0.0));
+            }
+            assert_eq!(exact, cells, "level {level}");
         }
     }
 

@@ -569,26 +569,31 @@ impl Solid {
     fn exit(&self, o: Vec3, d: Vec3) -> f32 {
         let (o, d) = (o.as_dvec3(), d.as_dvec3());
         let oc = o - self.center;
-        let a = d.length_squared();
-        let b = d.dot(oc);
-        let c = oc.length_squared() - self.radius * self.radius;
+        let (a, b, c) = (d.length_squared(), d.dot(oc), oc.length_squared() - self.radius * self.radius);
         // From outside the ball, heading away from its centre: both roots are ≤ 0, and the
         // rounded ones too (`disc` ≤ b·b rounded, whose square root is b), so the answer is 0
         // without the square root and the division, whose latency a leaving ray waited for.
         if b >= 0.0 && c >= 0.0 {
             return 0.0;
         }
-        let disc = b * b - a * c;
-        if !(disc > 0.0 && a > 0.0) {
-            return 0.0;
-        }
-        let t = (disc.sqrt() - b) / a;
-        // f32 rounding may round up: step one ulp down (the ball's margin covers the rest).
-        if t > 0.0 && t.is_finite() {
-            (t as f32).next_down().max(0.0)
-        } else {
-            0.0
-        }
+        far_root(a, b, c)
+    }
+}
+
+/// The far root of a·t² + 2b·t + c = 0 (a ray's distances to a sphere: a = |d|², b = d·(o − c),
+/// c = |o − c|² − r²), rounded down to f32, when positive; else 0.
+#[inline(always)]
+fn far_root(a: f64, b: f64, c: f64) -> f32 {
+    let disc = b * b - a * c;
+    if !(disc > 0.0 && a > 0.0) {
+        return 0.0;
+    }
+    let t = (disc.sqrt() - b) / a;
+    // f32 rounding may round up: step one ulp down (the ball's margin covers the rest).
+    if t > 0.0 && t.is_finite() {
+        (t as f32).next_down().max(0.0)
+    } else {
+        0.0
     }
 }
 
@@ -673,25 +678,6 @@ mod tests {
             .min_by(f32::total_cmp)
     }
 
-    /// `Solid::exit`'s root as written before its shortcut for rays from outside heading away:
-    /// the reference the shortcut must equal bit for bit.
-    fn exit_in_full(s: &Solid, o: Vec3, d: Vec3) -> f32 {
-        let (o, d) = (o.as_dvec3(), d.as_dvec3());
-        let oc = o - s.center;
-        let a = d.length_squared();
-        let b = d.dot(oc);
-        let disc = b * b - a * (oc.length_squared() - s.radius * s.radius);
-        if !(disc > 0.0 && a > 0.0) {
-            return 0.0;
-        }
-        let t = (disc.sqrt() - b) / a;
-        if t > 0.0 && t.is_finite() {
-            (t as f32).next_down().max(0.0)
-        } else {
-            0.0
-        }
-    }
-
     /// The ball's exit with the shortcut is the full root's, bit for bit: origins inside, on and
     /// outside the ball (and far away), directions towards, away from and across it, tiny and
     /// huge ones, zero and NaN. Fails when the shortcut takes a ray heading in, or one from inside.
@@ -709,7 +695,10 @@ mod tests {
             let o = c + dir(8 * i).normalize_or_zero() * dist;
             let scale = [1.0, 1e-20, 1e20, 0.0, f32::NAN][(i / 7 % 5) as usize];
             let d = dir(8 * i + 3) * scale;
-            let (got, want) = (solid.exit(o, d), exit_in_full(solid, o, d));
+            let (od, dd) = (o.as_dvec3(), d.as_dvec3());
+            let oc = od - solid.center;
+            let c2 = oc.length_squared() - solid.radius * solid.radius;
+            let (got, want) = (solid.exit(o, d), far_root(dd.length_squared(), dd.dot(oc), c2));
             assert_eq!(got.to_bits(), want.to_bits(), "o {o:?} d {d:?}");
             ahead += usize::from(want > 0.0);
         }

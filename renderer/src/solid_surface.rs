@@ -163,11 +163,13 @@ impl SolidSurface {
 
     /// The facet the ray from `center` along `q` leaves through, walked to from facet `from`: one
     /// the line passes inside or on all three edges of (on an edge or a corner either facet
-    /// there is as good a start). None where the walk does not settle.
+    /// there is as good a start). None where the walk does not settle within a few times a cube
+    /// face's width in steps (`from` is a neighbouring cell's facet; a visibility walk can circle
+    /// on a triangulation that is not Delaunay, and a bad mesh must not make loading quadratic).
     fn facet_towards(&self, q: Vec3, from: usize) -> Option<usize> {
         let mut f = from;
         let mut came_from = usize::MAX;
-        for _ in 0..self.edges.len() {
+        for _ in 0..4 * self.n + MAX_STEPS {
             // From the centre the moment term vanishes: the side of edge (u, v) is q · v.
             let side = self.edges.get(f)?.map(|[_, v]| q.dot(v));
             let (k, least) =

@@ -788,15 +788,17 @@ mod tests {
                 let target =
                     centers[(next() * 10.0) as usize % 10] + Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5) * 0.8;
                 let to = if next() < 0.8 { target } else { Vec3::new(next(), next(), next()) * 20.0 - 10.0 };
+                let scale = 0.25 + next() * 2.0;
                 o[k] = from;
-                d[k] = (to - from) * (0.25 + next() * 2.0);
-                // Past the target, short of it, or to its point.
+                d[k] = (to - from) * scale;
+                // To the target's point (t = 1/scale), halfway there, or anywhere up to 3.
                 tmax[k] = match (batch as usize + k) % 9 {
                     0 => f32::INFINITY,
                     1 => f32::NAN,
                     2 => 0.0,
                     3 => -1.0,
-                    4 => 1.0 / (0.25 + next() * 2.0) * 0.5,
+                    4 => 1.0 / scale,
+                    5 => 0.5 / scale,
                     _ => next() * 3.0,
                 };
                 if (batch as usize + k).is_multiple_of(97) {

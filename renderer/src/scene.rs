@@ -727,7 +727,7 @@ impl Scene {
         if let (Ok(o), Ok(d), Ok(tmax)) = (o.try_into(), d.try_into(), tmax.try_into()) {
             return self.solids.blocks_lanes(o, d, tmax, lanes);
         }
-        crate::accel::bits_of(lanes).filter(|&k| self.solid_blocks(o[k], d[k], tmax[k])).fold(0, |b, k| b | 1 << k)
+        crate::accel::bits_of(lanes).filter(|&k| self.solids.blocks(o[k], d[k], tmax[k])).fold(0, |b, k| b | 1 << k)
     }
 
     /// [`Self::occluded_lanes_where`] where the scene has solids (out of line, as

@@ -167,14 +167,30 @@ impl SolidSurface {
     /// face's width in steps (`from` is a neighbouring cell's facet; a visibility walk can circle
     /// on a triangulation that is not Delaunay, and a bad mesh must not make loading quadratic).
     fn facet_towards(&self, q: Vec3, from: usize) -> Option<usize> {
-        let mut f = from;
+        // From the centre the moment term vanishes: the side of edge (u, v) is q · v.
+        self.walk(from, 4 * self.n + MAX_STEPS, |[_, v]| q.dot(v), |least| least >= 0.0)
+    }
+
+    /// The walk both [`Self::exit`] and the start cells take: from facet `f`, across the edge
+    /// the line passes farthest outside of (`side` of each edge: its Plücker sign), until
+    /// `settled(least side)`; None where it steps back where it came from (the line passes by
+    /// their shared edge) or has not settled within `steps`.
+    #[inline(always)]
+    fn walk(
+        &self,
+        mut f: usize,
+        steps: usize,
+        side: impl Fn([Vec3; 2]) -> f32,
+        settled: impl Fn(f32) -> bool,
+    ) -> Option<usize> {
         let mut came_from = usize::MAX;
-        for _ in 0..4 * self.n + MAX_STEPS {
-            // From the centre the moment term vanishes: the side of edge (u, v) is q · v.
-            let side = self.edges.get(f)?.map(|[_, v]| q.dot(v));
+        for _ in 0..steps {
+            let e = self.edges.get(f)?;
+            let side = [side(e[0]), side(e[1]), side(e[2])];
+            // The edge the line passes farthest outside of, if any.
             let (k, least) =
                 side.iter().enumerate().fold((0, f32::INFINITY), |(k, m), (i, &s)| if s < m { (i, s) } else { (k, m) });
-            if least >= 0.0 {
+            if settled(least) {
                 return Some(f);
             }
             let next = self.across[f][k] as usize;
@@ -212,27 +228,11 @@ impl SolidSurface {
     /// the BVH `own` would answer it; None where the walk cannot be sure (then walk `own`).
     #[inline]
     pub fn exit(&self, own: &Accel, o: Vec3, d: Vec3, inside: Vec3) -> Option<Hit> {
-        let mut f = *self.start.get(self.cell(inside - self.center))? as usize;
-        let mut came_from = usize::MAX;
+        let start = *self.start.get(self.cell(inside - self.center))? as usize;
         // The side of edge (u, v) the line passes: d · ((a − o) × (b − o)) = d·v + u·(o × d).
         let m = (o - self.center).cross(d);
-        for _ in 0..MAX_STEPS {
-            let e = self.edges.get(f)?;
-            let side = e.map(|[u, v]| d.dot(v) + u.dot(m));
-            // The edge the line passes farthest outside of, if any.
-            let (k, least) =
-                side.iter().enumerate().fold((0, f32::INFINITY), |(k, m), (i, &s)| if s < m { (i, s) } else { (k, m) });
-            if least > 0.0 {
-                return self.confirm(own, f, o, d);
-            }
-            let next = self.across[f][k] as usize;
-            // Back where it came from: the line passes by their shared edge.
-            if next == came_from {
-                return None;
-            }
-            (came_from, f) = (f, next);
-        }
-        None
+        let f = self.walk(start, MAX_STEPS, |[u, v]| d.dot(v) + u.dot(m), |least| least > 0.0)?;
+        self.confirm(own, f, o, d)
     }
 
     /// Facet `f`'s hit by the BVH's own test, where the margins make it the only one.
@@ -313,8 +313,9 @@ mod tests {
     /// Every cube-map cell starts its walks on the facet its centre's direction leaves through
     /// (where the line passes inside or on all three of that facet's edges: the icosphere's
     /// symmetry puts some centres exactly on an edge): a walk from a point in that direction
-    /// has nowhere to go. The fill alone (a facet whose centroid lies in the cell or a
-    /// neighbour's) started 67 % of the glass scene's walks elsewhere.
+    /// has nowhere to go. With the centroid fill alone (a facet whose centroid lies in the cell
+    /// or a neighbour's, two facets a cell), 67 % of the glass scene's walks took a step or more
+    /// (a counting build, 128×96, 64 spp).
     #[test]
     fn every_cell_starts_on_the_facet_its_centre_leaves_through() {
         for level in [1, 3, 4] {

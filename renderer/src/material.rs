@@ -243,6 +243,43 @@ impl Material {
         feeds.iter().all(|t| t.is_none()).then(|| untextured().bsdf(&[], TexCoords::default(), Vec4::ONE))
     }
 
+    /// Every texture a hit on this material may read (the emissive one included).
+    fn texture_refs(&self) -> [&Option<TextureRef>; 12] {
+        [
+            &self.base_color_texture,
+            &self.metallic_roughness_texture,
+            &self.normal_texture,
+            &self.emissive_texture,
+            &self.specular_texture,
+            &self.specular_color_texture,
+            &self.transmission_texture,
+            &self.clearcoat_texture,
+            &self.clearcoat_roughness_texture,
+            &self.clearcoat_normal_texture,
+            &self.sheen_color_texture,
+            &self.sheen_roughness_texture,
+        ]
+    }
+
+    /// Whether a hit on this material may read a texture too large to stay cached
+    /// ([`Texture::is_large`]).
+    pub fn reads_large_texture(&self, textures: &[Texture]) -> bool {
+        self.texture_refs()
+            .into_iter()
+            .flatten()
+            .any(|r| textures.get(r.texture as usize).is_some_and(Texture::is_large))
+    }
+
+    /// Asks the cache for the texels a hit at `uv` on this material may read from its large
+    /// textures (each one's bilinear footprint, [`Texture::prefetch`]).
+    pub fn prefetch_texels(&self, textures: &[Texture], uv: TexCoords) {
+        for r in self.texture_refs().into_iter().flatten() {
+            if let Some(t) = textures.get(r.texture as usize).filter(|t| t.is_large()) {
+                t.prefetch(r.coords(&uv), r);
+            }
+        }
+    }
+
     /// Tangent-space normal from the normal texture (scaled as the glTF spec defines), or None.
     pub fn tangent_space_normal(&self, textures: &[Texture], uv: TexCoords) -> Option<Vec3> {
         decode_normal(lookup(textures, &self.normal_texture, uv)?, self.normal_scale)

@@ -110,7 +110,7 @@ impl Scene {
         let transparent = materials.iter().any(|m| m.alpha_mode != AlphaMode::Opaque);
         let base_colour_bsdfs: Vec<Option<Bsdf>> = materials.iter().map(Material::bsdf_but_base_colour).collect();
         let blends = crate::material::any_blends(&materials);
-        let lane_materials = crate::spmd::LaneMaterial::table(&mesh, &materials, &base_colour_bsdfs);
+        let lane_materials = crate::spmd::LaneMaterial::table(&mesh, &materials, &base_colour_bsdfs, &textures);
         let solids = find_solids(&mesh, &materials, &mut accel);
         Scene {
             mesh,

@@ -162,7 +162,12 @@ impl LaneMaterial {
     /// material a triangle uses is such (the kernel would hand each path over at its first hit)
     /// or a triangle names a material that does not exist. Materials no triangle uses do not
     /// count (the loader's default one among them).
-    pub fn table(mesh: &Mesh, materials: &[Material], base_colour_bsdfs: &[Option<Bsdf>]) -> Option<LaneTable> {
+    pub fn table(
+        mesh: &Mesh,
+        materials: &[Material],
+        base_colour_bsdfs: &[Option<Bsdf>],
+        textures: &[crate::texture::Texture],
+    ) -> Option<LaneTable> {
         let n = materials.len();
         let (mut used, mut tangents, mut colors) = (vec![false; n], vec![false; n], vec![false; n]);
         for t in &mesh.triangles {
@@ -208,7 +213,9 @@ impl LaneMaterial {
             || table.iter().any(|m| m.per_lane || m.scalar)
             || crate::material::any_blends(materials)
             || materials.iter().any(|m| m.emissive_texture.is_some());
-        Some(LaneTable { entries: table, hit_detail })
+        let large_textures: Vec<bool> = materials.iter().map(|m| m.reads_large_texture(textures)).collect();
+        let any_large_texture = large_textures.iter().any(|&l| l);
+        Some(LaneTable { entries: table, hit_detail, large_textures, any_large_texture })
     }
 }
 
@@ -221,6 +228,11 @@ impl LaneMaterial {
 pub struct LaneTable {
     entries: Vec<LaneMaterial>,
     pub hit_detail: bool,
+    /// By material: whether it reads a texture too large to stay cached
+    /// ([`Material::reads_large_texture`]), whose texels the kernel asks for ahead of its hits'
+    /// lookups; and whether any material does.
+    large_textures: Vec<bool>,
+    any_large_texture: bool,
 }
 
 impl std::ops::Deref for LaneTable {
@@ -598,7 +610,7 @@ pub const STREAM: usize = 256;
 #[allow(clippy::too_many_arguments)]
 pub fn radiance8<const DETAIL: bool>(
     scene: &Scene,
-    materials: &[LaneMaterial],
+    table: &LaneTable,
     settings: &RenderSettings,
     o: Vec3,
     d: &[Vec3],
@@ -606,6 +618,7 @@ pub fn radiance8<const DETAIL: bool>(
     rays: &mut u64,
     out: &mut [Vec3],
 ) {
+    let materials: &[LaneMaterial] = table;
     let total = d.len().min(samplers.len()).min(out.len()).min(STREAM);
     let Some(&first_sampler) = samplers.first().filter(|_| total > 0) else { return };
     let zero = F8::zero();
@@ -872,6 +885,18 @@ pub fn radiance8<const DETAIL: bool>(
         let instanced =
             (DETAIL && !scene.mesh.instances.is_empty()).then(|| InstancedLanes::of(scene, &hits, hit_bits, &mut sp));
         let (sp_p, sp_ng) = (sp.p.to_lanes(), sp.ng.to_lanes());
+        if DETAIL && table.any_large_texture {
+            // Every lane's texels on a large texture asked for before the loop below reads the
+            // first lane's, so the lanes' cache misses overlap (`Texture::prefetch`; the lanes
+            // the scalar path shades read theirs after the bounce).
+            for k in lanes_of(hit_bits) {
+                let material_id = scene.mesh.triangles[tri[k] as usize].material as usize;
+                if table.large_textures[material_id] {
+                    let uv = scene.mesh.tex_coords_at(tri[k], hb1[k], hb2[k]);
+                    scene.materials[material_id].prefetch_texels(&scene.textures, uv);
+                }
+            }
+        }
         for k in lanes_of(hit_bits) {
             let material_id = scene.mesh.triangles[tri[k] as usize].material as usize;
             if DETAIL && materials[material_id].scalar {

@@ -512,6 +512,9 @@ impl Scene {
     /// determinism rule holds).
     #[inline]
     pub fn intersect_surface(&self, o: Vec3, d: Vec3, seed: u32, from: u32) -> Option<Hit> {
+        if self.walks_past_cutouts() && !self.batches_rays() {
+            return self.accel.intersect_accepted(o, d, f32::INFINITY, |t, b1, b2| self.stops_at(t, b1, b2));
+        }
         // Without solids, the plain walk (its node tests start at 0, a constant).
         let first = if self.solids.is_empty() {
             self.accel.intersect(o, d, f32::INFINITY)
@@ -528,13 +531,48 @@ impl Scene {
         if !self.has_transparency() {
             return first;
         }
-        self.through_layers(d, seed, first)
+        self.through_layers(o, d, seed, first)
     }
 
-    /// [`Self::intersect_surface`] on from the hit `first` of its first layer: the first surface
-    /// the ray stops at, passing through (MASK below the cutoff, BLEND by its random bits) at most
-    /// [`MAX_TRANSPARENT_LAYERS`] layers.
-    fn through_layers(&self, d: Vec3, seed: u32, first: Option<Hit>) -> Option<Hit> {
+    /// Whether rays pass cut-outs inside their walk ([`Accel::intersect_accepted`],
+    /// [`Accel::occluded_accepted`]) rather than by a walk per layer: the scene's transparent
+    /// surfaces are all MASK cut-outs (a BLEND layer's random choice takes its layer's number,
+    /// which only the walk per layer counts), no ray starts inside a glass solid (whose walks
+    /// are their own), and the BVH is one level.
+    fn walks_past_cutouts(&self) -> bool {
+        self.transparent && !self.blends && self.solids.is_empty() && self.accel.walks_accepted()
+    }
+
+    /// Whether a ray stops at the point (`b1`, `b2`) of mesh triangle `tri`: anywhere on an
+    /// opaque or blended surface, where the alpha reaches the cutoff on a MASK cut-out (the
+    /// coverage [`Self::through_layers`] reads, from the point's texture coordinates and colour).
+    fn stops_at(&self, tri: u32, b1: f32, b2: f32) -> bool {
+        let Some(t) = self.mesh.triangles.get(tri as usize) else { return true };
+        let Some(m) = self.materials.get(t.material as usize) else { return true };
+        match m.alpha_mode {
+            AlphaMode::Mask(cutoff) => {
+                let (uv, color) = (self.mesh.tex_coords_at(tri, b1, b2), self.mesh.color_at(tri, b1, b2));
+                m.alpha(&self.textures, uv, color) >= cutoff
+            }
+            _ => true,
+        }
+    }
+
+    /// [`Self::intersect_surface`] on from the hit `first` of its first layer (the ray `o + t d`'s
+    /// closest hit): the first surface the ray stops at. Where [`Self::walks_past_cutouts`] (on
+    /// a BVH large enough to batch: a smaller one's rays walk past the cut-outs from the start),
+    /// `first` if the ray stops there, else one walk from `o` past every cut-out; so the batched
+    /// first walks are kept where most rays stop at their first hit. Otherwise a walk per layer,
+    /// passing through (MASK below the cutoff, BLEND by its random bits) at most
+    /// [`MAX_TRANSPARENT_LAYERS`] layers, each walk from just past the last.
+    fn through_layers(&self, o: Vec3, d: Vec3, seed: u32, first: Option<Hit>) -> Option<Hit> {
+        if self.walks_past_cutouts() {
+            let hit = first?;
+            if self.stops_at(hit.triangle, hit.b1, hit.b2) {
+                return Some(hit);
+            }
+            return self.accel.intersect_accepted(o, d, f32::INFINITY, |t, b1, b2| self.stops_at(t, b1, b2));
+        }
         let mut hit = first?;
         for layer in 0..MAX_TRANSPARENT_LAYERS {
             let stops = match self.coverage(&hit) {
@@ -599,7 +637,7 @@ impl Scene {
         }
         if self.has_transparency() {
             for (k, h) in out.iter_mut().enumerate().take(o.len().min(d.len()).min(seed.len())) {
-                *h = self.through_layers(d[k], seed[k], *h);
+                *h = self.through_layers(o[k], d[k], seed[k], *h);
             }
         }
     }
@@ -799,6 +837,9 @@ impl Scene {
         }
         if !self.has_transparency() {
             return passes(!self.accel.occluded(o, d, tmax));
+        }
+        if self.walks_past_cutouts() {
+            return passes(!self.accel.occluded_accepted(o, d, tmax, |t, b1, b2| self.stops_at(t, b1, b2)));
         }
         let mut t_total = 1.0f32;
         for _ in 0..MAX_TRANSPARENT_LAYERS {

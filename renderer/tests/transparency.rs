@@ -35,6 +35,33 @@ fn mask_cuts_out_below_the_cutoff() {
     assert_eq!(mean(&veil(AlphaMode::Mask(0.5), 0.8), 4).0, 0.0, "alpha 0.8 ≥ 0.5: the veil blocks");
 }
 
+/// `layers` MASK veils (cutoff 0.5) one behind the other in front of the emitter: the ones in
+/// `blocking` with alpha 0.8, the rest 0.2 (cut away).
+fn veils(layers: usize, blocking: &[usize]) -> renderer::Scene {
+    let mut b = SceneBuilder::default();
+    let e = b.material(emitter(Vec3::ONE));
+    b.quad(Vec3::new(0.0, 0.0, -2.0), Vec3::X * 5.0, Vec3::Y * 5.0, e);
+    for k in 0..layers {
+        let mut black = lambert(Vec3::ZERO);
+        let alpha = if blocking.contains(&k) { 0.8 } else { 0.2 };
+        black.base_color = Vec4::new(0.0, 0.0, 0.0, alpha);
+        black.alpha_mode = AlphaMode::Mask(0.5);
+        let v = b.material(black);
+        b.quad(Vec3::new(0.0, 0.0, -0.5 - k as f32 / layers as f32), Vec3::X * 5.0, Vec3::Y * 5.0, v);
+    }
+    b.look_at(Vec3::new(0.0, 0.0, 1.0), Vec3::new(0.0, 0.0, -1.0), 20.0);
+    b.build()
+}
+
+/// A ray passes any number of cut-outs (the walk per layer gave up after 256 and took the ray
+/// as absorbed), and stops at the first surface that is not cut away, however deep.
+#[test]
+fn rays_pass_any_number_of_cutouts() {
+    assert_eq!(mean(&veils(400, &[]), 4).0, 1.0, "400 cut-away veils: the emitter is seen");
+    assert_eq!(mean(&veils(400, &[350]), 4).0, 0.0, "the 351st veil blocks");
+    assert_eq!(mean(&veils(400, &[0]), 4).0, 0.0, "the nearest veil blocks");
+}
+
 #[test]
 fn blend_lets_one_minus_alpha_through() {
     for alpha in [0.0f32, 0.25, 0.9, 1.0] {

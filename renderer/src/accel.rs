@@ -1656,16 +1656,24 @@ impl Accel {
     }
 
     /// Whether some triangle `accept` takes (as in [`Self::intersect_accepted`]) lies on the ray
-    /// before `tmax`; false where [`Self::walks_accepted`] is false.
-    pub fn occluded_accepted(&self, o: Vec3, d: Vec3, tmax: f32, accept: impl Fn(u32, f32, f32) -> bool) -> bool {
+    /// before `tmax`; false where [`Self::walks_accepted`] is false. Until one is taken, every
+    /// hit before `tmax` is offered once, in the walk's order, so `accept` may also gather what it
+    /// passes (a shadow ray's transmittance through blended surfaces).
+    pub fn occluded_accepted(
+        &self,
+        o: Vec3,
+        d: Vec3,
+        tmax: f32,
+        mut accept: impl FnMut(u32, f32, f32) -> bool,
+    ) -> bool {
         let (oa, da) = (Vec3A::from(o), Vec3A::from(d));
         if !self.walks_accepted() || !finite(oa, da) {
             return false;
         }
         if self.wide.is_empty() {
-            self.occluded_accepted_nodes(&self.bvh.nodes, oa, da, tmax, &accept)
+            self.occluded_accepted_nodes(&self.bvh.nodes, oa, da, tmax, &mut accept)
         } else {
-            self.occluded_accepted_nodes(&self.wide, oa, da, tmax, &accept)
+            self.occluded_accepted_nodes(&self.wide, oa, da, tmax, &mut accept)
         }
     }
 
@@ -1676,7 +1684,7 @@ impl Accel {
         oa: Vec3A,
         da: Vec3A,
         tmax: f32,
-        accept: &impl Fn(u32, f32, f32) -> bool,
+        accept: &mut impl FnMut(u32, f32, f32) -> bool,
     ) -> bool {
         with_stack(self.stack_len, |stack| {
             let wray = WatertightRay::new(oa, da);

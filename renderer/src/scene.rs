@@ -513,7 +513,7 @@ impl Scene {
     #[inline]
     pub fn intersect_surface(&self, o: Vec3, d: Vec3, seed: u32, from: u32) -> Option<Hit> {
         if self.walks_past_cutouts() && !self.batches_rays() {
-            return self.accel.intersect_accepted(o, d, f32::INFINITY, |t, b1, b2| self.stops_at(t, b1, b2));
+            return self.accel.intersect_accepted(o, d, f32::INFINITY, |t, b1, b2| self.stops_at(t, b1, b2, seed));
         }
         // Without solids, the plain walk (its node tests start at 0, a constant).
         let first = if self.solids.is_empty() {
@@ -534,27 +534,37 @@ impl Scene {
         self.through_layers(o, d, seed, first)
     }
 
-    /// Whether rays pass cut-outs inside their walk ([`Accel::intersect_accepted`],
-    /// [`Accel::occluded_accepted`]) rather than by a walk per layer: the scene's transparent
-    /// surfaces are all MASK cut-outs (a BLEND layer's random choice takes its layer's number,
-    /// which only the walk per layer counts), no ray starts inside a glass solid (whose walks
-    /// are their own), and the BVH is one level.
+    /// Whether rays pass transparent surfaces inside their walk ([`Accel::intersect_accepted`],
+    /// [`Accel::occluded_accepted`]) rather than by a walk per layer: no ray starts inside a
+    /// glass solid (whose walks are their own) and the BVH is one level.
     fn walks_past_cutouts(&self) -> bool {
-        self.transparent && !self.blends && self.solids.is_empty() && self.accel.walks_accepted()
+        self.transparent && self.solids.is_empty() && self.accel.walks_accepted()
     }
 
-    /// Whether a ray stops at the point (`b1`, `b2`) of mesh triangle `tri`: anywhere on an
-    /// opaque or blended surface, where the alpha reaches the cutoff on a MASK cut-out (the
-    /// coverage [`Self::through_layers`] reads, from the point's texture coordinates and colour).
-    fn stops_at(&self, tri: u32, b1: f32, b2: f32) -> bool {
-        let Some(t) = self.mesh.triangles.get(tri as usize) else { return true };
-        let Some(m) = self.materials.get(t.material as usize) else { return true };
-        match m.alpha_mode {
-            AlphaMode::Mask(cutoff) => {
-                let (uv, color) = (self.mesh.tex_coords_at(tri, b1, b2), self.mesh.color_at(tri, b1, b2));
-                m.alpha(&self.textures, uv, color) >= cutoff
-            }
-            _ => true,
+    /// A hit's alpha mode and coverage at the point (`b1`, `b2`) of mesh triangle `tri` (from the
+    /// point's texture coordinates and colour; 1 on an opaque surface).
+    fn coverage_at(&self, tri: u32, b1: f32, b2: f32) -> (AlphaMode, f32) {
+        let Some(m) = self.mesh.triangles.get(tri as usize).and_then(|t| self.materials.get(t.material as usize))
+        else {
+            return (AlphaMode::Opaque, 1.0);
+        };
+        if m.alpha_mode == AlphaMode::Opaque {
+            return (AlphaMode::Opaque, 1.0);
+        }
+        let (uv, color) = (self.mesh.tex_coords_at(tri, b1, b2), self.mesh.color_at(tri, b1, b2));
+        (m.alpha_mode, m.alpha(&self.textures, uv, color))
+    }
+
+    /// Whether a ray with transparency seed `seed` stops at the point (`b1`, `b2`) of mesh
+    /// triangle `tri`: always on an opaque surface, where the alpha reaches the cutoff on a MASK
+    /// cut-out, with probability alpha on a BLEND surface — by the hash of the seed and the
+    /// triangle, so each blended surface a ray meets decides by a number of its own whatever
+    /// order a walk meets them in (the walk per layer hashed the layer's number).
+    fn stops_at(&self, tri: u32, b1: f32, b2: f32, seed: u32) -> bool {
+        match self.coverage_at(tri, b1, b2) {
+            (AlphaMode::Opaque, _) => true,
+            (AlphaMode::Mask(cutoff), a) => a >= cutoff,
+            (AlphaMode::Blend, a) => crate::sampler::hash_unit(((seed as u64) << 32) | tri as u64) < a,
         }
     }
 
@@ -568,10 +578,10 @@ impl Scene {
     fn through_layers(&self, o: Vec3, d: Vec3, seed: u32, first: Option<Hit>) -> Option<Hit> {
         if self.walks_past_cutouts() {
             let hit = first?;
-            if self.stops_at(hit.triangle, hit.b1, hit.b2) {
+            if self.stops_at(hit.triangle, hit.b1, hit.b2, seed) {
                 return Some(hit);
             }
-            return self.accel.intersect_accepted(o, d, f32::INFINITY, |t, b1, b2| self.stops_at(t, b1, b2));
+            return self.accel.intersect_accepted(o, d, f32::INFINITY, |t, b1, b2| self.stops_at(t, b1, b2, seed));
         }
         let mut hit = first?;
         for layer in 0..MAX_TRANSPARENT_LAYERS {
@@ -839,7 +849,18 @@ impl Scene {
             return passes(!self.accel.occluded(o, d, tmax));
         }
         if self.walks_past_cutouts() {
-            return passes(!self.accel.occluded_accepted(o, d, tmax, |t, b1, b2| self.stops_at(t, b1, b2)));
+            // One walk over every surface before tmax: blocked at an opaque one or an uncut
+            // cut-out, each BLEND surface's 1 − alpha multiplied in as it is met.
+            let mut through = 1.0f32;
+            let blocked = self.accel.occluded_accepted(o, d, tmax, |t, b1, b2| match self.coverage_at(t, b1, b2) {
+                (AlphaMode::Opaque, _) => true,
+                (AlphaMode::Mask(cutoff), a) => a >= cutoff,
+                (AlphaMode::Blend, a) => {
+                    through *= 1.0 - a;
+                    through <= 0.0
+                }
+            });
+            return if blocked { 0.0 } else { through };
         }
         let mut t_total = 1.0f32;
         for _ in 0..MAX_TRANSPARENT_LAYERS {

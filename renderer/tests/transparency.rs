@@ -38,14 +38,20 @@ fn mask_cuts_out_below_the_cutoff() {
 /// `layers` MASK veils (cutoff 0.5) one behind the other in front of the emitter: the ones in
 /// `blocking` with alpha 0.8, the rest 0.2 (cut away).
 fn veils(layers: usize, blocking: &[usize]) -> renderer::Scene {
+    veils_of(AlphaMode::Mask(0.5), 0.2, 0.8, layers, blocking)
+}
+
+/// `layers` veils of `mode` in front of the emitter, of alpha `blocking_alpha` for the layers in
+/// `blocking` and `alpha` for the rest.
+fn veils_of(mode: AlphaMode, alpha: f32, blocking_alpha: f32, layers: usize, blocking: &[usize]) -> renderer::Scene {
     let mut b = SceneBuilder::default();
     let e = b.material(emitter(Vec3::ONE));
     b.quad(Vec3::new(0.0, 0.0, -2.0), Vec3::X * 5.0, Vec3::Y * 5.0, e);
     for k in 0..layers {
         let mut black = lambert(Vec3::ZERO);
-        let alpha = if blocking.contains(&k) { 0.8 } else { 0.2 };
-        black.base_color = Vec4::new(0.0, 0.0, 0.0, alpha);
-        black.alpha_mode = AlphaMode::Mask(0.5);
+        let a = if blocking.contains(&k) { blocking_alpha } else { alpha };
+        black.base_color = Vec4::new(0.0, 0.0, 0.0, a);
+        black.alpha_mode = mode;
         let v = b.material(black);
         b.quad(Vec3::new(0.0, 0.0, -0.5 - k as f32 / layers as f32), Vec3::X * 5.0, Vec3::Y * 5.0, v);
     }
@@ -60,6 +66,20 @@ fn rays_pass_any_number_of_cutouts() {
     assert_eq!(mean(&veils(400, &[]), 4).0, 1.0, "400 cut-away veils: the emitter is seen");
     assert_eq!(mean(&veils(400, &[350]), 4).0, 0.0, "the 351st veil blocks");
     assert_eq!(mean(&veils(400, &[0]), 4).0, 0.0, "the nearest veil blocks");
+    // Blended veils: alpha 0 passes every ray, alpha 1 stops every one, at any depth.
+    assert_eq!(mean(&veils_of(AlphaMode::Blend, 0.0, 1.0, 400, &[]), 4).0, 1.0, "400 clear blended veils");
+    assert_eq!(mean(&veils_of(AlphaMode::Blend, 0.0, 1.0, 400, &[300]), 4).0, 0.0, "the 301st blocks");
+}
+
+/// Light through many blended veils: each ray passes each veil with probability 1 − alpha, so
+/// the image's mean is (1 − alpha)^layers, with 300 veils too (past the 256 layers the walk per
+/// layer stopped at).
+#[test]
+fn many_blended_layers_let_the_product_through() {
+    let (alpha, layers) = (0.002f32, 300);
+    let (m, sd) = mean(&veils_of(AlphaMode::Blend, alpha, alpha, layers, &[]), 512);
+    let want = (1.0 - alpha).powi(layers as i32);
+    assert!((m - want).abs() <= 5.0 * sd + 1e-6, "{m} ± {sd} against {want}");
 }
 
 #[test]

@@ -27,6 +27,9 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--level", type=int, default=7, help="icosphere subdivision level (7: 327 680 triangles)")
     ap.add_argument("-o", "--output", required=True, help="glTF file to write (buffers embedded)")
+    ap.add_argument("--mask", action="store_true",
+                    help="every material alphaMode MASK (alpha 1: nothing is cut away, but every ray takes the "
+                         "cut-out code path)")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         subprocess.run([TESSERA, "bench", "rays", "--level", str(a.level), "--rays", "1", "--runs", "1",
@@ -65,6 +68,9 @@ def main():
         "scenes": [{"nodes": [0, 1, 2]}],
         "scene": 0,
     }
+    if a.mask:
+        for m in gltf["materials"]:
+            m["alphaMode"] = "MASK"
     with open(a.output, "w") as f:
         json.dump(gltf, f)
     print(f"{a.output}: {len(v) // 3} cave triangles + a 2-triangle light")

@@ -1599,9 +1599,9 @@ impl Accel {
     }
 
     /// The closest hit on the ray `o + t d`, `0 < t < tmax`, among the triangles `accept(triangle,
-    /// b1, b2)` takes at their hit points: one walk that passes over the others (alpha-masked
-    /// cut-outs, `Scene::intersect_surface`) as if they were not there, where a walk per cut-out
-    /// layer restarted at each. A block's nearest hit that is not taken is dropped from the
+    /// b1, b2)` takes at their hit points: one walk that passes over the others (cut-outs and
+    /// blended surfaces the ray goes through, `Scene::intersect_surface`) as if they were not
+    /// there, where a walk per layer restarted at each. A block's nearest hit that is not taken is dropped from the
     /// block and the block asked again, so every hit before the answer is offered in turn. None
     /// where [`Self::walks_accepted`] is false.
     pub fn intersect_accepted(
@@ -1735,7 +1735,12 @@ impl Accel {
                     }
                     break;
                 }
-                lanes &= !(1 << (hit.1 - start));
+                // The refused hit's lane out of the block (a slot outside the lanes asked, which
+                // the tests never saw, ends the block rather than asking it forever).
+                match hit.1.checked_sub(start).filter(|&l| l < LANES && lanes & (1 << l) != 0) {
+                    Some(l) => lanes &= !(1 << l),
+                    None => break,
+                }
             }
         }
         taken

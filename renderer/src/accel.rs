@@ -1592,18 +1592,20 @@ impl Accel {
         Some(Hit { t, triangle: *self.tris.ids.get(slot)?, b1, b2, instance: NO_INSTANCE })
     }
 
-    /// Whether [`Self::intersect_accepted`] and [`Self::occluded_accepted`] answer here: a
-    /// one-level obvhs BVH with triangles (the two-level and own BVHs have no such walk).
+    /// Whether [`Self::intersect_accepted`] and [`Self::occluded_accepted`] answer here: an
+    /// obvhs BVH, one level or two (the own BVH has no such walk).
     pub fn walks_accepted(&self) -> bool {
-        self.top.is_none() && self.own.is_none() && !self.tris.is_empty()
+        self.own.is_none()
     }
 
     /// The closest hit on the ray `o + t d`, `0 < t < tmax`, among the triangles `accept(triangle,
-    /// b1, b2)` takes at their hit points: one walk that passes over the others (cut-outs and
-    /// blended surfaces the ray goes through, `Scene::intersect_surface`) as if they were not
-    /// there, where a walk per layer restarted at each. A block's nearest hit that is not taken is dropped from the
-    /// block and the block asked again, so every hit before the answer is offered in turn. None
-    /// where [`Self::walks_accepted`] is false.
+    /// b1, b2)` takes at their hit points (`triangle` the mesh's, a prototype's on an instance):
+    /// one walk that passes over the others (cut-outs and blended surfaces the ray goes
+    /// through, `Scene::intersect_surface`) as if they were not there, where a walk per layer
+    /// restarted at each. A block's nearest hit that is not taken is dropped from the block and
+    /// the block asked again, so every hit before the answer is offered in turn; in a two-level
+    /// BVH each instance the ray enters is walked so too, below the closest hit taken so far.
+    /// None where [`Self::walks_accepted`] is false.
     pub fn intersect_accepted(
         &self,
         o: Vec3,
@@ -1615,11 +1617,73 @@ impl Accel {
         if !self.walks_accepted() || !finite(oa, da) {
             return None;
         }
-        if self.wide.is_empty() {
-            self.intersect_accepted_nodes(&self.bvh.nodes, oa, da, tmax, &accept)
-        } else {
-            self.intersect_accepted_nodes(&self.wide, oa, da, tmax, &accept)
+        match &self.top {
+            Some(top) => self.intersect_two_level_accepted(top, oa, da, tmax, &accept),
+            None => self.intersect_accepted_object(oa, da, tmax, &accept),
         }
+    }
+
+    /// [`Self::intersect_accepted`] over a one-level BVH (this one, or an instance's prototype).
+    fn intersect_accepted_object(
+        &self,
+        oa: Vec3A,
+        da: Vec3A,
+        tmax: f32,
+        accept: &impl Fn(u32, f32, f32) -> bool,
+    ) -> Option<Hit> {
+        if self.tris.is_empty() || !finite(oa, da) {
+            return None;
+        }
+        if self.wide.is_empty() {
+            self.intersect_accepted_nodes(&self.bvh.nodes, oa, da, tmax, accept)
+        } else {
+            self.intersect_accepted_nodes(&self.wide, oa, da, tmax, accept)
+        }
+    }
+
+    /// [`Self::intersect_accepted`] over the top level: its world triangles one at a time, its
+    /// instances by their prototypes' walks in object space (as `intersect_two_level`).
+    #[inline(never)]
+    fn intersect_two_level_accepted(
+        &self,
+        top: &TopLevel,
+        oa: Vec3A,
+        da: Vec3A,
+        tmax: f32,
+        accept: &impl Fn(u32, f32, f32) -> bool,
+    ) -> Option<Hit> {
+        if top.prims.is_empty() {
+            return None;
+        }
+        let wray = WatertightRay::new(oa, da);
+        let mut best: Option<Hit> = None;
+        self.closest(NodeRay::new(oa, da, tmax), |r, base, mask| {
+            let mut bound = r.tmax;
+            for i in bits_descending(mask) {
+                match &top.prims[base + i] {
+                    TopPrim::Triangle(tri) => {
+                        if let Some((t, b1, b2)) =
+                            tri.intersect(&wray, bound).filter(|&(_, b1, b2)| accept(tri.id, b1, b2))
+                        {
+                            best = Some(Hit { t, triangle: tri.id, b1, b2, instance: NO_INSTANCE });
+                            bound = t;
+                        }
+                    }
+                    TopPrim::Instance { index, prototype, to_object } => {
+                        let (oo, dd) = (to_object.transform_point3a(oa), to_object.transform_vector3a(da));
+                        if let Some(mut h) =
+                            top.blas[*prototype as usize].intersect_accepted_object(oo, dd, bound, accept)
+                        {
+                            h.instance = *index;
+                            best = Some(h);
+                            bound = h.t;
+                        }
+                    }
+                }
+            }
+            bound
+        });
+        best
     }
 
     #[inline(never)]
@@ -1670,11 +1734,56 @@ impl Accel {
         if !self.walks_accepted() || !finite(oa, da) {
             return false;
         }
-        if self.wide.is_empty() {
-            self.occluded_accepted_nodes(&self.bvh.nodes, oa, da, tmax, &mut accept)
-        } else {
-            self.occluded_accepted_nodes(&self.wide, oa, da, tmax, &mut accept)
+        match &self.top {
+            Some(top) => self.occluded_two_level_accepted(top, oa, da, tmax, &mut accept),
+            None => self.occluded_accepted_object(oa, da, tmax, &mut accept),
         }
+    }
+
+    /// [`Self::occluded_accepted`] over a one-level BVH (this one, or an instance's prototype).
+    fn occluded_accepted_object(
+        &self,
+        oa: Vec3A,
+        da: Vec3A,
+        tmax: f32,
+        accept: &mut impl FnMut(u32, f32, f32) -> bool,
+    ) -> bool {
+        if self.tris.is_empty() || !finite(oa, da) {
+            return false;
+        }
+        if self.wide.is_empty() {
+            self.occluded_accepted_nodes(&self.bvh.nodes, oa, da, tmax, accept)
+        } else {
+            self.occluded_accepted_nodes(&self.wide, oa, da, tmax, accept)
+        }
+    }
+
+    /// [`Self::occluded_accepted`] over the top level (as `occluded_two_level`).
+    #[inline(never)]
+    fn occluded_two_level_accepted(
+        &self,
+        top: &TopLevel,
+        oa: Vec3A,
+        da: Vec3A,
+        tmax: f32,
+        accept: &mut impl FnMut(u32, f32, f32) -> bool,
+    ) -> bool {
+        if top.prims.is_empty() {
+            return false;
+        }
+        let wray = WatertightRay::new(oa, da);
+        self.any(NodeRay::new(oa, da, tmax), |base, mask| {
+            bits_descending(mask).any(|i| match &top.prims[base + i] {
+                TopPrim::Triangle(tri) => tri.intersect(&wray, tmax).is_some_and(|(_, b1, b2)| accept(tri.id, b1, b2)),
+                TopPrim::Instance { prototype, to_object, .. } => top.blas[*prototype as usize]
+                    .occluded_accepted_object(
+                        to_object.transform_point3a(oa),
+                        to_object.transform_vector3a(da),
+                        tmax,
+                        accept,
+                    ),
+            })
+        })
     }
 
     #[inline(never)]
@@ -2282,6 +2391,40 @@ mod tests {
             hits > 4000 && refused_first > 300,
             "the rays must hit, some behind refused triangles ({hits}, {refused_first})"
         );
+    }
+
+    /// In a two-level BVH the walks past refused triangles answer as in one level: the sphere
+    /// cluster as a prototype placed where it was (an identity transform) finds, ray for ray, the distance the one-level walk finds over the same triangles, the
+    /// same triangle but for ties, and blocks where it blocks.
+    #[test]
+    fn two_level_accepted_walks_answer_as_one_level() {
+        let (b, all) = sphere_cluster();
+        let one = Accel::build_triangles(&b.mesh, all, AccelKind::Obvhs);
+        let mut instanced = sphere_cluster().0.mesh;
+        instanced.triangles.iter_mut().for_each(|t| t.flags |= crate::mesh::flags::OBJECT_SPACE);
+        instanced.prototypes.push(0..instanced.triangles.len() as u32);
+        instanced.instances.extend(crate::mesh::Instance::new(0, glam::Mat4::IDENTITY));
+        let two = Accel::build(&instanced);
+        assert!(two.top.is_some() && two.walks_accepted());
+        let take = |tri: u32, b1: f32, _b2: f32| !(tri.is_multiple_of(3) || (tri.is_multiple_of(2) && b1 < 0.3));
+        let mut hits = 0;
+        for i in 0..3000u64 {
+            let u = |j: u64| crate::sampler::hash_unit(8 * i + j + 99);
+            let o = Vec3::new(u(0), u(1), u(2)) * 8.0 - 4.0;
+            let d = Vec3::new(u(3), u(4), u(5)) * 2.0 - 1.0;
+            let tmax = if i.is_multiple_of(3) { 4.0 * u(6) } else { f32::INFINITY };
+            let (a, b) = (one.intersect_accepted(o, d, tmax, take), two.intersect_accepted(o, d, tmax, take));
+            assert_eq!(a.map(|h| h.t.to_bits()), b.map(|h| h.t.to_bits()), "ray {i}: {a:?} {b:?}");
+            if let (Some(a), Some(b)) = (a, b) {
+                assert!(take(b.triangle, b.b1, b.b2) && b.instance == 0, "ray {i}: {b:?}");
+                if a.triangle == b.triangle {
+                    assert_eq!((a.b1.to_bits(), a.b2.to_bits()), (b.b1.to_bits(), b.b2.to_bits()), "ray {i}");
+                }
+                hits += 1;
+            }
+            assert_eq!(one.occluded_accepted(o, d, tmax, take), two.occluded_accepted(o, d, tmax, take), "ray {i}");
+        }
+        assert!(hits > 1000, "the rays must hit ({hits})");
     }
 
     /// Rays walked one after another in one call (`intersect_lanes`, `occluded_lanes`) find what

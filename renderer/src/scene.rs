@@ -536,7 +536,7 @@ impl Scene {
 
     /// Whether rays pass transparent surfaces inside their walk ([`Accel::intersect_accepted`],
     /// [`Accel::occluded_accepted`]) rather than by a walk per layer: no ray starts inside a
-    /// glass solid (whose walks are their own) and the BVH is one level.
+    /// glass solid (whose walks are their own) and the BVH is obvhs' (one level or two).
     fn walks_past_cutouts(&self) -> bool {
         self.transparent && self.solids.is_empty() && self.accel.walks_accepted()
     }

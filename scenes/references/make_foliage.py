@@ -38,6 +38,8 @@ def main():
     ap.add_argument("--opaque", action="store_true", help="OPAQUE leaves: every quad solid")
     ap.add_argument("--blend", action="store_true", help="BLEND leaves (stochastic transparency) instead of MASK")
     ap.add_argument("--leaf-alpha", type=int, default=255, help="the leaf's alpha inside its ellipse, 0-255")
+    ap.add_argument("--copies", type=int, default=1,
+                    help="the bush placed this many times side by side, as instances of one mesh (two-level BVH)")
     ap.add_argument("--seed", type=int, default=3)
     ap.add_argument("-o", "--output", required=True, help="glTF file to write (buffers and texture embedded)")
     a = ap.parse_args()
@@ -113,11 +115,12 @@ def main():
                                     "indices": leaf_idx, "material": 1}]},
                    {"primitives": [{"attributes": {"POSITION": quad_pos}, "indices": quad_tris, "material": 2}]}],
         "cameras": [{"type": "perspective", "perspective": {"yfov": 0.8, "znear": 0.01}}],
-        "nodes": [{"mesh": 0, "scale": [4, 1, 4]},
-                  {"mesh": 1},
-                  {"mesh": 2, "translation": [0, 5, 0], "rotation": [1, 0, 0, 0]},
-                  {"camera": 0, "translation": [0, 3, 6], "rotation": [-math.sin(tilt / 2), 0, 0, math.cos(tilt / 2)]}],
-        "scenes": [{"nodes": [0, 1, 2, 3]}],
+        "nodes": [{"mesh": 0, "scale": [4 * a.copies, 1, 4]}]
+        + [{"mesh": 1, "translation": [3.2 * (k - (a.copies - 1) / 2), 0, 0]} for k in range(a.copies)]
+        + [{"mesh": 2, "translation": [0, 5, 0], "rotation": [1, 0, 0, 0], "scale": [a.copies, 1, 1]},
+           {"camera": 0, "translation": [0, 3, 6 * a.copies],
+            "rotation": [-math.sin(tilt / 2), 0, 0, math.cos(tilt / 2)]}],
+        "scenes": [{"nodes": list(range(3 + a.copies))}],
         "scene": 0,
     }
     with open(a.output, "w") as f:

@@ -93,6 +93,8 @@ pub fn load_from_bytes(path: &Path, bytes: &[u8]) -> Result<Scene, SceneError> {
     let loader = Loader {
         path: path.to_path_buf(),
         dir: path.parent().map(Path::to_path_buf).unwrap_or_else(|| PathBuf::from(".")),
+        decoded: Default::default(),
+        asked: Default::default(),
     };
     // Extensions first, so that an unsupported one (e.g. Draco compression, whose accessors have no
     // bufferView) is reported by name rather than as the validation errors it causes.
@@ -224,7 +226,17 @@ fn read_bounded(path: &Path, scene: &Path, what: &str) -> Result<Vec<u8>, SceneE
 struct Loader {
     path: PathBuf,
     dir: PathBuf,
+    /// The materials' images decoded ahead, in parallel (`Loader::decode_images`), by image
+    /// index: taken by the first texture that refers to one (an image also read with the other
+    /// colour space is decoded again then). An image that failed keeps its error until asked.
+    decoded: std::sync::Mutex<HashMap<usize, Result<Decoded, SceneError>>>,
+    /// While `decode_images` finds which images the materials read: the indices asked for (the
+    /// texture references made meanwhile are thrown away).
+    asked: std::sync::Mutex<Option<Vec<usize>>>,
 }
+
+/// An image decoded to 8-bit RGBA: width, height, texels.
+type Decoded = (u32, u32, Vec<[u8; 4]>);
 
 fn percent_decode(s: &str) -> Option<String> {
     let b = s.as_bytes();
@@ -435,6 +447,7 @@ impl Loader {
     }
 
     fn build(&self, doc: &gltf::Document, buffers: &[Vec<u8>]) -> Result<Scene, SceneError> {
+        self.decode_images(doc, buffers)?;
         let mut textures = Vec::new();
         let mut texture_ids: HashMap<(usize, bool), u32> = HashMap::new();
         let mut materials = Vec::new();
@@ -1675,11 +1688,28 @@ impl Loader {
             return Err(self.unsupported(format!("texCoord {set} (TEXCOORD_0 and TEXCOORD_1 are supported)")));
         }
         let image = t.source();
+        if let Some(asked) = self.asked.lock().ok().as_mut().and_then(|a| a.as_mut()) {
+            asked.push(image.index());
+            return Ok(TextureRef {
+                texture: 0,
+                wrap_s: Wrap::Repeat,
+                wrap_t: Wrap::Repeat,
+                set: set as u8,
+                transform,
+            });
+        }
         let key = (image.index(), srgb);
         let id = match ids.get(&key) {
             Some(&id) => id,
             None => {
-                let tex = self.decode_image(&image, srgb, buffers)?;
+                let ahead = self.decoded.lock().ok().and_then(|mut d| d.remove(&image.index()));
+                let tex = match ahead {
+                    Some(decoded) => {
+                        let (width, height, texels) = decoded?;
+                        Texture { width, height, texels, srgb }
+                    }
+                    None => self.decode_image(&image, srgb, buffers)?,
+                };
                 textures.push(tex);
                 let id = textures.len() as u32 - 1;
                 ids.insert(key, id);
@@ -1695,7 +1725,41 @@ impl Loader {
         Ok(TextureRef { texture: id, wrap_s: wrap(s.wrap_s()), wrap_t: wrap(s.wrap_t()), set: set as u8, transform })
     }
 
+    /// Decodes every image a texture of the document names, in parallel, into `self.decoded`
+    /// (a textured asset's load was mostly its images' decoding, one after another: the Khronos
+    /// DamagedHelmet's five 2048² JPEGs).
+    ///
+    /// Which images those are, the materials say: they are read once without decoding anything
+    /// (`asked`: `texture_ref` notes each image and returns a stand-in), so an image only an
+    /// occlusion texture uses (ignored on purpose) is not decoded. A material that fails here
+    /// fails the same way when it is read again.
+    fn decode_images(&self, doc: &gltf::Document, buffers: &[Vec<u8>]) -> Result<(), SceneError> {
+        use rayon::prelude::*;
+        if let Ok(mut a) = self.asked.lock() {
+            *a = Some(Vec::new());
+        }
+        let (mut textures, mut ids) = (Vec::new(), HashMap::new());
+        let read =
+            doc.materials().try_for_each(|m| self.material(doc, &m, buffers, &mut textures, &mut ids).map(|_| ()));
+        let mut images = self.asked.lock().ok().and_then(|mut a| a.take()).unwrap_or_default();
+        read?;
+        images.sort_unstable();
+        images.dedup();
+        let all: Vec<gltf::Image> = doc.images().collect();
+        let decoded: HashMap<usize, Result<Decoded, SceneError>> =
+            images.par_iter().filter_map(|&i| all.get(i).map(|image| (i, self.decode_rgba(image, buffers)))).collect();
+        if let Ok(mut d) = self.decoded.lock() {
+            *d = decoded;
+        }
+        Ok(())
+    }
+
     fn decode_image(&self, image: &gltf::Image, srgb: bool, buffers: &[Vec<u8>]) -> Result<Texture, SceneError> {
+        let (width, height, texels) = self.decode_rgba(image, buffers)?;
+        Ok(Texture { width, height, texels, srgb })
+    }
+
+    fn decode_rgba(&self, image: &gltf::Image, buffers: &[Vec<u8>]) -> Result<Decoded, SceneError> {
         let what = format!("image {}", image.index());
         let bytes: Vec<u8> = match image.source() {
             gltf::image::Source::View { view, .. } => {
@@ -1716,6 +1780,6 @@ impl Loader {
         let rgba = img.to_rgba8();
         let (width, height) = rgba.dimensions();
         let texels = rgba.pixels().map(|p| p.0).collect();
-        Ok(Texture { width, height, texels, srgb })
+        Ok((width, height, texels))
     }
 }

@@ -337,6 +337,41 @@ fn texture_transform_and_second_uv_set_are_honoured() {
     assert!(rotated.y > 0.99, "{rotated:?}");
 }
 
+/// The materials' images are decoded ahead, in parallel: an image read in both colour spaces
+/// becomes two textures with the same texels; an undecodable image fails the load with an error
+/// naming it when a material reads it, and is not even decoded when only an occlusion texture
+/// (ignored on purpose) names it.
+#[test]
+fn images_are_decoded_for_what_materials_read() {
+    let mut png = Vec::new();
+    let img = image::RgbaImage::from_raw(2, 1, vec![255, 0, 0, 255, 0, 255, 0, 128]).expect("2x1");
+    image::DynamicImage::ImageRgba8(img)
+        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .expect("png");
+    let b64 = |d: &[u8]| base64::engine::general_purpose::STANDARD.encode(d);
+    let images = format!(
+        r#","textures":[{{"source":0}},{{"source":1}}],
+        "images":[{{"uri":"data:image/png;base64,{}"}},{{"uri":"data:image/png;base64,{}"}}]"#,
+        b64(&png),
+        b64(b"not an image at all")
+    );
+    let doc = |material: &str| {
+        gltf_json(r#"[{"mesh":0}]"#, &images, true).replace(r#""materials":[{"emissiveFactor":[1,1,1]}]"#, material)
+    };
+    let both = load_str(&doc(r#""materials":[{"emissiveFactor":[1,1,1],"emissiveTexture":{"index":0},
+        "pbrMetallicRoughness":{"metallicRoughnessTexture":{"index":0}},"occlusionTexture":{"index":1}}]"#))
+    .expect("the broken image is only an occlusion texture's");
+    assert_eq!(both.textures.len(), 2, "image 0 as sRGB and as linear data");
+    assert_eq!(both.textures[0].texels, both.textures[1].texels);
+    assert_eq!(both.textures[0].texels, vec![[255, 0, 0, 255], [0, 255, 0, 128]]);
+    assert_ne!(both.textures[0].srgb, both.textures[1].srgb);
+    let e = load_str(&doc(r#""materials":[{"emissiveFactor":[1,1,1],"emissiveTexture":{"index":1}}]"#))
+        .err()
+        .expect("a material reads the broken image");
+    let msg = e.to_string();
+    assert!(msg.contains("image 1") && msg.contains("cannot decode"), "{msg}");
+}
+
 /// One triangle stored as KHR_mesh_quantization allows (i16 POSITION, not normalized, scaled by its
 /// node; u16 normalized TEXCOORD_0; i8 normalized NORMAL) with u8 normalized RGBA COLOR_0, and the
 /// material extensions clearcoat, sheen, volume and unlit.

@@ -1725,9 +1725,9 @@ impl Loader {
         Ok(TextureRef { texture: id, wrap_s: wrap(s.wrap_s()), wrap_t: wrap(s.wrap_t()), set: set as u8, transform })
     }
 
-    /// Decodes every image a texture of the document names, in parallel, into `self.decoded`
-    /// (a textured asset's load was mostly its images' decoding, one after another: the Khronos
-    /// DamagedHelmet's five 2048² JPEGs).
+    /// Decodes every image the materials read, in parallel, into `self.decoded` (a textured
+    /// asset's load was mostly its images' decoding, one after another: the Khronos
+    /// DamagedHelmet's 2048² JPEGs).
     ///
     /// Which images those are, the materials say: they are read once without decoding anything
     /// (`asked`: `texture_ref` notes each image and returns a stand-in), so an image only an

@@ -282,15 +282,21 @@ fn optional_extensions_warn_required_ones_refuse() {
     assert!(scene.warnings.is_empty());
 }
 
+/// A 2×1 RGBA PNG of the two texels `rgba` (left, right).
+fn png_2x1(rgba: [u8; 8]) -> Vec<u8> {
+    let mut png = Vec::new();
+    let img = image::RgbaImage::from_raw(2, 1, rgba.to_vec()).expect("2x1");
+    image::DynamicImage::ImageRgba8(img)
+        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .expect("png");
+    png
+}
+
 /// KHR_texture_transform is applied: a 2×1 texture (red | green) read at u = 0.25 shows red; with
 /// an offset of 0.5 it shows green; with `texCoord: 1` the second UV set (u = 0.75) is read.
 #[test]
 fn texture_transform_and_second_uv_set_are_honoured() {
-    let mut png = Vec::new();
-    let img = image::RgbaImage::from_raw(2, 1, vec![255, 0, 0, 255, 0, 255, 0, 255]).expect("2x1");
-    image::DynamicImage::ImageRgba8(img)
-        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
-        .expect("png");
+    let png = png_2x1([255, 0, 0, 255, 0, 255, 0, 255]);
     let mut bin = Vec::new();
     for v in [[0.0f32, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]] {
         v.iter().for_each(|c| bin.extend_from_slice(&c.to_le_bytes()));
@@ -343,11 +349,7 @@ fn texture_transform_and_second_uv_set_are_honoured() {
 /// (ignored on purpose) names it.
 #[test]
 fn images_are_decoded_for_what_materials_read() {
-    let mut png = Vec::new();
-    let img = image::RgbaImage::from_raw(2, 1, vec![255, 0, 0, 255, 0, 255, 0, 128]).expect("2x1");
-    image::DynamicImage::ImageRgba8(img)
-        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
-        .expect("png");
+    let png = png_2x1([255, 0, 0, 255, 0, 255, 0, 128]);
     let b64 = |d: &[u8]| base64::engine::general_purpose::STANDARD.encode(d);
     let images = format!(
         r#","textures":[{{"source":0}},{{"source":1}}],

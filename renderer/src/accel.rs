@@ -1598,21 +1598,16 @@ impl Accel {
         self.own.is_none()
     }
 
-    /// The closest hit on the ray `o + t d`, `0 < t < tmax`, among the triangles `accept(triangle,
-    /// b1, b2)` takes at their hit points (`triangle` the mesh's, a prototype's on an instance):
+    /// The closest hit on the ray `o + t d`, `0 < t < tmax`, among the hits `accept` takes (each
+    /// offered as the `Hit` it would be: its triangle the mesh's, a prototype's on an instance,
+    /// with that instance):
     /// one walk that passes over the others (cut-outs and blended surfaces the ray goes
     /// through, `Scene::intersect_surface`) as if they were not there, where a walk per layer
     /// restarted at each. A block's nearest hit that is not taken is dropped from the block and
     /// the block asked again, so every hit before the answer is offered in turn; in a two-level
     /// BVH each instance the ray enters is walked so too, below the closest hit taken so far.
     /// None where [`Self::walks_accepted`] is false.
-    pub fn intersect_accepted(
-        &self,
-        o: Vec3,
-        d: Vec3,
-        tmax: f32,
-        accept: impl Fn(u32, f32, f32) -> bool,
-    ) -> Option<Hit> {
+    pub fn intersect_accepted(&self, o: Vec3, d: Vec3, tmax: f32, accept: impl Fn(&Hit) -> bool) -> Option<Hit> {
         let (oa, da) = (Vec3A::from(o), Vec3A::from(d));
         if !self.walks_accepted() || !finite(oa, da) {
             return None;
@@ -1629,7 +1624,7 @@ impl Accel {
         oa: Vec3A,
         da: Vec3A,
         tmax: f32,
-        accept: &impl Fn(u32, f32, f32) -> bool,
+        accept: &impl Fn(&Hit) -> bool,
     ) -> Option<Hit> {
         if self.tris.is_empty() || !finite(oa, da) {
             return None;
@@ -1650,7 +1645,7 @@ impl Accel {
         oa: Vec3A,
         da: Vec3A,
         tmax: f32,
-        accept: &impl Fn(u32, f32, f32) -> bool,
+        accept: &impl Fn(&Hit) -> bool,
     ) -> Option<Hit> {
         if top.prims.is_empty() {
             return None;
@@ -1662,17 +1657,25 @@ impl Accel {
             for i in bits_descending(mask) {
                 match &top.prims[base + i] {
                     TopPrim::Triangle(tri) => {
-                        if let Some((t, b1, b2)) =
-                            tri.intersect(&wray, bound).filter(|&(_, b1, b2)| accept(tri.id, b1, b2))
-                        {
-                            best = Some(Hit { t, triangle: tri.id, b1, b2, instance: NO_INSTANCE });
-                            bound = t;
+                        let hit = tri.intersect(&wray, bound).map(|(t, b1, b2)| Hit {
+                            t,
+                            triangle: tri.id,
+                            b1,
+                            b2,
+                            instance: NO_INSTANCE,
+                        });
+                        if let Some(h) = hit.filter(|h| accept(h)) {
+                            best = Some(h);
+                            bound = h.t;
                         }
                     }
                     TopPrim::Instance { index, prototype, to_object } => {
                         let (oo, dd) = (to_object.transform_point3a(oa), to_object.transform_vector3a(da));
+                        // Offered as this instance's hits: what a surface decides may depend on
+                        // which copy of a prototype's triangle the ray meets.
+                        let on_instance = |h: &Hit| accept(&Hit { instance: *index, ..*h });
                         if let Some(mut h) =
-                            top.blas[*prototype as usize].intersect_accepted_object(oo, dd, bound, accept)
+                            top.blas[*prototype as usize].intersect_accepted_object(oo, dd, bound, &on_instance)
                         {
                             h.instance = *index;
                             best = Some(h);
@@ -1693,7 +1696,7 @@ impl Accel {
         oa: Vec3A,
         da: Vec3A,
         tmax: f32,
-        accept: &impl Fn(u32, f32, f32) -> bool,
+        accept: &impl Fn(&Hit) -> bool,
     ) -> Option<Hit> {
         with_stack(self.stack_len, |stack| {
             let wray = WatertightRay::new(oa, da);
@@ -1705,7 +1708,7 @@ impl Accel {
                 |r, base, mask| {
                     let mut bound = r.tmax;
                     self.each_window_hit::<false>(&wray, base, mask, &mut bound, |hit| {
-                        let taken = accept(self.tris.ids[hit.1], hit.2, hit.3);
+                        let taken = accept(&self.offered(hit));
                         if taken {
                             best = hit;
                         }
@@ -1723,13 +1726,7 @@ impl Accel {
     /// before `tmax`; false where [`Self::walks_accepted`] is false. Until one is taken, every
     /// hit before `tmax` is offered once, in the walk's order, so `accept` may also gather what it
     /// passes (a shadow ray's transmittance through blended surfaces).
-    pub fn occluded_accepted(
-        &self,
-        o: Vec3,
-        d: Vec3,
-        tmax: f32,
-        mut accept: impl FnMut(u32, f32, f32) -> bool,
-    ) -> bool {
+    pub fn occluded_accepted(&self, o: Vec3, d: Vec3, tmax: f32, mut accept: impl FnMut(&Hit) -> bool) -> bool {
         let (oa, da) = (Vec3A::from(o), Vec3A::from(d));
         if !self.walks_accepted() || !finite(oa, da) {
             return false;
@@ -1741,13 +1738,7 @@ impl Accel {
     }
 
     /// [`Self::occluded_accepted`] over a one-level BVH (this one, or an instance's prototype).
-    fn occluded_accepted_object(
-        &self,
-        oa: Vec3A,
-        da: Vec3A,
-        tmax: f32,
-        accept: &mut impl FnMut(u32, f32, f32) -> bool,
-    ) -> bool {
+    fn occluded_accepted_object(&self, oa: Vec3A, da: Vec3A, tmax: f32, accept: &mut impl FnMut(&Hit) -> bool) -> bool {
         if self.tris.is_empty() || !finite(oa, da) {
             return false;
         }
@@ -1766,7 +1757,7 @@ impl Accel {
         oa: Vec3A,
         da: Vec3A,
         tmax: f32,
-        accept: &mut impl FnMut(u32, f32, f32) -> bool,
+        accept: &mut impl FnMut(&Hit) -> bool,
     ) -> bool {
         if top.prims.is_empty() {
             return false;
@@ -1774,13 +1765,15 @@ impl Accel {
         let wray = WatertightRay::new(oa, da);
         self.any(NodeRay::new(oa, da, tmax), |base, mask| {
             bits_descending(mask).any(|i| match &top.prims[base + i] {
-                TopPrim::Triangle(tri) => tri.intersect(&wray, tmax).is_some_and(|(_, b1, b2)| accept(tri.id, b1, b2)),
-                TopPrim::Instance { prototype, to_object, .. } => top.blas[*prototype as usize]
+                TopPrim::Triangle(tri) => tri
+                    .intersect(&wray, tmax)
+                    .is_some_and(|(t, b1, b2)| accept(&Hit { t, triangle: tri.id, b1, b2, instance: NO_INSTANCE })),
+                TopPrim::Instance { index, prototype, to_object } => top.blas[*prototype as usize]
                     .occluded_accepted_object(
                         to_object.transform_point3a(oa),
                         to_object.transform_vector3a(da),
                         tmax,
-                        accept,
+                        &mut |h: &Hit| accept(&Hit { instance: *index, ..*h }),
                     ),
             })
         })
@@ -1793,7 +1786,7 @@ impl Accel {
         oa: Vec3A,
         da: Vec3A,
         tmax: f32,
-        accept: &mut impl FnMut(u32, f32, f32) -> bool,
+        accept: &mut impl FnMut(&Hit) -> bool,
     ) -> bool {
         with_stack(self.stack_len, |stack| {
             let wray = WatertightRay::new(oa, da);
@@ -1803,13 +1796,17 @@ impl Accel {
                 NodeRay::new(oa, da, tmax),
                 |base, mask| {
                     let mut bound = tmax;
-                    self.each_window_hit::<true>(&wray, base, mask, &mut bound, |hit| {
-                        accept(self.tris.ids[hit.1], hit.2, hit.3)
-                    })
+                    self.each_window_hit::<true>(&wray, base, mask, &mut bound, |hit| accept(&self.offered(hit)))
                 },
                 |_| false,
             )
         })
+    }
+
+    /// A block's hit (distance, slot, barycentrics) as the `Hit` the accepted walks offer.
+    #[inline(always)]
+    fn offered(&self, (t, slot, b1, b2): LeafHit) -> Hit {
+        Hit { t, triangle: self.tris.ids[slot], b1, b2, instance: NO_INSTANCE }
     }
 
     /// Offers a leaf group's hits before `*bound` to `take`, each block's nearest first: a hit
@@ -2312,7 +2309,7 @@ mod tests {
     fn accepted_walks_find_the_closest_taken_triangle() {
         let (b, all) = sphere_cluster();
         // A third of the triangles refused everywhere, and even ones also near their first edge.
-        let take = |tri: u32, b1: f32, _b2: f32| !(tri.is_multiple_of(3) || (tri.is_multiple_of(2) && b1 < 0.3));
+        let take = |h: &Hit| !(h.triangle.is_multiple_of(3) || (h.triangle.is_multiple_of(2) && h.b1 < 0.3));
         let (mut hits, mut refused_first) = (0usize, 0usize);
         for (kind, heap, scalar) in [
             (AccelKind::ObvhsCompressed, false, false),
@@ -2344,7 +2341,8 @@ mod tests {
                     for slot in 0..accel.tris.len() {
                         if let Some((t, b1, b2)) = accel.tris.get(slot).intersect(&wray, tmax) {
                             let id = accel.tris.ids[slot];
-                            if take(id, b1, b2) && want.is_none_or(|(w, _)| t < w) {
+                            let offered = Hit { t, triangle: id, b1, b2, instance: NO_INSTANCE };
+                            if take(&offered) && want.is_none_or(|(w, _)| t < w) {
                                 want = Some((t, id));
                             }
                         }
@@ -2354,7 +2352,7 @@ mod tests {
                 match (got, want) {
                     (Some(g), Some((t, id))) => {
                         assert_eq!(g.t.to_bits(), t.to_bits(), "ray {i} ({kind:?}): {g:?} against {t} on {id}");
-                        assert!(take(g.triangle, g.b1, g.b2), "ray {i}: a refused triangle answered");
+                        assert!(take(&g), "ray {i}: a refused triangle answered");
                         if g.triangle != id {
                             // A tie on a shared edge: the ray hits both at this distance.
                             let slot = accel.tris.ids.iter().position(|&x| x == g.triangle).unwrap();
@@ -2365,7 +2363,7 @@ mod tests {
                         }
                         hits += 1;
                         let plain = accel.intersect(o, d, tmax).unwrap();
-                        if !take(plain.triangle, plain.b1, plain.b2) {
+                        if !take(&plain) {
                             refused_first += 1;
                         }
                     }
@@ -2379,10 +2377,10 @@ mod tests {
                 );
                 let bits = |h: Option<Hit>| h.map(|h| (h.t.to_bits(), h.triangle, h.b1.to_bits(), h.b2.to_bits()));
                 assert_eq!(
-                    bits(accel.intersect_accepted(o, d, tmax, |_, _, _| true)),
+                    bits(accel.intersect_accepted(o, d, tmax, |_: &Hit| true)),
                     bits(accel.intersect(o, d, tmax))
                 );
-                assert_eq!(accel.occluded_accepted(o, d, tmax, |_, _, _| true), accel.occluded(o, d, tmax));
+                assert_eq!(accel.occluded_accepted(o, d, tmax, |_: &Hit| true), accel.occluded(o, d, tmax));
             }
         }
         // (A ray whose first hit is refused mostly leaves the outer sphere through the gap; 388
@@ -2406,23 +2404,30 @@ mod tests {
         instanced.instances.extend(crate::mesh::Instance::new(0, glam::Mat4::IDENTITY));
         let two = Accel::build(&instanced);
         assert!(two.top.is_some() && two.walks_accepted());
-        let take = |tri: u32, b1: f32, _b2: f32| !(tri.is_multiple_of(3) || (tri.is_multiple_of(2) && b1 < 0.3));
+        let take = |h: &Hit| !(h.triangle.is_multiple_of(3) || (h.triangle.is_multiple_of(2) && h.b1 < 0.3));
         let mut hits = 0;
         for i in 0..3000u64 {
             let u = |j: u64| crate::sampler::hash_unit(8 * i + j + 99);
             let o = Vec3::new(u(0), u(1), u(2)) * 8.0 - 4.0;
             let d = Vec3::new(u(3), u(4), u(5)) * 2.0 - 1.0;
             let tmax = if i.is_multiple_of(3) { 4.0 * u(6) } else { f32::INFINITY };
-            let (a, b) = (one.intersect_accepted(o, d, tmax, take), two.intersect_accepted(o, d, tmax, take));
+            // Every hit the two-level walks offer is on the instance (instance 0).
+            let offered_elsewhere = std::cell::Cell::new(false);
+            let take_two = |h: &Hit| {
+                offered_elsewhere.set(offered_elsewhere.get() || h.instance != 0);
+                take(h)
+            };
+            let (a, b) = (one.intersect_accepted(o, d, tmax, take), two.intersect_accepted(o, d, tmax, take_two));
             assert_eq!(a.map(|h| h.t.to_bits()), b.map(|h| h.t.to_bits()), "ray {i}: {a:?} {b:?}");
             if let (Some(a), Some(b)) = (a, b) {
-                assert!(take(b.triangle, b.b1, b.b2) && b.instance == 0, "ray {i}: {b:?}");
+                assert!(take(&b) && b.instance == 0, "ray {i}: {b:?}");
                 if a.triangle == b.triangle {
                     assert_eq!((a.b1.to_bits(), a.b2.to_bits()), (b.b1.to_bits(), b.b2.to_bits()), "ray {i}");
                 }
                 hits += 1;
             }
-            assert_eq!(one.occluded_accepted(o, d, tmax, take), two.occluded_accepted(o, d, tmax, take), "ray {i}");
+            assert_eq!(one.occluded_accepted(o, d, tmax, take), two.occluded_accepted(o, d, tmax, take_two), "ray {i}");
+            assert!(!offered_elsewhere.get(), "ray {i}: a hit offered without its instance");
         }
         assert!(hits > 1000, "the rays must hit ({hits})");
     }

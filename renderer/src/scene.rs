@@ -451,18 +451,6 @@ impl Scene {
         self.blends
     }
 
-    /// How a hit surface treats a ray: (passes, attenuation for shadow rays).
-    #[inline]
-    fn coverage(&self, hit: &Hit) -> (AlphaMode, f32) {
-        let t = &self.mesh.triangles[hit.triangle as usize];
-        let m = &self.materials[t.material as usize];
-        if m.alpha_mode == AlphaMode::Opaque {
-            return (AlphaMode::Opaque, 1.0);
-        }
-        let sp = self.surface_point(hit);
-        (m.alpha_mode, m.alpha(&self.textures, sp.uv, sp.color))
-    }
-
     /// The world-space surface point of a hit (on world geometry or on an instance).
     #[inline]
     pub fn surface_point(&self, hit: &Hit) -> crate::mesh::SurfacePoint {
@@ -513,7 +501,7 @@ impl Scene {
     #[inline]
     pub fn intersect_surface(&self, o: Vec3, d: Vec3, seed: u32, from: u32) -> Option<Hit> {
         if self.walks_past_cutouts() && !self.batches_rays() {
-            return self.accel.intersect_accepted(o, d, f32::INFINITY, |t, b1, b2| self.stops_at(t, b1, b2, seed));
+            return self.accel.intersect_accepted(o, d, f32::INFINITY, |h| self.stops_at(h, seed));
         }
         // Without solids, the plain walk (its node tests start at 0, a constant).
         let first = if self.solids.is_empty() {
@@ -541,9 +529,10 @@ impl Scene {
         self.transparent && self.solids.is_empty() && self.accel.walks_accepted()
     }
 
-    /// A hit's alpha mode and coverage at the point (`b1`, `b2`) of mesh triangle `tri` (from the
-    /// point's texture coordinates and colour; 1 on an opaque surface).
-    fn coverage_at(&self, tri: u32, b1: f32, b2: f32) -> (AlphaMode, f32) {
+    /// A hit surface's alpha mode and coverage there (the alpha at the hit's texture coordinates
+    /// and colour, which an instance's hit shares with its prototype's; 1 on an opaque surface).
+    fn coverage(&self, hit: &Hit) -> (AlphaMode, f32) {
+        let tri = hit.triangle;
         let Some(m) = self.mesh.triangles.get(tri as usize).and_then(|t| self.materials.get(t.material as usize))
         else {
             return (AlphaMode::Opaque, 1.0);
@@ -551,20 +540,27 @@ impl Scene {
         if m.alpha_mode == AlphaMode::Opaque {
             return (AlphaMode::Opaque, 1.0);
         }
-        let (uv, color) = (self.mesh.tex_coords_at(tri, b1, b2), self.mesh.color_at(tri, b1, b2));
+        let (uv, color) = (self.mesh.tex_coords_at(tri, hit.b1, hit.b2), self.mesh.color_at(tri, hit.b1, hit.b2));
         (m.alpha_mode, m.alpha(&self.textures, uv, color))
     }
 
-    /// Whether a ray with transparency seed `seed` stops at the point (`b1`, `b2`) of mesh
-    /// triangle `tri`: always on an opaque surface, where the alpha reaches the cutoff on a MASK
-    /// cut-out, with probability alpha on a BLEND surface — by the hash of the seed and the
-    /// triangle, so each blended surface a ray meets decides by a number of its own whatever
-    /// order a walk meets them in (the walk per layer hashed the layer's number).
-    fn stops_at(&self, tri: u32, b1: f32, b2: f32, seed: u32) -> bool {
-        match self.coverage_at(tri, b1, b2) {
+    /// Whether a ray with transparency seed `seed` stops at `hit`: always on an opaque surface,
+    /// where the alpha reaches the cutoff on a MASK cut-out, with probability alpha on a BLEND
+    /// surface — by the hash of the seed, the triangle and the instance, so each blended surface a
+    /// ray meets (each copy of a prototype's too) decides by a number of its own whatever order a
+    /// walk meets them in (the walk per layer hashed the layer's number).
+    fn stops_at(&self, hit: &Hit, seed: u32) -> bool {
+        match self.coverage(hit) {
             (AlphaMode::Opaque, _) => true,
             (AlphaMode::Mask(cutoff), a) => a >= cutoff,
-            (AlphaMode::Blend, a) => crate::sampler::hash_unit(((seed as u64) << 32) | tri as u64) < a,
+            (AlphaMode::Blend, a) => {
+                let key = ((seed as u64) << 32) | hit.triangle as u64;
+                let key = match hit.instance {
+                    crate::accel::NO_INSTANCE => key,
+                    i => key ^ crate::sampler::hash_u64(i as u64),
+                };
+                crate::sampler::hash_unit(key) < a
+            }
         }
     }
 
@@ -578,10 +574,10 @@ impl Scene {
     fn through_layers(&self, o: Vec3, d: Vec3, seed: u32, first: Option<Hit>) -> Option<Hit> {
         if self.walks_past_cutouts() {
             let hit = first?;
-            if self.stops_at(hit.triangle, hit.b1, hit.b2, seed) {
+            if self.stops_at(&hit, seed) {
                 return Some(hit);
             }
-            return self.accel.intersect_accepted(o, d, f32::INFINITY, |t, b1, b2| self.stops_at(t, b1, b2, seed));
+            return self.accel.intersect_accepted(o, d, f32::INFINITY, |h| self.stops_at(h, seed));
         }
         let mut hit = first?;
         for layer in 0..MAX_TRANSPARENT_LAYERS {
@@ -852,7 +848,7 @@ impl Scene {
             // One walk over every surface before tmax: blocked at an opaque one or an uncut
             // cut-out, each BLEND surface's 1 − alpha multiplied in as it is met.
             let mut through = 1.0f32;
-            let blocked = self.accel.occluded_accepted(o, d, tmax, |t, b1, b2| match self.coverage_at(t, b1, b2) {
+            let blocked = self.accel.occluded_accepted(o, d, tmax, |h| match self.coverage(h) {
                 (AlphaMode::Opaque, _) => true,
                 (AlphaMode::Mask(cutoff), a) => a >= cutoff,
                 (AlphaMode::Blend, a) => {

@@ -82,6 +82,35 @@ fn many_blended_layers_let_the_product_through() {
     assert!((m - want).abs() <= 5.0 * sd + 1e-6, "{m} ± {sd} against {want}");
 }
 
+/// One blended veil (alpha 1/2) placed twice in front of the emitter, as two instances of one
+/// prototype: the copies decide apart, so (1 − 1/2)² of the light comes through. (Keyed by the
+/// triangle alone, both copies took the same number, and half came through.)
+#[test]
+fn instances_of_a_blended_surface_decide_apart() {
+    use renderer::mesh::{flags, Instance};
+    let mut b = SceneBuilder::default();
+    let e = b.material(emitter(Vec3::ONE));
+    b.quad(Vec3::new(0.0, 0.0, -2.0), Vec3::X * 5.0, Vec3::Y * 5.0, e);
+    let mut veil = lambert(Vec3::ZERO);
+    veil.base_color = Vec4::new(0.0, 0.0, 0.0, 0.5);
+    veil.alpha_mode = AlphaMode::Blend;
+    let v = b.material(veil);
+    let first = b.mesh.triangles.len() as u32;
+    b.quad(Vec3::ZERO, Vec3::X * 5.0, Vec3::Y * 5.0, v);
+    let end = b.mesh.triangles.len() as u32;
+    for t in &mut b.mesh.triangles[first as usize..] {
+        t.flags |= flags::OBJECT_SPACE;
+    }
+    b.mesh.prototypes.push(first..end);
+    for z in [-0.5f32, -1.0] {
+        b.mesh.instances.extend(Instance::new(0, renderer::math::Mat4::from_translation(Vec3::new(0.0, 0.0, z))));
+    }
+    assert_eq!(b.mesh.instances.len(), 2);
+    b.look_at(Vec3::new(0.0, 0.0, 1.0), Vec3::new(0.0, 0.0, -1.0), 20.0);
+    let (m, sd) = mean(&b.build(), 512);
+    assert!((m - 0.25).abs() <= 5.0 * sd + 1e-6, "{m} ± {sd} against 0.25");
+}
+
 #[test]
 fn blend_lets_one_minus_alpha_through() {
     for alpha in [0.0f32, 0.25, 0.9, 1.0] {

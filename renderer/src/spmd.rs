@@ -213,9 +213,11 @@ impl LaneMaterial {
             || table.iter().any(|m| m.per_lane || m.scalar)
             || crate::material::any_blends(materials)
             || materials.iter().any(|m| m.emissive_texture.is_some());
-        let large_textures: Vec<bool> = materials.iter().map(|m| m.reads_large_texture(textures)).collect();
-        let any_large_texture = large_textures.iter().any(|&l| l);
-        Some(LaneTable { entries: table, hit_detail, large_textures, any_large_texture })
+        let mut large_textures: Vec<bool> = materials.iter().map(|m| m.reads_large_texture(textures)).collect();
+        if !large_textures.contains(&true) {
+            large_textures.clear();
+        }
+        Some(LaneTable { entries: table, hit_detail, large_textures })
     }
 }
 
@@ -230,9 +232,8 @@ pub struct LaneTable {
     pub hit_detail: bool,
     /// By material: whether it reads a texture too large to stay cached
     /// ([`Material::reads_large_texture`]), whose texels the kernel asks for ahead of its hits'
-    /// lookups; and whether any material does.
+    /// lookups; empty where no material does.
     large_textures: Vec<bool>,
-    any_large_texture: bool,
 }
 
 impl std::ops::Deref for LaneTable {
@@ -885,7 +886,7 @@ pub fn radiance8<const DETAIL: bool>(
         let instanced =
             (DETAIL && !scene.mesh.instances.is_empty()).then(|| InstancedLanes::of(scene, &hits, hit_bits, &mut sp));
         let (sp_p, sp_ng) = (sp.p.to_lanes(), sp.ng.to_lanes());
-        if DETAIL && table.any_large_texture {
+        if DETAIL && !table.large_textures.is_empty() {
             // Every lane's texels on a large texture asked for before the loop below reads the
             // first lane's, so the lanes' cache misses overlap (`Texture::prefetch`; the lanes
             // the scalar path shades read theirs after the bounce).

@@ -147,8 +147,14 @@ impl LaneMaterial {
     /// one resolved under white), the same bits.
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[inline]
-    fn at_hit(scene: &Scene, material: usize, tri: u32, b1: f32, b2: f32) -> LaneMaterial {
-        let uv = || scene.mesh.tex_coords_at(tri, b1, b2);
+    fn at_hit(
+        scene: &Scene,
+        material: usize,
+        tri: u32,
+        b1: f32,
+        b2: f32,
+        uv: impl FnOnce() -> crate::texture::TexCoords,
+    ) -> LaneMaterial {
         let b = scene.bsdf_at(material as u32, uv, scene.mesh.color_at(tri, b1, b2));
         LaneMaterial::of(&b, false)
     }
@@ -429,7 +435,8 @@ impl HitDetail {
 
     /// Lane `k`'s hit on triangle `tri` at (b1, b2) with material `id`, whose table entry is
     /// `m`, and the hit's world-space `tangent` (`Scene::surface_point`'s): the entry the lane
-    /// shades with (`m` resolved where it is textured).
+    /// shades with (`m` resolved where it is textured). `uv`: the hit's texture coordinates
+    /// where the kernel has them already (worked out here otherwise, once for all lookups).
     #[inline(never)]
     #[allow(clippy::too_many_arguments)]
     fn resolve(
@@ -442,10 +449,15 @@ impl HitDetail {
         b1: f32,
         b2: f32,
         tangent: Option<crate::math::Vec4>,
+        uv: Option<crate::texture::TexCoords>,
     ) -> LaneMaterial {
+        // The texture coordinates once, for whichever lookups below read them (the prefetch
+        // pass may have worked them out already: `uv`).
+        let mut uv = uv;
+        let mut uv_at = || *uv.get_or_insert_with(|| scene.mesh.tex_coords_at(tri, b1, b2));
         let m = if m.textured {
             self.textured |= 1 << k;
-            self.m[k] = LaneMaterial::at_hit(scene, id, tri, b1, b2);
+            self.m[k] = LaneMaterial::at_hit(scene, id, tri, b1, b2, &mut uv_at);
             self.m[k]
         } else {
             m
@@ -456,8 +468,7 @@ impl HitDetail {
             (self.tangent[k], self.tangent_bits) = (t, self.tangent_bits | 1 << k);
             let material = &scene.materials[id];
             if material.normal_texture.is_some() {
-                let uv = scene.mesh.tex_coords_at(tri, b1, b2);
-                self.normal_ts[k] = material.tangent_space_normal(&scene.textures, uv);
+                self.normal_ts[k] = material.tangent_space_normal(&scene.textures, uv_at());
             }
         }
         m
@@ -886,6 +897,8 @@ pub fn radiance8<const DETAIL: bool>(
         let instanced =
             (DETAIL && !scene.mesh.instances.is_empty()).then(|| InstancedLanes::of(scene, &hits, hit_bits, &mut sp));
         let (sp_p, sp_ng) = (sp.p.to_lanes(), sp.ng.to_lanes());
+        // Lanes' texture coordinates worked out by the prefetch pass, for the lookups below.
+        let mut uvs = [None::<crate::texture::TexCoords>; LANES];
         if DETAIL && !table.large_textures.is_empty() {
             // Every lane's texels on a large texture asked for before the loop below reads the
             // first lane's, so the lanes' cache misses overlap (`Texture::prefetch`; the lanes
@@ -895,6 +908,7 @@ pub fn radiance8<const DETAIL: bool>(
                 if table.large_textures[material_id] {
                     let uv = scene.mesh.tex_coords_at(tri[k], hb1[k], hb2[k]);
                     scene.materials[material_id].prefetch_texels(&scene.textures, uv);
+                    uvs[k] = Some(uv);
                 }
             }
         }
@@ -916,7 +930,7 @@ pub fn radiance8<const DETAIL: bool>(
             if material.is_emissive() {
                 // Texture coordinates only for an emissive texture (`Path::shade` reads `sp.uv`).
                 let uv = match material.emissive_texture {
-                    Some(_) if DETAIL => scene.mesh.tex_coords_at(tri[k], hb1[k], hb2[k]),
+                    Some(_) if DETAIL => uvs[k].unwrap_or_else(|| scene.mesh.tex_coords_at(tri[k], hb1[k], hb2[k])),
                     _ => Default::default(),
                 };
                 let le = crate::light::emitted(material, &scene.textures, sp_ng[k], uv, -dirs[k]);
@@ -940,7 +954,7 @@ pub fn radiance8<const DETAIL: bool>(
                     Some(i) if i.bits & (1 << k) != 0 => i.tangent[k],
                     _ => scene.mesh.tangent_at(tri[k], hb1[k], hb2[k]),
                 };
-                resolved = d.resolve(scene, k, material_id, *m, tri[k], hb1[k], hb2[k], tangent);
+                resolved = d.resolve(scene, k, material_id, *m, tri[k], hb1[k], hb2[k], tangent, uvs[k]);
                 m = &resolved;
             }
             (albedo[k], mat_id[k]) = (m.base, material_id);

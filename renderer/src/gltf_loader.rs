@@ -654,7 +654,7 @@ impl Loader {
         }
         let mut scene = Scene::new(mesh, materials, textures, cameras);
         if !punctual.is_empty() {
-            scene.set_punctual(punctual);
+            scene.replace_punctual(punctual);
         }
         if animated {
             scene.set_animator(anim);

@@ -92,6 +92,9 @@ pub struct LightSet {
     /// area light's box index (or `clear_box::NONE`).
     clear_boxes: Vec<crate::clear_box::ClearBox>,
     clear_of: Vec<u32>,
+    /// The selection weights of the area lights and bulbs (the table's first entries): what
+    /// [`Self::with_others`] keeps when the punctual lights or the environment change.
+    area_power: Vec<f32>,
 }
 
 /// Light selection for next-event estimation (`--light-sampler`).
@@ -229,16 +232,6 @@ impl LightSet {
         for (r, l) in lights.iter().enumerate() {
             triangle_light[l.triangle as usize] = r as u32;
         }
-        let punctual: Vec<PunctualLight> =
-            punctual.into_iter().filter(|p| p.power(scene_radius.max(1e-3)) > 0.0).collect();
-        for p in &punctual {
-            power.push(p.power(scene_radius.max(1e-3)));
-        }
-        if let Some(env) = environment.as_ref().filter(|e| e.is_sampled()) {
-            let r = scene_radius.max(1e-3);
-            power.push((4.0 * PI * PI * r * r * env.mean_luminance).max(1e-12));
-        }
-        let selection = AliasTable::new(&power).unwrap_or_default();
         let (clear_boxes, clear_of) = crate::clear_box::find(mesh, &lights);
         // A bulb whose triangles all have one clear box is isolated: its sure directions' shadow
         // rays end at that box.
@@ -250,15 +243,52 @@ impl LightSet {
             }
             first += bulb.triangles.len();
         }
-        LightSet {
+        let area = LightSet {
             clear_boxes,
             clear_of,
             lights,
             area_count,
             bulbs,
             bulb_of,
-            selection,
+            selection: AliasTable::default(),
             triangle_light,
+            punctual: Vec::new(),
+            environment: None,
+            kind: LightSamplerKind::Power,
+            tree: None,
+            tree_lights: Vec::new(),
+            tree_index: Vec::new(),
+            infinite: Vec::new(),
+            area_power: power,
+        };
+        area.with_others(punctual, environment, scene_radius)
+    }
+
+    /// This set's area lights and bulbs (the costly part of [`Self::build`]: every emissive
+    /// triangle's mean emission, the bulbs' hulls, the clear boxes) with `punctual` lights and
+    /// `environment` in place of its own, and the selection table over them all, as
+    /// [`Self::build`] would make it; choosing by power (set the kind again after). Adding an
+    /// environment or punctual lights to a loaded scene used to build the whole set anew each
+    /// time (twice or three times a load).
+    pub fn with_others(
+        self,
+        punctual: Vec<PunctualLight>,
+        environment: Option<Environment>,
+        scene_radius: f32,
+    ) -> Self {
+        let mut power = self.area_power.clone();
+        let punctual: Vec<PunctualLight> =
+            punctual.into_iter().filter(|p| p.power(scene_radius.max(1e-3)) > 0.0).collect();
+        for p in &punctual {
+            power.push(p.power(scene_radius.max(1e-3)));
+        }
+        if let Some(env) = environment.as_ref().filter(|e| e.is_sampled()) {
+            let r = scene_radius.max(1e-3);
+            power.push((4.0 * PI * PI * r * r * env.mean_luminance).max(1e-12));
+        }
+        let selection = AliasTable::new(&power).unwrap_or_default();
+        LightSet {
+            selection,
             punctual,
             environment,
             kind: LightSamplerKind::Power,
@@ -266,6 +296,7 @@ impl LightSet {
             tree_lights: Vec::new(),
             tree_index: Vec::new(),
             infinite: Vec::new(),
+            ..self
         }
     }
 
@@ -929,6 +960,39 @@ mod tests {
             intensity: Vec3::splat(3.0),
             position: Vec3::ZERO,
             direction: d.normalize(),
+        }
+    }
+
+    /// Adding punctual lights or an environment to a loaded scene keeps its area lights
+    /// (`with_others`) and gives the set a fresh build would: the same lights, selection
+    /// probabilities to the bit, and choices.
+    #[test]
+    fn punctual_and_environment_added_as_a_fresh_build_adds_them() {
+        let mut scene = emitter_triangles(7, |i| (i as f32 - 3.0, 0.4 * i as f32 - 1.0, 0.5 + i as f32));
+        scene.replace_punctual(vec![sun(Vec3::new(0.2, -1.0, 0.1))]);
+        scene.set_environment(Some(crate::environment::Environment::uniform(Vec3::splat(0.3), true)));
+        let radius = (scene.bounds.1 - scene.bounds.0).length() * 0.5;
+        let fresh = LightSet::build(
+            &scene.mesh,
+            &scene.materials,
+            &scene.textures,
+            scene.lights.punctual.clone(),
+            Some(crate::environment::Environment::uniform(Vec3::splat(0.3), true)),
+            radius,
+        );
+        let kept = &scene.lights;
+        assert_eq!(
+            (kept.count(), kept.area_count, kept.lights.len()),
+            (fresh.count(), fresh.area_count, fresh.lights.len())
+        );
+        assert_eq!(kept.count(), 7 + 1 + 1, "seven triangles, a sun, the environment");
+        for i in 0..fresh.count() {
+            assert_eq!(kept.pmf(i).to_bits(), fresh.pmf(i).to_bits(), "light {i}");
+        }
+        for j in 0..200u64 {
+            let (p, u) = (Vec3::new(0.1, -0.5, 0.2), crate::sampler::hash_unit(j));
+            let pick = |s: &LightSet| s.select(p, None, u).map(|(l, pmf)| (l, pmf.to_bits()));
+            assert_eq!(pick(kept), pick(&fresh), "u {u}");
         }
     }
 

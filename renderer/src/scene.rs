@@ -137,12 +137,14 @@ impl Scene {
         }
     }
 
-    /// Lights the scene with an environment (rebuilds the light set so NEE can select it).
+    /// Lights the scene with an environment: the light set's selection made again so NEE can
+    /// choose it, its area lights kept (`LightSet::with_others`: the mesh must be the one the set
+    /// was built on, as it is from loading on; `set_frame` rebuilds all after a pose).
     pub fn set_environment(&mut self, env: Option<crate::environment::Environment>) {
         let radius = (self.bounds.1 - self.bounds.0).length() * 0.5;
         let punctual = std::mem::take(&mut self.lights.punctual);
         let kind = self.lights.kind;
-        self.lights = LightSet::build(&self.mesh, &self.materials, &self.textures, punctual, env, radius);
+        self.lights = std::mem::take(&mut self.lights).with_others(punctual, env, radius);
         self.lights.set_kind_exact(kind, &self.mesh);
     }
 
@@ -317,15 +319,26 @@ impl Scene {
         }
         tracing::info!(?units, generator = ?self.generator, "punctual light units");
         self.light_units = units;
-        self.set_punctual(punctual);
+        self.replace_punctual(punctual);
     }
 
-    /// Adds KHR_lights_punctual lights (rebuilds the light set).
+    /// Adds KHR_lights_punctual lights and rebuilds the whole light set, area lights included
+    /// (`set_frame` calls it after moving the mesh).
     pub fn set_punctual(&mut self, punctual: Vec<crate::punctual::PunctualLight>) {
         let radius = (self.bounds.1 - self.bounds.0).length() * 0.5;
         let env = self.lights.environment.take();
         let kind = self.lights.kind;
         self.lights = LightSet::build(&self.mesh, &self.materials, &self.textures, punctual, env, radius);
+        self.lights.set_kind_exact(kind, &self.mesh);
+    }
+
+    /// [`Self::set_punctual`] on a mesh that has not changed since the light set was built: its
+    /// area lights kept (`LightSet::with_others`), only the selection made again.
+    pub(crate) fn replace_punctual(&mut self, punctual: Vec<crate::punctual::PunctualLight>) {
+        let radius = (self.bounds.1 - self.bounds.0).length() * 0.5;
+        let env = self.lights.environment.take();
+        let kind = self.lights.kind;
+        self.lights = std::mem::take(&mut self.lights).with_others(punctual, env, radius);
         self.lights.set_kind_exact(kind, &self.mesh);
     }
 

@@ -267,10 +267,11 @@ impl LightSet {
     /// This set's area lights and bulbs (the costly part of [`Self::build`]: every emissive
     /// triangle's mean emission, the bulbs' hulls, the clear boxes) with `punctual` lights and
     /// `environment` in place of its own, and the selection table over them all, as
-    /// [`Self::build`] would make it; choosing by power (set the kind again after). Adding an
-    /// environment or punctual lights to a loaded scene used to build the whole set anew each
-    /// time (twice or three times a load).
-    pub fn with_others(
+    /// [`Self::build`] would make it; choosing by power (set the kind again after). Only for a
+    /// mesh unchanged since this set was built (the area lights are its triangles as they were):
+    /// adding an environment or punctual lights to a loaded scene used to build the whole set
+    /// anew each time, two or three times a load.
+    pub(crate) fn with_others(
         self,
         punctual: Vec<PunctualLight>,
         environment: Option<Environment>,

@@ -856,6 +856,10 @@ pub struct Accel {
     /// The obvhs BVH's [`sah_cost`] (one level, or the top level), worked out when it was built
     /// (0 for the own BVH).
     sah_cost: f64,
+    /// The build settings of the candidate kept ([`build_candidates`]) for the one-level BVH or
+    /// the top level; None for the own BVH and empty ones. [`Self::rebuild_top`] builds with
+    /// these alone.
+    build: Option<obvhs::BvhBuildParams>,
 }
 
 impl Accel {
@@ -905,13 +909,14 @@ impl Accel {
                 top: None,
                 solid_of_node: Vec::new(),
                 sah_cost: 0.0,
+                build: None,
             };
         }
         let prims = obvhs_triangles(mesh, &ids);
         if prims.is_empty() {
             return Accel { kind, ..Accel::default() };
         }
-        let (sah_cost, bvh) = Self::least_cost_build(candidates, |params| {
+        let (sah_cost, bvh, build) = Self::least_cost_build(candidates, |params| {
             obvhs::cwbvh::builder::build_cwbvh_from_tris(&prims, params, &mut std::time::Duration::default())
         });
         let stack_len = stack_len(&bvh);
@@ -932,6 +937,7 @@ impl Accel {
             top: None,
             solid_of_node: Vec::new(),
             sah_cost,
+            build,
         }
     }
 
@@ -943,15 +949,15 @@ impl Accel {
     fn least_cost_build(
         candidates: &[obvhs::BvhBuildParams],
         build: impl Fn(obvhs::BvhBuildParams) -> CwBvh,
-    ) -> (f64, CwBvh) {
+    ) -> (f64, CwBvh, Option<obvhs::BvhBuildParams>) {
         let mut builds = candidates.iter().map(|&params| {
             let bvh = build(params);
-            (sah_cost(&bvh), bvh)
+            (sah_cost(&bvh), bvh, Some(params))
         });
-        let Some(first) = builds.next() else { return Default::default() };
+        let Some(first) = builds.next() else { return (0.0, CwBvh::default(), None) };
         let bar = first.0 * CANDIDATE_MARGIN;
         // `min_by` keeps the first of equal minima.
-        builds.filter(|(cost, _)| *cost < bar).min_by(|a, b| a.0.total_cmp(&b.0)).unwrap_or(first)
+        builds.filter(|(cost, ..)| *cost < bar).min_by(|a, b| a.0.total_cmp(&b.0)).unwrap_or(first)
     }
 
     /// The SAH cost ([`sah_cost`]) of the obvhs BVH a ray walks first (a one-level BVH, or a
@@ -961,12 +967,21 @@ impl Accel {
     }
 
     /// After an animation moved instances or world vertices: a new top level over the prototype
-    /// BVHs already built (they do not change), or a whole new BVH for a scene without instances.
+    /// BVHs already built (they do not change), or a whole new BVH for a scene without instances,
+    /// either built with the settings the first build kept ([`build_candidates`]' least costly)
+    /// alone. Every frame's pose rebuilt these, and trying every candidate again cost an animated
+    /// shot's workers twice to four times a build per frame. The settings are a function of the
+    /// scene as loaded (the loader poses frame 0 before the first build), so every worker builds
+    /// the same BVH for a frame, whatever frames it posed before.
     pub fn rebuild_top(&mut self, mesh: &Mesh) {
-        match self.top.take() {
-            Some(top) => *self = Self::top_level(mesh, top.blas, self.kind),
-            None => *self = Self::build_with(mesh, self.kind),
-        }
+        let kept = self.build.map(|b| [b]);
+        let kept = kept.as_ref().map(<[_; 1]>::as_slice);
+        let all = || (0..mesh.triangles.len() as u32).collect();
+        *self = match (self.top.take(), kept) {
+            (Some(top), _) => Self::top_level(mesh, top.blas, self.kind, kept),
+            (None, Some(kept)) if mesh.instances.is_empty() => Self::build_triangles_with(mesh, all(), self.kind, kept),
+            (None, _) => Self::build_with(mesh, self.kind),
+        };
     }
 
     /// Prototype BVHs, then a top level over the world triangles and the instances' world boxes.
@@ -975,10 +990,12 @@ impl Accel {
         let blas_kind = if kind == AccelKind::Own { AccelKind::Obvhs } else { kind };
         let blas: Vec<Accel> =
             mesh.prototypes.iter().map(|r| Self::build_triangles(mesh, r.clone().collect(), blas_kind)).collect();
-        Self::top_level(mesh, blas, kind)
+        Self::top_level(mesh, blas, kind, None)
     }
 
-    fn top_level(mesh: &Mesh, blas: Vec<Accel>, kind: AccelKind) -> Self {
+    /// The top level over the world triangles and the instances' boxes, built with each of
+    /// `candidates` (all of [`build_candidates`]' where None) and the least costly kept.
+    fn top_level(mesh: &Mesh, blas: Vec<Accel>, kind: AccelKind, candidates: Option<&[obvhs::BvhBuildParams]>) -> Self {
         let world: Vec<u32> = (0..mesh.triangles.len() as u32)
             .filter(|&i| mesh.triangles[i as usize].flags & crate::mesh::flags::OBJECT_SPACE == 0)
             .collect();
@@ -1007,7 +1024,8 @@ impl Accel {
         if boxes.is_empty() {
             return Accel { top: Some(Box::new(TopLevel { prims, blas })), ..Accel::default() };
         }
-        let (sah_cost, bvh) = Self::least_cost_build(&build_candidates(boxes.len()), |params| {
+        let all = build_candidates(boxes.len());
+        let (sah_cost, bvh, build) = Self::least_cost_build(candidates.unwrap_or(&all), |params| {
             obvhs::cwbvh::builder::build_cwbvh(&boxes, params, &mut std::time::Duration::default())
         });
         // Leaf order, so a leaf's primitives sit together.
@@ -1021,6 +1039,7 @@ impl Accel {
             kind,
             top: Some(Box::new(TopLevel { prims, blas })),
             sah_cost,
+            build,
             ..Accel::default()
         }
     }
@@ -2964,6 +2983,37 @@ mod tests {
             }
         }
         crate::testing::mesh_of(&tris)
+    }
+
+    /// An animated pose's rebuild (`rebuild_top`) builds with the settings the first build kept,
+    /// alone: the floor under tiles keeps a build other than the medium one; posed as triangles
+    /// strewn through a cube (where a fresh build keeps the medium one), the rebuild still has
+    /// the first build's settings, and its tree is that build of the posed triangles.
+    #[test]
+    fn a_pose_is_rebuilt_with_the_kept_settings() {
+        let mesh = floor_and_tiles(100, 0.0);
+        let mut accel = Accel::build(&mesh);
+        let name = |a: &Accel| format!("{:?}", a.build);
+        let kept = name(&accel);
+        assert_ne!(kept, format!("{:?}", Some(obvhs::BvhBuildParams::medium_build())), "the tiles' tree");
+        // Posed as small triangles strewn through a cube (where the candidates' costs lie within
+        // 3 % of each other, so a fresh build keeps the medium one).
+        let h = |i: u64| crate::sampler::hash_unit(i);
+        let tris: Vec<[Vec3; 3]> = (0..mesh.triangles.len() as u64)
+            .map(|k| {
+                let p = Vec3::new(h(3 * k), h(3 * k + 1), h(3 * k + 2)) * 20.0 - Vec3::splat(10.0);
+                [p, p + Vec3::new(0.2, 0.0, 0.0), p + Vec3::new(0.0, 0.2, 0.1)]
+            })
+            .collect();
+        assert_eq!(tris.len(), mesh.triangles.len());
+        let posed = crate::testing::mesh_of(&tris);
+        let fresh = Accel::build(&posed);
+        assert_eq!(name(&fresh), format!("{:?}", Some(obvhs::BvhBuildParams::medium_build())), "a fresh build");
+        accel.rebuild_top(&posed);
+        assert_eq!(name(&accel), kept);
+        let params = accel.build.expect("an obvhs build");
+        let again = Accel::build_triangles_with(&posed, (0..tris.len() as u32).collect(), AccelKind::Obvhs, &[params]);
+        assert_eq!(accel.sah_cost().to_bits(), again.sah_cost().to_bits());
     }
 
     /// Beyond many_lights: a floor under 10 000 tiles (four candidates) and under 40 000 tiles at

@@ -948,12 +948,21 @@ impl Accel {
     /// for a scene.
     fn least_cost_build(
         candidates: &[obvhs::BvhBuildParams],
-        build: impl Fn(obvhs::BvhBuildParams) -> CwBvh,
+        build: impl Fn(obvhs::BvhBuildParams) -> CwBvh + Sync,
     ) -> (f64, CwBvh, Option<obvhs::BvhBuildParams>) {
-        let mut builds = candidates.iter().map(|&params| {
-            let bvh = build(params);
-            (sah_cost(&bvh), bvh, Some(params))
-        });
+        // The candidates built on rayon's threads (each build is one thread's, obvhs' own
+        // parallelism not enabled): a load's cores are otherwise idle while it builds. Each build
+        // is a function of its settings and the primitives alone, and the choice below reads
+        // them in the candidates' order, so the tree kept is the one a build after another keeps.
+        use rayon::prelude::*;
+        let builds: Vec<_> = candidates
+            .par_iter()
+            .map(|&params| {
+                let bvh = build(params);
+                (sah_cost(&bvh), bvh, Some(params))
+            })
+            .collect();
+        let mut builds = builds.into_iter();
         let Some(first) = builds.next() else { return (0.0, CwBvh::default(), None) };
         let bar = first.0 * CANDIDATE_MARGIN;
         // `min_by` keeps the first of equal minima.

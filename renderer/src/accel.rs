@@ -983,12 +983,12 @@ impl Accel {
     /// scene as loaded (the loader poses frame 0 before the first build), so every worker builds
     /// the same BVH for a frame, whatever frames it posed before.
     pub fn rebuild_top(&mut self, mesh: &Mesh) {
-        let kept = self.build.map(|b| [b]);
-        let kept = kept.as_ref().map(<[_; 1]>::as_slice);
-        let all = || (0..mesh.triangles.len() as u32).collect();
-        *self = match (self.top.take(), kept) {
-            (Some(top), _) => Self::top_level(mesh, top.blas, self.kind, kept),
-            (None, Some(kept)) if mesh.instances.is_empty() => Self::build_triangles_with(mesh, all(), self.kind, kept),
+        let ids = || (0..mesh.triangles.len() as u32).collect();
+        *self = match (self.top.take(), self.build) {
+            (Some(top), kept) => Self::top_level(mesh, top.blas, self.kind, kept),
+            (None, Some(kept)) if mesh.instances.is_empty() => {
+                Self::build_triangles_with(mesh, ids(), self.kind, &[kept])
+            }
             (None, _) => Self::build_with(mesh, self.kind),
         };
     }
@@ -1002,9 +1002,9 @@ impl Accel {
         Self::top_level(mesh, blas, kind, None)
     }
 
-    /// The top level over the world triangles and the instances' boxes, built with each of
-    /// `candidates` (all of [`build_candidates`]' where None) and the least costly kept.
-    fn top_level(mesh: &Mesh, blas: Vec<Accel>, kind: AccelKind, candidates: Option<&[obvhs::BvhBuildParams]>) -> Self {
+    /// The top level over the world triangles and the instances' boxes, built with the `kept`
+    /// settings, or with each of [`build_candidates`]' and the least costly kept.
+    fn top_level(mesh: &Mesh, blas: Vec<Accel>, kind: AccelKind, kept: Option<obvhs::BvhBuildParams>) -> Self {
         let world: Vec<u32> = (0..mesh.triangles.len() as u32)
             .filter(|&i| mesh.triangles[i as usize].flags & crate::mesh::flags::OBJECT_SPACE == 0)
             .collect();
@@ -1033,8 +1033,8 @@ impl Accel {
         if boxes.is_empty() {
             return Accel { top: Some(Box::new(TopLevel { prims, blas })), ..Accel::default() };
         }
-        let all = build_candidates(boxes.len());
-        let (sah_cost, bvh, build) = Self::least_cost_build(candidates.unwrap_or(&all), |params| {
+        let candidates = kept.map_or_else(|| build_candidates(boxes.len()), |p| vec![p]);
+        let (sah_cost, bvh, build) = Self::least_cost_build(&candidates, |params| {
             obvhs::cwbvh::builder::build_cwbvh(&boxes, params, &mut std::time::Duration::default())
         });
         // Leaf order, so a leaf's primitives sit together.

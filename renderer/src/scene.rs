@@ -141,11 +141,8 @@ impl Scene {
     /// choose it, its area lights kept (`LightSet::with_others`: the mesh must be the one the set
     /// was built on, as it is from loading on; `set_frame` rebuilds all after a pose).
     pub fn set_environment(&mut self, env: Option<crate::environment::Environment>) {
-        let radius = (self.bounds.1 - self.bounds.0).length() * 0.5;
         let punctual = std::mem::take(&mut self.lights.punctual);
-        let kind = self.lights.kind;
-        self.lights = std::mem::take(&mut self.lights).with_others(punctual, env, radius);
-        self.lights.set_kind_exact(kind, &self.mesh);
+        self.relight(punctual, env, false);
     }
 
     /// Chooses how NEE selects lights (builds the light tree only when asked for); `auto` as seen
@@ -325,20 +322,33 @@ impl Scene {
     /// Adds KHR_lights_punctual lights and rebuilds the whole light set, area lights included
     /// (`set_frame` calls it after moving the mesh).
     pub fn set_punctual(&mut self, punctual: Vec<crate::punctual::PunctualLight>) {
-        let radius = (self.bounds.1 - self.bounds.0).length() * 0.5;
         let env = self.lights.environment.take();
-        let kind = self.lights.kind;
-        self.lights = LightSet::build(&self.mesh, &self.materials, &self.textures, punctual, env, radius);
-        self.lights.set_kind_exact(kind, &self.mesh);
+        self.relight(punctual, env, true);
     }
 
     /// [`Self::set_punctual`] on a mesh that has not changed since the light set was built: its
     /// area lights kept (`LightSet::with_others`), only the selection made again.
     pub(crate) fn replace_punctual(&mut self, punctual: Vec<crate::punctual::PunctualLight>) {
-        let radius = (self.bounds.1 - self.bounds.0).length() * 0.5;
         let env = self.lights.environment.take();
+        self.relight(punctual, env, false);
+    }
+
+    /// The light set with `punctual` lights and `env`: built anew (`area_lights`: the mesh may
+    /// have moved) or over the area lights it has, choosing as it did.
+    fn relight(
+        &mut self,
+        punctual: Vec<crate::punctual::PunctualLight>,
+        env: Option<crate::environment::Environment>,
+        area_lights: bool,
+    ) {
+        let radius = (self.bounds.1 - self.bounds.0).length() * 0.5;
         let kind = self.lights.kind;
-        self.lights = std::mem::take(&mut self.lights).with_others(punctual, env, radius);
+        let old = std::mem::take(&mut self.lights);
+        self.lights = if area_lights {
+            LightSet::build(&self.mesh, &self.materials, &self.textures, punctual, env, radius)
+        } else {
+            old.with_others(punctual, env, radius)
+        };
         self.lights.set_kind_exact(kind, &self.mesh);
     }
 

@@ -897,7 +897,8 @@ pub fn radiance8<const DETAIL: bool>(
         let instanced =
             (DETAIL && !scene.mesh.instances.is_empty()).then(|| InstancedLanes::of(scene, &hits, hit_bits, &mut sp));
         let (sp_p, sp_ng) = (sp.p.to_lanes(), sp.ng.to_lanes());
-        // Lanes' texture coordinates worked out by the prefetch pass, for the lookups below.
+        // Lanes' texture coordinates, worked out by the first lookup that needs them (the
+        // prefetch pass, an emissive texture) and read by the others (`HitDetail::resolve`).
         let mut uvs = [None::<crate::texture::TexCoords>; LANES];
         if DETAIL && !table.large_textures.is_empty() {
             // Every lane's texels on a large texture asked for before the loop below reads the
@@ -930,7 +931,9 @@ pub fn radiance8<const DETAIL: bool>(
             if material.is_emissive() {
                 // Texture coordinates only for an emissive texture (`Path::shade` reads `sp.uv`).
                 let uv = match material.emissive_texture {
-                    Some(_) if DETAIL => uvs[k].unwrap_or_else(|| scene.mesh.tex_coords_at(tri[k], hb1[k], hb2[k])),
+                    Some(_) if DETAIL => {
+                        *uvs[k].get_or_insert_with(|| scene.mesh.tex_coords_at(tri[k], hb1[k], hb2[k]))
+                    }
                     _ => Default::default(),
                 };
                 let le = crate::light::emitted(material, &scene.textures, sp_ng[k], uv, -dirs[k]);

@@ -521,7 +521,7 @@ impl ConvexSolids {
     pub(crate) fn closest(&self, s: usize, o: Vec3, d: Vec3, tmin: f32) -> Option<Hit> {
         let own = &self.accels[s];
         if let (false, Some(surface)) = (self.bvh_only, &self.surfaces[s]) {
-            if let Some(hit) = surface.exit(own, o, d, o + d * tmin) {
+            if let Some(hit) = surface.exit(o, d, o + d * tmin) {
                 return Some(hit);
             }
         }
@@ -531,7 +531,7 @@ impl ConvexSolids {
     /// [`Self::closest`]'s surface walk alone (None where it is not sure, or off): for tests.
     pub fn surface_exit(&self, from: u32, o: Vec3, d: Vec3) -> Option<Hit> {
         let (tmin, s) = self.bound(from, o, d)?;
-        self.surfaces[s].as_ref()?.exit(&self.accels[s], o, d, o + d * tmin)
+        self.surfaces[s].as_ref()?.exit(o, d, o + d * tmin)
     }
 
     /// Turns the surface walk on or off (on by default; tests compare).

@@ -37,9 +37,10 @@ const MIN_COS: f32 = 0.02;
 /// BVH's own order and bits (so the confirmation's triangle test is the BVH's, bit for bit), the
 /// mesh triangle it is, which way its corners wind seen from outside, and its neighbours. Kept
 /// as separate arrays (edges in Plücker coordinates, normals, neighbours, and the corners read
-/// from the BVH's eight-triangle blocks) a walk touched about nine lines, 9.0 first-level cache
-/// misses an exit on the glass scene (callgrind's cache model, 32 KiB L1d, 64×48, 16 spp):
-/// the walk's arithmetic is cheap beside those misses, so each step works the edges out again.
+/// from the BVH's eight-triangle blocks) an exit touched about nine lines: 9.0 first-level cache
+/// misses an exit on the glass scene, 2.0 in this record (callgrind's cache model, 32 KiB L1d,
+/// 64×48, 16 spp). Each step works its edges out again from the corners, which took fewer
+/// instructions than the separate arrays' loads (10.88 M against 11.01 M for 30 053 exits).
 #[derive(Clone, Copy, Debug, Default)]
 #[repr(C, align(64))]
 struct Facet {
@@ -372,6 +373,13 @@ mod tests {
         let d = (along + n * 0.01).normalize();
         assert!(s.exit(o, d, o).is_none(), "a grazing exit");
         assert!(own.intersect(o, d, f32::INFINITY).is_some());
+    }
+
+    /// A facet's record is one cache line, what the walk's layout is for (above `Facet`).
+    #[test]
+    fn a_facet_is_one_cache_line() {
+        assert_eq!(std::mem::size_of::<Facet>(), 64);
+        assert_eq!(std::mem::align_of::<Facet>(), 64);
     }
 
     /// An open group has no surface to walk.

@@ -12,7 +12,7 @@
 //!
 //! What a walk answers must be what the BVH walk answers, bit for bit (`renderer/tests/
 //! convex_solid.rs`): so the facet it finds is tested with the BVH's own triangle test, on the
-//! BVH's own copy of the triangle, and the answer is taken only where no rounding could have let
+//! BVH's corners of the triangle bit for bit (kept in the facet's record), and the answer is taken only where no rounding could have let
 //! another facet report a hit first: the exit point well inside its facet (every barycentric
 //! coordinate at least [`MARGIN`]) and the ray not grazing it (the cosine with its normal at least
 //! [`MIN_COS`]). Elsewhere, or where the walk does not settle within [`MAX_STEPS`], the caller

@@ -983,11 +983,10 @@ impl Accel {
     /// scene as loaded (the loader poses frame 0 before the first build), so every worker builds
     /// the same BVH for a frame, whatever frames it posed before.
     pub fn rebuild_top(&mut self, mesh: &Mesh) {
-        let ids = || (0..mesh.triangles.len() as u32).collect();
         *self = match (self.top.take(), self.build) {
             (Some(top), kept) => Self::top_level(mesh, top.blas, self.kind, kept),
             (None, Some(kept)) if mesh.instances.is_empty() => {
-                Self::build_triangles_with(mesh, ids(), self.kind, &[kept])
+                Self::build_triangles_with(mesh, (0..mesh.triangles.len() as u32).collect(), self.kind, &[kept])
             }
             (None, _) => Self::build_with(mesh, self.kind),
         };

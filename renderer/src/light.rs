@@ -243,6 +243,7 @@ impl LightSet {
             }
             first += bulb.triangles.len();
         }
+        // The area lights alone; `with_others` adds the rest and the selection over them all.
         let area = LightSet {
             clear_boxes,
             clear_of,
@@ -250,16 +251,9 @@ impl LightSet {
             area_count,
             bulbs,
             bulb_of,
-            selection: AliasTable::default(),
             triangle_light,
-            punctual: Vec::new(),
-            environment: None,
-            kind: LightSamplerKind::Power,
-            tree: None,
-            tree_lights: Vec::new(),
-            tree_index: Vec::new(),
-            infinite: Vec::new(),
             area_power: power,
+            ..LightSet::default()
         };
         area.with_others(punctual, environment, scene_radius)
     }

@@ -54,6 +54,19 @@ struct Facet {
     id: u32,
 }
 
+impl Facet {
+    /// Which side of this facet's edges the line from `o` along `d` passes: for the edge from
+    /// corner a to corner b, d · ((a − o) × (b − o)), its Plücker product, times the winding
+    /// sign, so positive on the facet's inner side.
+    #[inline(always)]
+    fn sides(&self, o: Vec3, d: Vec3) -> [f32; 3] {
+        let [a, b, c] = self.corners;
+        let (a, b, c) = (Vec3A::from(a - o), Vec3A::from(b - o), Vec3A::from(c - o));
+        let d = Vec3A::from(d) * self.outward;
+        [d.dot(a.cross(b)), d.dot(b.cross(c)), d.dot(c.cross(a))]
+    }
+}
+
 /// One solid's facets for the walk, indexed by their slots in the solid's own BVH (so the facet
 /// a walk ends on is the slot the BVH's triangle test reads), and where walks start.
 #[derive(Clone, Debug, Default)]
@@ -180,17 +193,6 @@ impl SolidSurface {
         self.walk(from, 4 * self.n + MAX_STEPS, self.center, q, |least| least >= 0.0)
     }
 
-    /// Which side of facet `f`'s edges the line from `o` along `d` passes: for the edge from
-    /// corner a to corner b, d · ((a − o) × (b − o)), its Plücker product, times the facet's
-    /// winding sign, so positive on the facet's inner side.
-    #[inline(always)]
-    fn sides(f: &Facet, o: Vec3, d: Vec3) -> [f32; 3] {
-        let [a, b, c] = f.corners;
-        let (a, b, c) = (Vec3A::from(a - o), Vec3A::from(b - o), Vec3A::from(c - o));
-        let d = Vec3A::from(d) * f.outward;
-        [d.dot(a.cross(b)), d.dot(b.cross(c)), d.dot(c.cross(a))]
-    }
-
     /// The walk both [`Self::exit`] and the start cells take: from facet `f`, across the edge
     /// the line from `o` along `d` passes farthest outside of, until `settled(least side)`;
     /// None where it steps back where it came from (the line passes by their shared edge) or
@@ -200,7 +202,7 @@ impl SolidSurface {
         let mut came_from = usize::MAX;
         for _ in 0..steps {
             let facet = self.facets.get(f)?;
-            let side = Self::sides(facet, o, d);
+            let side = facet.sides(o, d);
             // The edge the line passes farthest outside of, if any.
             let (k, least) =
                 side.iter().enumerate().fold((0, f32::INFINITY), |(k, m), (i, &s)| if s < m { (i, s) } else { (k, m) });
@@ -344,7 +346,7 @@ mod tests {
                 let q = s.cell_centre(at);
                 assert_eq!(s.cell(q), at, "level {level}: cell {at}'s centre lies in it");
                 let f = s.start[at] as usize;
-                exact += usize::from(SolidSurface::sides(&s.facets[f], c, q).iter().all(|&side| side >= 0.0));
+                exact += usize::from(s.facets[f].sides(c, q).iter().all(|&side| side >= 0.0));
             }
             assert_eq!(exact, cells, "level {level}");
         }

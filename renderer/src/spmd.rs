@@ -449,11 +449,10 @@ impl HitDetail {
         b1: f32,
         b2: f32,
         tangent: Option<crate::math::Vec4>,
-        uv: Option<crate::texture::TexCoords>,
+        mut uv: Option<crate::texture::TexCoords>,
     ) -> LaneMaterial {
         // The texture coordinates once, for whichever lookups below read them (the prefetch
         // pass may have worked them out already: `uv`).
-        let mut uv = uv;
         let mut uv_at = || *uv.get_or_insert_with(|| scene.mesh.tex_coords_at(tri, b1, b2));
         let m = if m.textured {
             self.textured |= 1 << k;

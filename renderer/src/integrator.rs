@@ -637,6 +637,16 @@ impl Path {
                 if ls.le != Vec3::ZERO && (above || below) {
                     let (f, bsdf_pdf) = bsdf.eval_pdf(wo, wi);
                     let origin = if above { origin } else { scene.spawn_origin(p, -ng, plane_error) };
+                    // The medium the shadow ray crosses is that of the side it leaves by: the
+                    // path's own on the side it came from; through the surface, this mesh's
+                    // inside when entering it and none when leaving (as the path's own medium
+                    // changes when it transmits, below). Glass stops shadow rays, so the ray
+                    // stays in that one medium up to the light.
+                    let medium = match (above, ng_winding.dot(wo_world) > 0.0) {
+                        (true, _) => self.medium,
+                        (false, true) => absorption,
+                        (false, false) => Vec3::ZERO,
+                    };
                     if f != Vec3::ZERO {
                         *rays += 1;
                         let to_light = if ls.delta && ls.dist.is_finite() {
@@ -680,9 +690,7 @@ impl Path {
                                     d,
                                     tmax,
                                     from: triangle,
-                                    // Inside an absorbing mesh, the light is too (glass stops
-                                    // shadow rays).
-                                    medium: (self.medium != Vec3::ZERO).then(|| transmittance(self.medium, ls.dist)),
+                                    medium: (medium != Vec3::ZERO).then(|| transmittance(medium, ls.dist)),
                                     unshadowed: self.beta * f * ls.le,
                                     scale: wi.z.abs() * w / ls.pdf,
                                 };

@@ -14,7 +14,9 @@ without process start and scene load) and with each Mitsuba variant (path integr
 sampler, the scene translation of make_references.py; mi.render() timed on a loaded scene after one
 warm-up render, so the LLVM backend's kernel compilation is not counted). The runs alternate between
 Tessera and each peer, so a noisy machine's slow spells fall on all of them. Median over --runs runs
-with different seeds. relMSE against the reference: mean over pixels and channels of (x − ref)² / (ref² +
+with different seeds; the errors also by their mean over the runs (a relMSE is heavy-tailed where
+fireflies are, and the mean, not the median, estimates the expected error that equal error in equal
+time is about), with a "by mean errors" efficiency ratio beside the median's. relMSE against the reference: mean over pixels and channels of (x − ref)² / (ref² +
 0.01). The reference is itself a noisy estimate, and its own error adds to every renderer's measured
 relMSE alike (E[(x − ref)²] = Var x + Var ref), pulling every efficiency ratio towards 1; its expected
 share is subtracted, as `tessera bench convergence` does, and the "raw" columns keep the measured figure.
@@ -185,9 +187,15 @@ def main():
                     img, seconds = peer_render(scene, 1000 + r)
                     ptimes.append(seconds)
                     perrs.append(rel_mse(img[:, :, :3], ref))
-            rows = [(label, statistics.median(t), statistics.median(e))
+            # Times by their median (a slow spell is an outlier to drop); errors by both their
+            # median and their mean: a relMSE is one draw of a heavy-tailed quantity (a firefly
+            # or two can double it), and what equal error in equal time asks about is its
+            # expectation, which the mean estimates without bias and a median of few runs
+            # underestimates wherever the tail is long.
+            rows = [(label, statistics.median(t), statistics.median(e), statistics.fmean(e), min(e), max(e))
                     for label, (_, t, e) in zip(["tessera", "tessera before"], builds)]
-            rows += [(f"mitsuba {v}", statistics.median(t), statistics.median(e)) for v, _, t, e in peers]
+            rows += [(f"mitsuba {v}", statistics.median(t), statistics.median(e), statistics.fmean(e), min(e), max(e))
+                     for v, _, t, e in peers]
             # Each renderer's time in every run, for ratios paired run by run: a run's renders
             # follow one another within seconds, so a slow spell of a shared machine falls on
             # both sides of a pair, where it can fall on one side only of the ratio of medians.
@@ -200,6 +208,7 @@ def main():
             return max(e - own, 0.1 * e)
         base = 1.0 / (rows[0][1] * net(rows[0][2]))
         base_raw = 1.0 / (rows[0][1] * rows[0][2])
+        base_mean = 1.0 / (rows[0][1] * net(rows[0][3]))
         threads = f", {a.threads} thread{'s' if a.threads > 1 else ''}" if a.threads else ""
         threads += f", roulette from bounce {a.rr_depth}" if a.rr_depth is not None else ""
         threads += ", equal strategy (Tessera: --light-sampler power)" if a.equal_strategy else ""
@@ -207,17 +216,21 @@ def main():
         print(f"\n{name} ({w}x{h}, {a.spp} spp{threads}, median of {a.runs} runs; the reference's own relMSE "
               f"{own:.2e}, subtracted)")
         print(f"{'renderer':<22} {'seconds':>8} {'Mpaths/s':>9} {'raw relMSE':>10} {'relMSE':>10} {'efficiency':>11} "
-              f"{'vs tessera':>10} {'raw vs':>7}")
-        for label, t, e in rows:
+              f"{'vs tessera':>10} {'raw vs':>7}   {'mean relMSE':>11} {'vs tessera':>10}   raw relMSE range")
+        for label, t, e, mean_e, lo_e, hi_e in rows:
             eff = 1.0 / (t * net(e))
             raw = 1.0 / (t * e) / base_raw
+            eff_mean = 1.0 / (t * net(mean_e)) / base_mean
             flag = "" if e - own >= 0.25 * own else "  (unresolved)"
             print(f"{label:<22} {t:>8.3f} {w * h * a.spp / t / 1e6:>9.3f} {e:>10.3e} {net(e):>10.3e} {eff:>11.1f} "
-                  f"{eff / base:>10.2f} {raw:>7.2f}{flag}")
-            summary.append((name, label, t, w * h * a.spp / t / 1e6, e, eff / base, raw))
+                  f"{eff / base:>10.2f} {raw:>7.2f}   {net(mean_e):>11.3e} {eff_mean:>10.2f}   "
+                  f"{lo_e:.3e}–{hi_e:.3e}{flag}")
+            summary.append((name, label, t, w * h * a.spp / t / 1e6, e, eff / base, raw, eff_mean))
     print("\nsummary: Tessera's paths/s over each peer's, and each peer's efficiency over Tessera's "
-          "(the reference's own noise subtracted; raw: as measured); paired: the median over runs of "
-          "the peer's time over Tessera's in the same run, with the runs' range")
+          "(the reference's own noise subtracted; raw: as measured; by mean errors: each renderer's "
+          "relMSE averaged over the runs, the estimate of its expected error, instead of their median); "
+          "paired: the median over runs of the peer's time over Tessera's in the same run, with the "
+          "runs' range")
 
     def paired(name, label):
         # The same spp and size on both sides, so a time ratio is the paths/s ratio.
@@ -232,13 +245,14 @@ def main():
                 if before:
                     # The peer's efficiency over the earlier build's: both are over the current one.
                     then = (f"   (before: paths/s ratio {before[0][3] / s[3]:.2f}, peer efficiency ratio "
-                            f"{s[5] / before[0][5]:.2f})")
+                            f"{s[5] / before[0][5]:.2f}, by mean errors {s[7] / before[0][7]:.2f})")
                 pm, lo, hi = paired(name, s[1])
                 if before:
                     bm, blo, bhi = paired(name, "tessera before")
                     then += f"   (this build over the one before, paired: {bm:.2f}, {blo:.2f}–{bhi:.2f})"
                 print(f"{name:<14} vs {s[1]:<22} paths/s ratio {mine[0][3] / s[3]:>6.2f} (paired {pm:.2f}, "
-                      f"{lo:.2f}–{hi:.2f})   peer efficiency ratio {s[5]:>6.2f}   raw {s[6]:>6.2f}{then}")
+                      f"{lo:.2f}–{hi:.2f})   peer efficiency ratio {s[5]:>6.2f}   raw {s[6]:>6.2f}   "
+                      f"by mean errors {s[7]:>6.2f}{then}")
 
 
 if __name__ == "__main__":

@@ -103,7 +103,8 @@ class Gltf:
                     "scene": 0, "scenes": [{"nodes": []}], "nodes": [], "meshes": [], "materials": [],
                     "accessors": [], "bufferViews": [], "buffers": []}
 
-    def material(self, name, base=(0.8, 0.8, 0.8), metallic=0.0, roughness=1.0, lambert=True, emission=None, glass_ior=None):
+    def material(self, name, base=(0.8, 0.8, 0.8), metallic=0.0, roughness=1.0, lambert=True, emission=None, glass_ior=None,
+                 attenuation=None):
         m = {"name": name, "pbrMetallicRoughness": {"baseColorFactor": list(base) + [1.0], "metallicFactor": metallic, "roughnessFactor": roughness}}
         if lambert:
             m["extensions"] = {"KHR_materials_specular": {"specularFactor": 0.0}}
@@ -112,6 +113,13 @@ class Gltf:
                 if ext not in self.doc["extensionsUsed"]:
                     self.doc["extensionsUsed"].append(ext)
             m["extensions"] = {"KHR_materials_transmission": {"transmissionFactor": 1.0}, "KHR_materials_ior": {"ior": glass_ior}}
+        if attenuation is not None:
+            # KHR_materials_volume: (attenuationColor, attenuationDistance), absorption only.
+            if "KHR_materials_volume" not in self.doc["extensionsUsed"]:
+                self.doc["extensionsUsed"].append("KHR_materials_volume")
+            color, distance = attenuation
+            m["extensions"]["KHR_materials_volume"] = {"thicknessFactor": 1.0, "attenuationColor": list(color),
+                                                       "attenuationDistance": distance}
         if emission is not None:
             s = max(emission)
             m["emissiveFactor"] = [e / s for e in emission]
@@ -261,16 +269,18 @@ def envlit():
     g.write(os.path.join(HERE, "envlit", "envlit.gltf"))
 
 
-def glass():
+def glass(absorbing=False):
     """A smooth and a rough (0.3) glass sphere of ior 1.5 on a two-tone Lambert floor before a wall,
-    lit by one area light: refraction, total internal reflection, caustics."""
+    lit by one area light: refraction, total internal reflection, caustics. `absorbing`: the same
+    with both spheres tinted inside (KHR_materials_volume, Beer–Lambert), scenes/glass_absorb."""
     g = Gltf()
     floor_a = g.material("floor_a", (0.7, 0.7, 0.7))
     floor_b = g.material("floor_b", (0.2, 0.3, 0.6))
     wall = g.material("wall", (0.6, 0.4, 0.3))
     light = g.material("light", (0, 0, 0), emission=(30.0, 28.0, 24.0))
-    smooth = g.material("smooth_glass", (1, 1, 1), roughness=0.0, lambert=False, glass_ior=1.5)
-    rough = g.material("rough_glass", (1, 1, 1), roughness=0.3, lambert=False, glass_ior=1.5)
+    tint = ((0.9, 0.6, 0.4), 0.8) if absorbing else None
+    smooth = g.material("smooth_glass", (1, 1, 1), roughness=0.0, lambert=False, glass_ior=1.5, attenuation=tint)
+    rough = g.material("rough_glass", (1, 1, 1), roughness=0.3, lambert=False, glass_ior=1.5, attenuation=tint)
     X, Y, Z = [1, 0, 0], [0, 1, 0], [0, 0, 1]
     for i in range(4):  # floor stripes, so refraction shows
         p, t = quad([-1.5 + i, 0, 0], mul(Z, 3.0), mul(X, 0.5))
@@ -284,7 +294,9 @@ def glass():
     p, t = icosphere([0.6, 0.5, 0.2], 0.5, 3)
     g.mesh("rough_sphere", p, t, rough)
     g.camera([0, 1.4, 4.0], [0, 0.5, 0], 35.0, 4 / 3)
-    g.write(os.path.join(HERE, "glass", "glass.gltf"))
+    name = "glass_absorb" if absorbing else "glass"
+    os.makedirs(os.path.join(HERE, name), exist_ok=True)
+    g.write(os.path.join(HERE, name, f"{name}.gltf"))
 
 
 def many_lights():
@@ -353,6 +365,7 @@ if __name__ == "__main__":
     veach()
     envlit()
     glass()
+    glass(absorbing=True)
     many_lights()
     sphere_light()
     sphere_lights()

@@ -70,6 +70,8 @@ pub struct PathState {
     pub o: Vec3,
     pub d: Vec3,
     pub from: u32,
+    /// Absorption coefficient of the medium the path is in (zero outside every absorbing mesh).
+    pub medium: Vec3,
 }
 
 /// The stochastic-transparency seed bounce `depth`'s ray is traced with ([`Path::begin_bounce`]:
@@ -85,16 +87,14 @@ pub fn transparency_seed(sampler: &PixelSample, depth: u32) -> u32 {
 /// the bounce's sample sets, the vertex's emission, shading, next-event estimation, the next
 /// direction and Russian roulette; `state` becomes the path's state after it. True when the path
 /// goes on (with its next ray, not yet traced or counted), false when it ended (`state.l` is its
-/// radiance). A path this bounce sends into an absorbing medium is taken on here, a ray at a
-/// time, until it leaves the medium or ends.
+/// radiance).
 ///
 /// Why: the SPMD kernel shades eight paths side by side but only the materials its eight-wide
-/// BSDF knows; a lane whose ray reaches a coated, sheened, partly transmissive, absorbing or
-/// unlit surface has that vertex shaded here and goes on in its lane. Each of [`Path`]'s steps
-/// is a function of the state above (and of the medium, which the kernel's paths are never in)
-/// and of the sample sets, themselves functions of (pixel, sample index, bounce), so the path
-/// is the one [`radiance`] traces, bit for bit. The hit's ray was counted by the caller; the
-/// rays traced here are added to `rays`.
+/// BSDF knows; a lane whose ray reaches a coated, sheened, partly transmissive or unlit surface
+/// has that vertex shaded here and goes on in its lane. Each of [`Path`]'s steps is a function
+/// of the state above (the medium the path is in among it) and of the sample sets, themselves
+/// functions of (pixel, sample index, bounce), so the path is the one [`radiance`] traces, bit
+/// for bit. The hit's ray was counted by the caller; the rays traced here are added to `rays`.
 #[inline(never)]
 pub fn bounce_from_hit(
     scene: &Scene,
@@ -105,17 +105,11 @@ pub fn bounce_from_hit(
     rays: &mut u64,
 ) -> bool {
     let mut path = Path::new(scene, settings, state.o, state.d);
-    (path.l, path.beta, path.prev, path.depth, path.eta_scale, path.from) =
-        (state.l, state.beta, state.prev, state.depth, state.eta_scale, state.from);
+    (path.l, path.beta, path.prev, path.depth, path.eta_scale, path.from, path.medium) =
+        (state.l, state.beta, state.prev, state.depth, state.eta_scale, state.from, state.medium);
     // `begin_bounce`'s and `draw_held_sets`' draws for a ray that hit something.
     path.draw_sets(sampler);
-    let mut goes_on = path.after_hit(scene, settings, Some(hit), rays);
-    while goes_on && path.medium != Vec3::ZERO {
-        let seed = path.begin_bounce(scene, sampler, rays);
-        let hit = scene.intersect_surface(path.o, path.d, seed, path.from);
-        path.draw_held_sets(scene, sampler, &hit);
-        goes_on = path.after_hit(scene, settings, hit, rays);
-    }
+    let goes_on = path.after_hit(scene, settings, Some(hit), rays);
     *state = PathState {
         l: path.l,
         beta: path.beta,
@@ -125,6 +119,7 @@ pub fn bounce_from_hit(
         o: path.o,
         d: path.d,
         from: path.from,
+        medium: path.medium,
     };
     goes_on
 }
@@ -761,7 +756,7 @@ pub(crate) fn normal_mapped(ns: Vec3, t: crate::math::Vec4, n_ts: Vec3) -> Vec3 
 
 /// Beer–Lambert transmittance exp(−σ·t) per channel (a channel with σ = 0 is 1 even for t = ∞).
 #[inline]
-fn transmittance(sigma: Vec3, t: f32) -> Vec3 {
+pub(crate) fn transmittance(sigma: Vec3, t: f32) -> Vec3 {
     let x = |s: f32| if s > 0.0 { (-s * t).exp() } else { 1.0 };
     Vec3::new(x(sigma.x), x(sigma.y), x(sigma.z))
 }

@@ -1,12 +1,13 @@
 //! Eight paths in lock step, their shading done on eight-lane registers ([`crate::lanes`]): the
 //! SPMD kernel of issue 15, for the scenes whose every surface is a metallic-roughness material,
-//! opaque (Lambert, plastic, metal) or all glass ([`crate::bsdf8`]), lit by emissive triangles,
+//! opaque (Lambert, plastic, metal) or all glass, clear or absorbing inside
+//! ([`crate::bsdf8`]; Beer–Lambert on the segments and light samples within), lit by emissive triangles,
 //! an environment or punctual lights (every scene of the benchmark suite). Opaque surfaces may be
 //! textured (base colour, metallic-roughness, specular), vertex-coloured, normal-mapped, placed
 //! as instances and emit through a texture: what those vary is resolved one lane at a time at
 //! each hit, with the scalar path's own functions (`HitDetail`, `InstancedLanes`), and the
 //! eight-wide shading takes the numbers per lane. A vertex on a surface the eight-wide BSDF does
-//! not know (coated, sheened, partly transmissive, absorbing, unlit) is shaded by the scalar
+//! not know (coated, sheened, partly transmissive, unlit) is shaded by the scalar
 //! path's own code (`integrator::bounce_from_hit`) and its path goes on in its lane; a scene
 //! with alpha-blended or masked surfaces traces its rays through them as the scalar path does
 //! (`Scene::intersect_surface` with the bounce's stochastic-transparency seed,
@@ -72,6 +73,8 @@ pub struct LaneMaterial {
     alpha: f32,
     /// Glass's relative index of refraction (entering through the front face).
     eta: f32,
+    /// Glass's absorption inside (KHR_materials_volume's σ; zero for clear glass).
+    absorption: Vec3,
     lambert: bool,
     glass: bool,
     nee: bool,
@@ -80,8 +83,8 @@ pub struct LaneMaterial {
     /// Some lane that hits this material needs more than the table: it is `textured`, or some
     /// triangle of it has tangents (a tangent frame, maybe a normal map: [`HitDetail`]).
     per_lane: bool,
-    /// The kernel does not shade it (unlit, coated, sheened, partly transmissive, absorbing, or
-    /// textured other than [`LaneMaterial::textured_opaque`] allows): a lane whose ray hits it
+    /// The kernel does not shade it (unlit, coated, sheened, partly transmissive, or textured
+    /// other than [`LaneMaterial::textured_opaque`] allows): a lane whose ray hits it
     /// has that vertex shaded by the scalar path ([`crate::integrator::bounce_from_hit`]) and
     /// goes on.
     scalar: bool,
@@ -95,6 +98,7 @@ impl LaneMaterial {
         f0: Vec3::ZERO,
         alpha: 1.0,
         eta: 1.0,
+        absorption: Vec3::ZERO,
         lambert: true,
         glass: false,
         nee: false,
@@ -106,8 +110,9 @@ impl LaneMaterial {
     /// The entry of a material the kernel hands its paths' hits on to the scalar path for.
     const SCALAR: LaneMaterial = LaneMaterial { scalar: true, ..LaneMaterial::UNUSED };
 
-    /// The entry of a material whose BSDF is `b` everywhere (`glass`: all glass, else opaque).
-    fn of(b: &Bsdf, glass: bool) -> LaneMaterial {
+    /// The entry of a material whose BSDF is `b` everywhere (`glass`: all glass, absorbing
+    /// `absorption` inside; else opaque).
+    fn of(b: &Bsdf, glass: bool, absorption: Vec3) -> LaneMaterial {
         LaneMaterial {
             base: b.base_color,
             metallic: b.metallic,
@@ -115,6 +120,7 @@ impl LaneMaterial {
             f0: b.f0_dielectric,
             alpha: b.ggx.alpha,
             eta: b.eta,
+            absorption: if glass { absorption } else { Vec3::ZERO },
             lambert: b.is_lambert(),
             glass,
             nee: !b.is_delta_only(),
@@ -156,14 +162,13 @@ impl LaneMaterial {
         uv: impl FnOnce() -> crate::texture::TexCoords,
     ) -> LaneMaterial {
         let b = scene.bsdf_at(material as u32, uv, scene.mesh.color_at(tri, b1, b2));
-        LaneMaterial::of(&b, false)
+        LaneMaterial::of(&b, false, Vec3::ZERO)
     }
 
     /// The table for a scene (`base_colour_bsdfs`: `Material::bsdf_but_base_colour` of each
     /// material, the BSDF everywhere where no base colour texture feeds it either). A
     /// material the kernel does not shade — unlit, coated or sheened, partly transmissive
-    /// (transmission between 0 and 1, or metal over glass), an absorbing volume, or textured or
-    /// vertex-coloured other than as [`LaneMaterial::textured_opaque`] allows — gets a `scalar`
+    /// (transmission between 0 and 1, or metal over glass), or textured or vertex-coloured other than as [`LaneMaterial::textured_opaque`] allows — gets a `scalar`
     /// entry: a lane's vertex on it is shaded by the scalar path's code. None when every
     /// material a triangle uses is such (the kernel would hand each path over at its first hit)
     /// or a triangle names a material that does not exist. Materials no triangle uses do not
@@ -203,14 +208,15 @@ impl LaneMaterial {
                 continue;
             };
             let layered = b.coat.is_some() || b.sheen.is_some();
-            // All glass: `Bsdf`'s glass weight (1 − metallic)·transmission is exactly 1.
-            let glass = b.transmission == 1.0 && b.metallic == 0.0 && m.absorption == Vec3::ZERO;
+            // All glass (absorbing inside or clear): `Bsdf`'s glass weight (1 − metallic)·transmission
+            // is exactly 1.
+            let glass = b.transmission == 1.0 && b.metallic == 0.0;
             let opaque = b.transmission == 0.0;
             if layered || !(opaque || glass) {
                 table.push(LaneMaterial::SCALAR);
                 continue;
             }
-            table.push(LaneMaterial { per_lane: tangents[i], ..LaneMaterial::of(&b, glass) });
+            table.push(LaneMaterial { per_lane: tangents[i], ..LaneMaterial::of(&b, glass, m.absorption) });
         }
         if table.iter().zip(&used).all(|(e, &u)| !u || e.scalar) {
             return None;
@@ -223,7 +229,8 @@ impl LaneMaterial {
         if !large_textures.contains(&true) {
             large_textures.clear();
         }
-        Some(LaneTable { entries: table, hit_detail, large_textures })
+        let absorbs = materials.iter().zip(&used).any(|(m, &u)| u && m.absorption != Vec3::ZERO);
+        Some(LaneTable { entries: table, hit_detail, large_textures, absorbs })
     }
 }
 
@@ -240,6 +247,9 @@ pub struct LaneTable {
     /// ([`Material::reads_large_texture`]), whose texels the kernel asks for ahead of its hits'
     /// lookups; empty where no material does.
     large_textures: Vec<bool>,
+    /// Whether some material a triangle uses absorbs inside (KHR_materials_volume): only then
+    /// can a lane be in a medium, and [`radiance8`] runs Beer–Lambert's steps.
+    absorbs: bool,
 }
 
 impl std::ops::Deref for LaneTable {
@@ -250,8 +260,8 @@ impl std::ops::Deref for LaneTable {
 }
 
 /// Lane `k`'s path as the scalar path keeps it ([`PathState`]): its radiance, throughput and η²
-/// from the kernel's registers, its previous vertex, bounce and ray (origin, direction, the
-/// triangle it starts on).
+/// from the kernel's registers, its previous vertex, bounce, ray (origin, direction, the
+/// triangle it starts on) and the medium it is in.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[cold]
 #[inline(never)]
@@ -261,9 +271,10 @@ fn lane_state(
     prev: Option<(Vec3, Vec3, f32)>,
     depth: u32,
     (o, d, from): (Vec3, Vec3, u32),
+    medium: Vec3,
 ) -> PathState {
     let (l, beta, eta_scale) = (l.to_lanes()[k], beta.to_lanes()[k], eta_scale.to_array()[k]);
-    PathState { l, beta, prev, depth, eta_scale, o, d, from }
+    PathState { l, beta, prev, depth, eta_scale, o, d, from, medium }
 }
 
 /// The vertices [`radiance8`] handed to the scalar path this bounce (`handed`, their states and
@@ -281,7 +292,7 @@ fn shade_handed_lanes(
     samplers: &[PixelSample; LANES],
     (handed, over): (&mut u32, &mut [Option<(PathState, crate::accel::Hit)>; LANES]),
     (l, beta, eta_scale, rd): (&mut V8, &mut V8, &mut F8, &mut V8),
-    (ro, tri, depth): (&mut [Vec3; LANES], &mut [u32; LANES], &mut [u32; LANES]),
+    (ro, tri, depth, medium): (&mut [Vec3; LANES], &mut [u32; LANES], &mut [u32; LANES], &mut [Vec3; LANES]),
     (prev_p, prev_n, prev_pdf, prev_bits): (&mut [Vec3; LANES], &mut [Vec3; LANES], &mut [f32; LANES], &mut u32),
     alive: &mut u32,
     (out, path): (&mut [Vec3], &[usize; LANES]),
@@ -293,7 +304,7 @@ fn shade_handed_lanes(
         let Some((mut state, hit)) = over[k].take() else { continue };
         if crate::integrator::bounce_from_hit(scene, settings, &samplers[k], &mut state, hit, rays) {
             (ls[k], bs[k], es[k], ds[k]) = (state.l, state.beta, state.eta_scale, state.d);
-            (ro[k], tri[k], depth[k]) = (state.o, state.from, state.depth);
+            (ro[k], tri[k], depth[k], medium[k]) = (state.o, state.from, state.depth, state.medium);
             match state.prev {
                 Some(prev) => {
                     (prev_p[k], prev_n[k], prev_pdf[k]) = prev;
@@ -309,6 +320,62 @@ fn shade_handed_lanes(
     }
     (*l, *beta) = (V8::from_lanes(&ls), V8::from_lanes(&bs));
     (*eta_scale, *rd) = (F8::from_array(es), V8::from_lanes(&ds));
+}
+
+/// β with each lane of `lanes` that is in a medium (its `medium` not zero) multiplied by
+/// `factor(lane, medium)`, channel by channel as the scalar path's `Vec3` product; the other
+/// lanes as they are. Out of line: lanes are in a medium only inside absorbing glass.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[cold]
+#[inline(never)]
+fn in_medium_lanes(beta: V8, medium: &[Vec3; LANES], lanes: u32, factor: impl Fn(usize, Vec3) -> Vec3) -> V8 {
+    let mut b = beta.to_lanes();
+    let mut changed = false;
+    for k in lanes_of(lanes) {
+        if medium[k] != Vec3::ZERO {
+            b[k] *= factor(k, medium[k]);
+            changed = true;
+        }
+    }
+    if changed {
+        V8::from_lanes(&b)
+    } else {
+        beta
+    }
+}
+
+/// Each lane of `shadow`'s transmittance along its shadow ray (`Path::finish`'s
+/// `ShadowRay::medium`): the medium of the side the ray leaves by — the lane's own on its
+/// side, through the surface (`below`) the mesh's inside when `side(k)` says the path enters
+/// it (its absorption second) and none when it leaves — over the light sample's distance
+/// `dist(k)`; None for a lane whose ray crosses no medium, and None in all when no lane's does.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[cold]
+#[inline(never)]
+fn shadow_transmittance(
+    medium: &[Vec3; LANES],
+    shadow: u32,
+    below: u32,
+    side: impl Fn(usize) -> (bool, Vec3),
+    dist: impl Fn(usize) -> f32,
+) -> Option<[Option<Vec3>; LANES]> {
+    let mut t = [None; LANES];
+    let mut any = false;
+    for k in lanes_of(shadow) {
+        let m = if below & (1 << k) == 0 {
+            medium[k]
+        } else {
+            match side(k) {
+                (true, absorption) => absorption,
+                (false, _) => Vec3::ZERO,
+            }
+        };
+        if m != Vec3::ZERO {
+            t[k] = Some(crate::integrator::transmittance(m, dist(k)));
+            any = true;
+        }
+    }
+    any.then_some(t)
 }
 
 /// Emission found: l + β·Le·w on the lanes that met some (w = 1 after the camera ray).
@@ -645,6 +712,9 @@ pub fn radiance8<const DETAIL: bool>(
     let mut prev_bits = 0u32;
     // `Path::eta_scale`: η² of the transmissions so far.
     let mut eta_scale = one;
+    // `Path::medium`: the absorption of the medium each lane's path is in (zero outside).
+    let mut medium = [Vec3::ZERO; LANES];
+    let absorbs = table.absorbs;
     let mut ro = [o; LANES];
     let mut rd = V8::zero();
     // Each lane's path (its index in the stream), sampler and bounce.
@@ -683,7 +753,7 @@ pub fn radiance8<const DETAIL: bool>(
                     &lane_samplers,
                     (&mut handed, &mut handed_over),
                     (&mut l, &mut beta, &mut eta_scale, &mut rd),
-                    (&mut ro, &mut tri, &mut depth),
+                    (&mut ro, &mut tri, &mut depth, &mut medium),
                     (&mut prev_p, &mut prev_n, &mut prev_pdf, &mut prev_bits),
                     &mut alive,
                     (out, &path),
@@ -728,7 +798,7 @@ pub fn radiance8<const DETAIL: bool>(
                 }
             };
             (path[k], lane_samplers[k], dirs[k], depth[k]) = (j, samplers[j], d[j], 0);
-            (ro[k], tri[k], fresh_hit[k]) = (o, none, Some(hit));
+            (ro[k], tri[k], fresh_hit[k], medium[k]) = (o, none, Some(hit), Vec3::ZERO);
             fresh |= 1 << k;
         }
         if fresh != 0 {
@@ -878,6 +948,13 @@ pub fn radiance8<const DETAIL: bool>(
                 }
             }
         }
+        // `Path::shade`'s escape from an absorbing medium that never ends (an open mesh): nothing
+        // gets out.
+        if absorbs && escaped != 0 {
+            beta = in_medium_lanes(beta, &medium, escaped, |_, m| {
+                Vec3::select(m.cmpgt(Vec3::ZERO), Vec3::ZERO, Vec3::ONE)
+            });
+        }
         // Nothing hit (a background): no surface point to build, the path ends here.
         if hit_bits == 0 {
             l = add_emission(l, beta, &emit, emit_w);
@@ -921,7 +998,7 @@ pub fn radiance8<const DETAIL: bool>(
                     let prev = (prev_bits & (1 << k) != 0).then(|| (prev_p[k], prev_n[k], prev_pdf[k]));
                     // (The ray is traced; its next one starts where the vertex says.)
                     let ray = (ro[k], dirs[k], tri[k]);
-                    handed_over[k] = Some((lane_state(k, (l, beta, eta_scale), prev, depth[k], ray), hit));
+                    handed_over[k] = Some((lane_state(k, (l, beta, eta_scale), prev, depth[k], ray, medium[k]), hit));
                     handed |= 1 << k;
                 }
                 continue;
@@ -970,6 +1047,14 @@ pub fn radiance8<const DETAIL: bool>(
             }
         }
         let p = sp_p;
+        if absorbs {
+            // `Path::shade`: Beer–Lambert over the segment just traced (from its origin to the
+            // surface point), before the vertex's emission counts; the handed lanes' the scalar
+            // path applies.
+            beta = in_medium_lanes(beta, &medium, hit_bits & !handed, |k, m| {
+                crate::integrator::transmittance(m, (p[k] - ro[k]).length())
+            });
+        }
         l = add_emission(l, beta, &emit, emit_w);
         if shading == 0 {
             alive = 0;
@@ -1129,6 +1214,8 @@ pub fn radiance8<const DETAIL: bool>(
             // direction, radiance, pdf and point; which are delta (punctual) and which at infinity.
             let (mut owi, mut ole, mut op, mut opdf) =
                 ([Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [Vec3::ZERO; LANES], [1f32; LANES]);
+            // Their distances (`LightSample::dist`), which a shadow ray through a medium reads.
+            let mut odist = [0f32; LANES];
             let (mut other, mut delta, mut infinite) = (0u32, 0u32, 0u32);
             // The lanes that chose a bulb (its sure directions eight-wide where it is isolated).
             let mut bulb = 0u32;
@@ -1206,6 +1293,16 @@ pub fn radiance8<const DETAIL: bool>(
                 let target = offset_ray_origin(pv.add(d.scale(near)), d.neg(), scale);
                 (sure, d, target, V8::from_lanes(&ble), pdf)
             });
+            // A lane in a medium takes its bulb's sample with the other lights' (its distance,
+            // which the medium's transmittance reads, is the scalar sample's).
+            let bulbs = match bulbs {
+                Some((sure, d, target, le, pdf)) if absorbs => {
+                    let inside =
+                        medium.iter().enumerate().fold(0u32, |b, (k, m)| b | (u32::from(*m != Vec3::ZERO) << k));
+                    Some((sure.and_not(M8::from_bits(inside)), d, target, le, pdf))
+                }
+                b => b,
+            };
             if let Some((sure, ..)) = bulbs {
                 let unsure = bulb & !sure.bits();
                 for k in lanes_of(nee.bits()) {
@@ -1232,7 +1329,7 @@ pub fn radiance8<const DETAIL: bool>(
                 for (j, ls) in samples[..ocount].iter().enumerate() {
                     let (Some(ls), k) = (ls, olane[j] as usize) else { continue };
                     other |= 1 << k;
-                    (owi[k], ole[k], op[k], opdf[k]) = (ls.wi, ls.le, ls.p, ls.pdf);
+                    (owi[k], ole[k], op[k], opdf[k], odist[k]) = (ls.wi, ls.le, ls.p, ls.pdf, ls.dist);
                     delta |= u32::from(ls.delta) << k;
                     infinite |= u32::from(ls.dist.is_infinite()) << k;
                     if !ls.delta && ls.dist.is_finite() {
@@ -1294,10 +1391,10 @@ pub fn radiance8<const DETAIL: bool>(
                 let lpdf = F8::from_array(lpmf) * dist2 / (cos_l.abs() * F8::from_array(larea));
                 let ok = ok & lpdf.gt(zero) & lpdf.is_finite();
                 let ln = V8::select(cos_l.gt(zero), lng, lng.neg());
-                (lp, ln, lwi, lle, lpdf, ok)
+                (lp, ln, lwi, lle, lpdf, ok, dist)
             });
             let (lwi, lle, lpdf, ok) = match areas {
-                Some((_, _, lwi, lle, lpdf, ok)) => (lwi, lle, lpdf, ok),
+                Some((_, _, lwi, lle, lpdf, ok, _)) => (lwi, lle, lpdf, ok),
                 None => (V8::zero(), V8::zero(), one, M8::from_bits(0)),
             };
             // The other lights' samples in with the area lights'.
@@ -1416,8 +1513,38 @@ pub fn radiance8<const DETAIL: bool>(
                 let shadow = ok & M8::from_bits(visible);
                 // `Path::add_direct`: β·f·Le, times visibility, times |cos|·w/pdf; the visibility
                 // of a scene without BLEND surfaces is 0 or 1, and x·1 = x exactly, so there it
-                // is left out.
-                let add = if blends { unshadowed.scale(F8::from_array(fraction)) } else { unshadowed }.scale(sc);
+                // is left out. Through a medium the visibility is a colour: the fraction times
+                // the medium's transmittance over the light sample's distance.
+                let through_medium = if absorbs {
+                    let dist = areas.map(|a| a.6.to_array());
+                    shadow_transmittance(
+                        &medium,
+                        shadow.bits(),
+                        below.bits(),
+                        |k| {
+                            // Through the surface: into this mesh's medium when entering it, out of
+                            // any when leaving (`Path::finish`).
+                            let entering = sp_ng[k].dot(-dirs[k]) > 0.0;
+                            (entering, materials[mat_id[k]].absorption)
+                        },
+                        |k| if other.bits() & (1 << k) != 0 { odist[k] } else { dist.map_or(0.0, |d| d[k]) },
+                    )
+                } else {
+                    None
+                };
+                let add = match through_medium {
+                    Some(t) => {
+                        let f = if blends { fraction } else { [1.0; LANES] };
+                        let vis: [Vec3; LANES] = std::array::from_fn(|k| match t[k] {
+                            Some(t) => f[k] * t,
+                            None => Vec3::splat(f[k]),
+                        });
+                        unshadowed.mul(V8::from_lanes(&vis))
+                    }
+                    None if blends => unshadowed.scale(F8::from_array(fraction)),
+                    None => unshadowed,
+                }
+                .scale(sc);
                 l = V8::select(shadow, l.add(add), l);
             }
         }
@@ -1434,6 +1561,14 @@ pub fn radiance8<const DETAIL: bool>(
         let through = go & transmitted;
         if let (true, Some(g)) = (through.any(), &glass8) {
             eta_scale = select(through, eta_scale * (g.eta * g.eta), eta_scale);
+            if absorbs {
+                // Entering through the front (winding) face: into this mesh's medium; else out
+                // of it (`Path::finish`).
+                for k in lanes_of(through.bits()) {
+                    let entering = sp_ng[k].dot(-dirs[k]) > 0.0;
+                    medium[k] = if entering { materials[mat_id[k]].absorption } else { Vec3::ZERO };
+                }
+            }
         }
         (prev_p, prev_n, prev_pdf) = (p, ns_flipped, next.pdf.to_array());
         prev_bits = (!next.delta).bits();

@@ -221,6 +221,15 @@ fn glass_bsdf_matches_mitsuba() {
     check_blocks("glass", IntegratorKind::Bsdf, 256, 16);
 }
 
+// The same spheres absorbing inside (KHR_materials_volume), against Mitsuba's `volpath` with a
+// homogeneous absorbing interior: Beer–Lambert along the paths inside, on the light samples taken
+// at the rough sphere's inner surface (which leave through it into air), and in the kernel.
+#[test]
+fn absorbing_glass_matches_mitsuba() {
+    check_blocks("glass_absorb", IntegratorKind::Mis, 256, 16);
+    check_blocks("glass_absorb", IntegratorKind::Nee, 256, 16);
+}
+
 #[test]
 fn the_light_tree_and_uniform_selection_agree_with_mitsuba() {
     use renderer::light::LightSamplerKind::{Tree, Uniform};

@@ -343,6 +343,7 @@ fn eight_lanes_match_under_environments_and_punctual_lights() {
 /// sphere), tinted, as a smooth-shaded closed sphere in a room of Lambert or metal walls.
 #[test]
 fn eight_lanes_match_through_glass_at_the_extremes() {
+    let absorbing = |m: Material, absorption: Vec3| Material { absorption, ..m };
     let base = RenderSettings { width: 24, height: 18, spp: 11, seed: 13, ..RenderSettings::default() };
     let threshold = Ggx::DELTA_ALPHA.sqrt();
     let glass = |ior: f32, roughness: f32, tint: Vec3| Material {
@@ -361,6 +362,13 @@ fn eight_lanes_match_through_glass_at_the_extremes() {
         ("ior 1", grey.clone(), glass(1.0, 0.3, Vec3::ONE)),
         ("ior 1.0001", grey.clone(), glass(1.0001, 0.2, Vec3::ONE)),
         ("ior 3, tinted", grey.clone(), glass(3.0, 0.1, Vec3::new(0.2, 0.9, 0.5))),
+        // KHR_materials_volume inside: Beer–Lambert on the segments within, on the light samples
+        // that leave through a rough surface (none inside: the medium of their side), and a
+        // channel that absorbs nothing beside two that do.
+        ("absorbing smooth glass", grey.clone(), absorbing(glass(1.5, 0.0, Vec3::ONE), Vec3::new(0.5, 2.0, 0.0))),
+        ("absorbing rough glass", grey.clone(), absorbing(glass(1.5, 0.3, Vec3::ONE), Vec3::new(3.0, 0.2, 1.0))),
+        ("absorbing glass roughness 1", grey.clone(), absorbing(glass(1.5, 1.0, Vec3::ONE), Vec3::splat(1.5))),
+        ("nearly opaque absorbing glass", grey.clone(), absorbing(glass(1.5, 0.2, Vec3::ONE), Vec3::splat(1e4))),
     ];
     for (what, wall, sphere) in cases {
         let mut scene = room_with(wall, sphere, 1.0, 5.0);
@@ -369,6 +377,91 @@ fn eight_lanes_match_through_glass_at_the_extremes() {
             let s = RenderSettings { max_depth, rr_depth, light_sampler: kind, ..base.clone() };
             same_with_lanes_or_not(&mut scene, &s, &format!("{what}, {kind:?}, depth {max_depth}, rr {rr_depth}"));
         }
+    }
+}
+
+/// A lamp inside an absorbing glass ball (rough, so light samples are taken at its inner
+/// surface): paths inside the medium reach the lamp by light samples on their own side, which
+/// the medium attenuates, and by hitting it; paths outside see it through the glass.
+#[test]
+fn eight_lanes_match_with_a_lamp_inside_absorbing_glass() {
+    let mut b = SceneBuilder::default();
+    let floor = b.material(lambert(Vec3::splat(0.6)));
+    let ball = b.material(Material {
+        transmission: 1.0,
+        metallic: 0.0,
+        absorption: Vec3::new(1.5, 0.4, 0.0),
+        ..metal(Vec3::ONE, 0.3)
+    });
+    let e = b.material(emitter(Vec3::splat(30.0)));
+    b.quad(Vec3::new(0.0, -1.0, 0.0), Vec3::X * 3.0, Vec3::NEG_Z * 3.0, floor);
+    b.sphere(Vec3::ZERO, 0.7, 2, false, ball);
+    b.quad(Vec3::new(0.0, 0.1, 0.0), Vec3::X * 0.15, Vec3::Z * 0.15, e);
+    b.look_at(Vec3::new(0.0, 0.6, 3.0), Vec3::ZERO, 40.0);
+    let mut scene = b.build();
+    for (max_depth, rr_depth) in [(4, 5), (16, 2)] {
+        let s = RenderSettings {
+            width: 24,
+            height: 18,
+            spp: 13,
+            seed: 21,
+            max_depth,
+            rr_depth,
+            ..RenderSettings::default()
+        };
+        same_with_lanes_or_not(&mut scene, &s, &format!("lamp inside absorbing glass, depth {max_depth}"));
+    }
+}
+
+/// An open sheet of absorbing rough glass (one quad: a path that crosses it through its front
+/// face stays in its medium) under a sky, a point light and a sun: light samples of lights at
+/// a distance and at infinity through the medium (zero in the channels it absorbs, whole in
+/// the one it does not), and paths that escape from it to the sky, which get nothing out of the
+/// channels it absorbs.
+#[test]
+fn eight_lanes_match_under_an_open_absorbing_sheet() {
+    let mut b = SceneBuilder::default();
+    let floor = b.material(lambert(Vec3::splat(0.6)));
+    let sheet = b.material(Material {
+        transmission: 1.0,
+        metallic: 0.0,
+        absorption: Vec3::new(0.8, 0.0, 2.5),
+        ..metal(Vec3::ONE, 0.4)
+    });
+    let e = b.material(emitter(Vec3::splat(6.0)));
+    b.quad(Vec3::ZERO, Vec3::X * 3.0, Vec3::NEG_Z * 3.0, floor);
+    // Facing the camera and the sky (+y and +z tilt): the camera's rays enter its medium.
+    b.quad(Vec3::new(0.0, 0.6, 0.5), Vec3::X * 1.2, Vec3::new(0.0, 0.5, -1.0), sheet);
+    b.quad(Vec3::new(0.8, 1.8, -0.5), Vec3::X * 0.2, Vec3::Z * 0.2, e);
+    b.look_at(Vec3::new(0.0, 1.6, 2.8), Vec3::new(0.0, 0.3, 0.0), 50.0);
+    let mut scene = b.build();
+    scene.set_environment(Some(Environment::uniform(Vec3::new(0.3, 0.4, 0.6), true)));
+    scene.set_punctual(vec![
+        PunctualLight {
+            kind: PunctualKind::Point,
+            intensity: Vec3::splat(4.0),
+            position: Vec3::new(-0.8, 1.2, 0.4),
+            direction: Vec3::NEG_Y,
+        },
+        PunctualLight {
+            kind: PunctualKind::Directional,
+            intensity: Vec3::splat(3.0),
+            position: Vec3::ZERO,
+            direction: Vec3::new(0.2, -1.0, -0.3).normalize(),
+        },
+    ]);
+    for kind in [LightSamplerKind::Power, LightSamplerKind::Tree] {
+        scene.set_light_sampler(kind);
+        let s = RenderSettings {
+            width: 24,
+            height: 18,
+            spp: 13,
+            seed: 8,
+            max_depth: 8,
+            light_sampler: kind,
+            ..RenderSettings::default()
+        };
+        same_with_lanes_or_not(&mut scene, &s, &format!("open absorbing sheet, {kind:?}"));
     }
 }
 
@@ -622,8 +715,12 @@ fn materials_the_kernel_hands_over() -> Vec<(&'static str, Material)> {
     vec![
         ("half glass", Material { transmission: 0.5, ..rough_glass.clone() }),
         ("metal over glass", Material { metallic: 0.5, ..glass.clone() }),
-        ("absorbing glass", Material { absorption: Vec3::new(0.2, 1.0, 3.0), ..glass.clone() }),
-        ("absorbing rough glass", Material { absorption: Vec3::new(2.0, 0.5, 0.1), ..rough_glass.clone() }),
+        // Absorbing inside: a path the scalar path sends into it comes back to its lane in the
+        // medium, which the kernel then carries.
+        (
+            "absorbing half glass",
+            Material { absorption: Vec3::new(2.0, 0.5, 0.1), transmission: 0.5, ..rough_glass.clone() },
+        ),
         ("a coat", Material { clearcoat: 1.0, clearcoat_roughness: 0.1, ..metal(Vec3::new(0.8, 0.2, 0.1), 0.3) }),
         ("sheen", Material { sheen_color: Vec3::ONE, sheen_roughness: 0.5, ..lambert(Vec3::splat(0.5)) }),
         ("unlit", Material { unlit: true, ..lambert(Vec3::new(0.2, 0.9, 0.4)) }),
@@ -640,7 +737,7 @@ fn materials_the_kernel_hands_over() -> Vec<(&'static str, Material)> {
 /// (the sphere in view), after diffuse, glossy and glass bounces (the walls, a metal wall, glass
 /// spheres of the kernel's own, where η² is carried), at the depth limit, under roulette from
 /// the first bounce, with its MIS state for the emission it may find there, and back in the
-/// kernel with the state the scalar path left (or on through an absorbing medium first). Same
+/// kernel with the state the scalar path left (in the absorbing medium it may have entered). Same
 /// bits and ray counts as the scalar path's render, for each material in turn as the sphere, and
 /// all of them at once as walls.
 #[test]
@@ -710,6 +807,7 @@ fn eight_lanes_take_only_what_they_render() {
     let shaded = [
         ("a metal surface", metal(Vec3::ONE, 0.3)),
         ("glass", glass.clone()),
+        ("absorbing glass", Material { absorption: Vec3::new(0.2, 1.0, 3.0), ..glass.clone() }),
         ("a base colour texture", Material { base_color_texture: feed(0), ..lambert(Vec3::ONE) }),
         ("a normal map", Material { normal_texture: feed(0), ..lambert(Vec3::ONE) }),
         ("an emissive texture", Material { emissive_texture: feed(0), ..emitter(Vec3::ONE) }),

@@ -37,6 +37,7 @@ SCENES = {
     "veach": ("veach/veach.gltf", 128, 96),
     "envlit": ("envlit/envlit.gltf", 128, 96),
     "glass": ("glass/glass.gltf", 128, 96),
+    "glass_absorb": ("glass_absorb/glass_absorb.gltf", 128, 96),
     "many_lights": ("many_lights/many_lights.gltf", 128, 96),
     "sphere_light": ("sphere_light/sphere_light.gltf", 128, 128),
     "sphere_lights": ("sphere_lights/sphere_lights.gltf", 128, 96),
@@ -137,6 +138,16 @@ def _material_dict(m):
     sys.exit(f"material {m.get('name')}: not in the subset this script maps to Mitsuba")
 
 
+def absorption(m):
+    """KHR_materials_volume's absorption coefficient σ = −ln(attenuationColor) / attenuationDistance
+    (Tessera's `Material::absorption`), or None where the material has no volume."""
+    vol = m.get("extensions", {}).get("KHR_materials_volume")
+    if vol is None or "attenuationDistance" not in vol:
+        return None
+    color = vol.get("attenuationColor", [1.0, 1.0, 1.0])
+    return [-math.log(max(c, 1e-30)) / vol["attenuationDistance"] for c in color]
+
+
 def build_scene(gltf_path, width, height, spp, tmp, env=None, rr_depth=5, max_depth=TESSERA_MAX_DEPTH):
     """The Mitsuba scene of a suite glTF. `rr_depth`: the bounce from which Russian roulette may end
     paths (Tessera's `--rr-depth`; 5, both renderers' default; `TESSERA_MAX_DEPTH + 1` or more: none).
@@ -178,6 +189,16 @@ def build_scene(gltf_path, width, height, spp, tmp, env=None, rr_depth=5, max_de
                 write_ply(path, pos, idx)
                 m = doc["materials"][prim["material"]]
                 shape = {"type": "ply", "filename": path, "face_normals": True, "bsdf": material_dict(m)}
+                sigma = absorption(m)
+                if sigma is not None:
+                    # Beer–Lambert inside: a medium that absorbs and never scatters, which
+                    # Mitsuba's volumetric path tracer (not `path`) attenuates by.
+                    # (An RGB σ must lie in [0, 1]: it is given over its largest channel, times `scale`.)
+                    top = max(max(sigma), 1e-30)
+                    shape["interior"] = {"type": "homogeneous", "scale": top,
+                                         "sigma_t": {"type": "rgb", "value": [c / top for c in sigma]},
+                                         "albedo": {"type": "rgb", "value": [0.0, 0.0, 0.0]}}
+                    scene["integrator"]["type"] = "volpath"
                 em = m.get("emissiveFactor", [0, 0, 0])
                 strength = m.get("extensions", {}).get("KHR_materials_emissive_strength", {}).get("emissiveStrength", 1.0)
                 if max(em) > 0:

@@ -221,7 +221,9 @@ impl LaneMaterial {
         if table.iter().zip(&used).all(|(e, &u)| !u || e.scalar) {
             return None;
         }
+        let absorbs = materials.iter().zip(&used).any(|(m, &u)| u && m.absorption != Vec3::ZERO);
         let hit_detail = !mesh.instances.is_empty()
+            || absorbs
             || table.iter().any(|m| m.per_lane || m.scalar)
             || crate::material::any_blends(materials)
             || materials.iter().any(|m| m.emissive_texture.is_some());
@@ -229,7 +231,6 @@ impl LaneMaterial {
         if !large_textures.contains(&true) {
             large_textures.clear();
         }
-        let absorbs = materials.iter().zip(&used).any(|(m, &u)| u && m.absorption != Vec3::ZERO);
         Some(LaneTable { entries: table, hit_detail, large_textures, absorbs })
     }
 }
@@ -237,7 +238,7 @@ impl LaneMaterial {
 /// A scene's [`LaneMaterial`]s, by material index, and whether some lane may need more than
 /// they tell (`hit_detail`: a material resolved at its hits, [`LaneMaterial::per_lane`]; one
 /// whose vertices the scalar path shades, [`LaneMaterial::scalar`]; an emissive texture;
-/// instances): then the renderer runs [`radiance8`]`::<true>`, which resolves those one lane at
+/// instances; an absorbing medium): then the renderer runs [`radiance8`]`::<true>`, which resolves those one lane at
 /// a time, else `::<false>`, the kernel without that code.
 #[derive(Clone, Debug)]
 pub struct LaneTable {
@@ -248,7 +249,8 @@ pub struct LaneTable {
     /// lookups; empty where no material does.
     large_textures: Vec<bool>,
     /// Whether some material a triangle uses absorbs inside (KHR_materials_volume): only then
-    /// can a lane be in a medium, and [`radiance8`] runs Beer–Lambert's steps.
+    /// can a lane be in a medium, and [`radiance8`] runs Beer–Lambert's steps (in its `DETAIL`
+    /// build, which `hit_detail` then asks for).
     absorbs: bool,
 }
 
@@ -714,7 +716,8 @@ pub fn radiance8<const DETAIL: bool>(
     let mut eta_scale = one;
     // `Path::medium`: the absorption of the medium each lane's path is in (zero outside).
     let mut medium = [Vec3::ZERO; LANES];
-    let absorbs = table.absorbs;
+    // (In the `DETAIL` build only, which such scenes run: the others' kernel stays without it.)
+    let absorbs = DETAIL && table.absorbs;
     let mut ro = [o; LANES];
     let mut rd = V8::zero();
     // Each lane's path (its index in the stream), sampler and bounce.

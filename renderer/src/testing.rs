@@ -272,10 +272,11 @@ pub fn node_test_ray(i: u64) -> Option<obvhs::ray::Ray> {
 /// The scene files the "same bits either way" tests render (paths from the repository root), each
 /// with whether it is also lit by `scenes/env/sunset.exr`: the suite, the Blender exports, the
 /// Khronos models and the animations.
-pub const BIT_TEST_SCENES: [(&str, bool); 13] = [
+pub const BIT_TEST_SCENES: [(&str, bool); 14] = [
     ("scenes/cornell/cornell.gltf", false),
     ("scenes/envlit/envlit.gltf", true),
     ("scenes/glass/glass.gltf", false),
+    ("scenes/glass_absorb/glass_absorb.gltf", false),
     ("scenes/many_lights/many_lights.gltf", false),
     ("scenes/sphere_light/sphere_light.gltf", false),
     ("scenes/sphere_lights/sphere_lights.gltf", false),

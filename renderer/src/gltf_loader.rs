@@ -1377,9 +1377,17 @@ impl Loader {
         let sheen_roughness = number(sh, "sheenRoughnessFactor", 0.0)?;
         let sheen_color_texture = raw_tex(sh, "sheenColorTexture", true)?;
         let sheen_roughness_texture = raw_tex(sh, "sheenRoughnessTexture", false)?;
-        // KHR_materials_volume: only the absorption matters to a path tracer (thickness is a hint
-        // for rasterisers that cannot trace the real path).
+        // KHR_materials_volume: only the absorption matters to a path tracer (the thickness's
+        // value is a hint for rasterisers that cannot trace the real path), but a thickness of 0,
+        // its default, says the surface is thin-walled, with no volume behind it: no absorption
+        // (the extension's specification, "Thickness").
         let vol = ext("KHR_materials_volume");
+        let thickness = number(vol, "thicknessFactor", 0.0)?;
+        if !(thickness >= 0.0 && thickness.is_finite()) {
+            return Err(
+                self.invalid(format!("material '{name}': thicknessFactor {thickness} must be finite and at least 0"))
+            );
+        }
         let attenuation_color = rgb(vol, "attenuationColor", Vec3::ONE)?;
         // Absent: infinite (no absorption); JSON has no infinity, so a present value is finite.
         let attenuation_distance = number(vol, "attenuationDistance", f32::INFINITY)?;
@@ -1388,7 +1396,7 @@ impl Loader {
                 self.invalid(format!("material '{name}': attenuationDistance {attenuation_distance} must be positive"))
             );
         }
-        let absorption = if attenuation_distance.is_finite() {
+        let absorption = if attenuation_distance.is_finite() && thickness > 0.0 {
             let c = attenuation_color.clamp(Vec3::splat(1e-30), Vec3::ONE);
             Vec3::new(-c.x.ln(), -c.y.ln(), -c.z.ln()) / attenuation_distance
         } else {

@@ -418,7 +418,7 @@ fn quantized_gltf(material_ext: &str, required: &str) -> String {
 fn quantized_attributes_vertex_colors_and_material_extensions_load() {
     let ext = r#"{"KHR_materials_clearcoat":{"clearcoatFactor":0.8,"clearcoatRoughnessFactor":0.2},
         "KHR_materials_sheen":{"sheenColorFactor":[0.5,0.4,0.3],"sheenRoughnessFactor":0.6},
-        "KHR_materials_volume":{"attenuationColor":[0.5,1.0,0.25],"attenuationDistance":2.0,"thickness":0.1}}"#;
+        "KHR_materials_volume":{"attenuationColor":[0.5,1.0,0.25],"attenuationDistance":2.0,"thicknessFactor":0.1}}"#;
     let s = load_str(&quantized_gltf(ext, r#""KHR_mesh_quantization""#)).expect("quantized scene");
     assert!(s.warnings.is_empty(), "every extension here is modelled: {:?}", s.warnings);
     // i16 positions dequantized by the node's 0.01 scale.
@@ -451,8 +451,19 @@ fn quantized_attributes_vertex_colors_and_material_extensions_load() {
     let unlit = load_str(&quantized_gltf(r#"{"KHR_materials_unlit":{}}"#, "")).expect("unlit");
     assert!(unlit.materials[0].unlit);
 
+    // A thickness of 0 (the default) is a thin wall: no volume behind the surface, so nothing
+    // absorbs, however the attenuation is set.
+    for thin in [
+        r#"{"KHR_materials_volume":{"attenuationColor":[0.5,1.0,0.25],"attenuationDistance":2.0}}"#,
+        r#"{"KHR_materials_volume":{"attenuationColor":[0.5,1.0,0.25],"attenuationDistance":2.0,"thicknessFactor":0}}"#,
+    ] {
+        let s = load_str(&quantized_gltf(thin, "")).expect("thin-walled volume");
+        assert_eq!(s.materials[0].absorption, renderer::math::Vec3::ZERO, "{thin}");
+    }
+
     for (ext, needle) in [
         (r#"{"KHR_materials_volume":{"attenuationDistance":0}}"#, "attenuationDistance 0 must be positive"),
+        (r#"{"KHR_materials_volume":{"thicknessFactor":-1,"attenuationDistance":1}}"#, "thicknessFactor -1 must be"),
         (r#"{"KHR_materials_volume":{"attenuationColor":[1,-1,1],"attenuationDistance":1}}"#, "attenuationColor"),
         (r#"{"KHR_materials_clearcoat":{"clearcoatFactor":"x"}}"#, "clearcoatFactor"),
         (r#"{"KHR_materials_sheen":{"sheenColorTexture":{"index":7}}}"#, "texture 7 does not exist"),

@@ -140,9 +140,10 @@ def _material_dict(m):
 
 def absorption(m):
     """KHR_materials_volume's absorption coefficient σ = −ln(attenuationColor) / attenuationDistance
-    (Tessera's `Material::absorption`), or None where the material has no volume."""
+    (Tessera's `Material::absorption`), or None where the material has no volume (none, or a thin
+    wall: thicknessFactor 0, its default)."""
     vol = m.get("extensions", {}).get("KHR_materials_volume")
-    if vol is None or "attenuationDistance" not in vol:
+    if vol is None or "attenuationDistance" not in vol or not vol.get("thicknessFactor", 0.0) > 0.0:
         return None
     color = vol.get("attenuationColor", [1.0, 1.0, 1.0])
     return [-math.log(max(c, 1e-30)) / vol["attenuationDistance"] for c in color]

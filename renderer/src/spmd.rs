@@ -1,8 +1,8 @@
 //! Eight paths in lock step, their shading done on eight-lane registers ([`crate::lanes`]): the
 //! SPMD kernel of issue 15, for the scenes whose every surface is a metallic-roughness material,
-//! opaque (Lambert, plastic, metal) or all glass, clear or absorbing inside
-//! ([`crate::bsdf8`]; Beer–Lambert on the segments and light samples within), lit by emissive triangles,
-//! an environment or punctual lights (every scene of the benchmark suite). Opaque surfaces may be
+//! opaque (Lambert, plastic, metal) or all glass, clear or absorbing inside ([`crate::bsdf8`];
+//! Beer–Lambert on the segments and light samples within), lit by emissive triangles, an
+//! environment or punctual lights (every scene of the benchmark suite). Opaque surfaces may be
 //! textured (base colour, metallic-roughness, specular), vertex-coloured, normal-mapped, placed
 //! as instances and emit through a texture: what those vary is resolved one lane at a time at
 //! each hit, with the scalar path's own functions (`HitDetail`, `InstancedLanes`), and the
@@ -168,8 +168,9 @@ impl LaneMaterial {
     /// The table for a scene (`base_colour_bsdfs`: `Material::bsdf_but_base_colour` of each
     /// material, the BSDF everywhere where no base colour texture feeds it either). A
     /// material the kernel does not shade — unlit, coated or sheened, partly transmissive
-    /// (transmission between 0 and 1, or metal over glass), or textured or vertex-coloured other than as [`LaneMaterial::textured_opaque`] allows — gets a `scalar`
-    /// entry: a lane's vertex on it is shaded by the scalar path's code. None when every
+    /// (transmission between 0 and 1, or metal over glass), or textured or vertex-coloured other
+    /// than as [`LaneMaterial::textured_opaque`] allows — gets a `scalar` entry: a lane's vertex
+    /// on it is shaded by the scalar path's code. None when every
     /// material a triangle uses is such (the kernel would hand each path over at its first hit)
     /// or a triangle names a material that does not exist. Materials no triangle uses do not
     /// count (the loader's default one among them).
@@ -238,8 +239,8 @@ impl LaneMaterial {
 /// A scene's [`LaneMaterial`]s, by material index, and whether some lane may need more than
 /// they tell (`hit_detail`: a material resolved at its hits, [`LaneMaterial::per_lane`]; one
 /// whose vertices the scalar path shades, [`LaneMaterial::scalar`]; an emissive texture;
-/// instances; an absorbing medium): then the renderer runs [`radiance8`]`::<true>`, which resolves those one lane at
-/// a time, else `::<false>`, the kernel without that code.
+/// instances; an absorbing medium): then the renderer runs [`radiance8`]`::<true>`, which
+/// resolves those one lane at a time, else `::<false>`, the kernel without that code.
 #[derive(Clone, Debug)]
 pub struct LaneTable {
     entries: Vec<LaneMaterial>,
@@ -1296,13 +1297,16 @@ pub fn radiance8<const DETAIL: bool>(
                 let target = offset_ray_origin(pv.add(d.scale(near)), d.neg(), scale);
                 (sure, d, target, V8::from_lanes(&ble), pdf)
             });
-            // A lane in a medium takes its bulb's sample with the other lights' (its distance,
-            // which the medium's transmittance reads, is the scalar sample's).
+            // A lane whose shadow ray may cross a medium (it is in one, or it is on absorbing glass,
+            // whose inside a sample through the surface enters) takes its bulb's sample with the
+            // other lights': the medium's transmittance reads the scalar sample's distance.
             let bulbs = match bulbs {
                 Some((sure, d, target, le, pdf)) if absorbs => {
-                    let inside =
-                        medium.iter().enumerate().fold(0u32, |b, (k, m)| b | (u32::from(*m != Vec3::ZERO) << k));
-                    Some((sure.and_not(M8::from_bits(inside)), d, target, le, pdf))
+                    let may_cross = lanes_of(nee.bits()).fold(0u32, |b, k| {
+                        let media = medium[k] != Vec3::ZERO || materials[mat_id[k]].absorption != Vec3::ZERO;
+                        b | (u32::from(media) << k)
+                    });
+                    Some((sure.and_not(M8::from_bits(may_cross)), d, target, le, pdf))
                 }
                 b => b,
             };

@@ -385,31 +385,43 @@ fn eight_lanes_match_through_glass_at_the_extremes() {
 /// the medium attenuates, and by hitting it; paths outside see it through the glass.
 #[test]
 fn eight_lanes_match_with_a_lamp_inside_absorbing_glass() {
-    let mut b = SceneBuilder::default();
-    let floor = b.material(lambert(Vec3::splat(0.6)));
-    let ball = b.material(Material {
-        transmission: 1.0,
-        metallic: 0.0,
-        absorption: Vec3::new(1.5, 0.4, 0.0),
-        ..metal(Vec3::ONE, 0.3)
-    });
-    let e = b.material(emitter(Vec3::splat(30.0)));
-    b.quad(Vec3::new(0.0, -1.0, 0.0), Vec3::X * 3.0, Vec3::NEG_Z * 3.0, floor);
-    b.sphere(Vec3::ZERO, 0.7, 2, false, ball);
-    b.quad(Vec3::new(0.0, 0.1, 0.0), Vec3::X * 0.15, Vec3::Z * 0.15, e);
-    b.look_at(Vec3::new(0.0, 0.6, 3.0), Vec3::ZERO, 40.0);
-    let mut scene = b.build();
-    for (max_depth, rr_depth) in [(4, 5), (16, 2)] {
-        let s = RenderSettings {
-            width: 24,
-            height: 18,
-            spp: 13,
-            seed: 21,
-            max_depth,
-            rr_depth,
-            ..RenderSettings::default()
-        };
-        same_with_lanes_or_not(&mut scene, &s, &format!("lamp inside absorbing glass, depth {max_depth}"));
+    // The lamp a quad, or a bulb (a small emissive sphere: one light, whose sure directions the
+    // kernel samples eight-wide) with a second bulb outside the ball.
+    let scene = |bulb: bool| {
+        let mut b = SceneBuilder::default();
+        let floor = b.material(lambert(Vec3::splat(0.6)));
+        let ball = b.material(Material {
+            transmission: 1.0,
+            metallic: 0.0,
+            absorption: Vec3::new(1.5, 0.4, 0.0),
+            ..metal(Vec3::ONE, 0.3)
+        });
+        let e = b.material(emitter(Vec3::splat(30.0)));
+        b.quad(Vec3::new(0.0, -1.0, 0.0), Vec3::X * 3.0, Vec3::NEG_Z * 3.0, floor);
+        b.sphere(Vec3::ZERO, 0.7, 2, false, ball);
+        if bulb {
+            b.sphere(Vec3::new(0.0, 0.05, 0.0), 0.12, 2, false, e);
+            b.sphere(Vec3::new(1.2, 0.2, -0.4), 0.15, 2, false, e);
+        } else {
+            b.quad(Vec3::new(0.0, 0.1, 0.0), Vec3::X * 0.15, Vec3::Z * 0.15, e);
+        }
+        b.look_at(Vec3::new(0.0, 0.6, 3.0), Vec3::ZERO, 40.0);
+        b.build()
+    };
+    for (what, bulb) in [("lamp", false), ("bulb", true)] {
+        let mut scene = scene(bulb);
+        for (max_depth, rr_depth) in [(4, 5), (16, 2)] {
+            let s = RenderSettings {
+                width: 24,
+                height: 18,
+                spp: 13,
+                seed: 21,
+                max_depth,
+                rr_depth,
+                ..RenderSettings::default()
+            };
+            same_with_lanes_or_not(&mut scene, &s, &format!("{what} inside absorbing glass, depth {max_depth}"));
+        }
     }
 }
 

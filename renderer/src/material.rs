@@ -44,8 +44,10 @@ pub struct Material {
     pub sheen_roughness: f32,
     pub sheen_roughness_texture: Option<TextureRef>,
     /// KHR_materials_volume as an absorption coefficient σa = −ln(attenuationColor) /
-    /// attenuationDistance (per scene unit) inside the mesh; zero = clear. Beer–Lambert along the
-    /// real path length (the extension's `thickness` is a rasteriser's hint and is not used).
+    /// attenuationDistance (per scene unit) inside the mesh; zero = clear, and zero for a thin
+    /// wall (`thicknessFactor` 0, the extension's default: no volume behind the surface).
+    /// Beer–Lambert along the real path length (a positive thickness's value is a rasteriser's
+    /// hint and is not used).
     pub absorption: Vec3,
     /// KHR_materials_unlit: the surface shows its base color whatever the lighting. In a path
     /// tracer that is an emitter of radiance baseColor that does not scatter (as Blender's exporter

@@ -16,7 +16,9 @@ warm-up render, so the LLVM backend's kernel compilation is not counted). The ru
 Tessera and each peer, so a noisy machine's slow spells fall on all of them. Median over --runs runs
 with different seeds; the errors also by their mean over the runs (a relMSE is heavy-tailed where
 fireflies are, and the mean, not the median, estimates the expected error that equal error in equal
-time is about), with a "by mean errors" efficiency ratio beside the median's. relMSE against the reference: mean over pixels and channels of (x − ref)² / (ref² +
+time is about), with a "by mean errors" efficiency ratio beside the median's ("mean relMSE" is net of
+the reference's own share, as "relMSE" is; the range is of the raw figures). relMSE against the
+reference: mean over pixels and channels of (x − ref)² / (ref² +
 0.01). The reference is itself a noisy estimate, and its own error adds to every renderer's measured
 relMSE alike (E[(x − ref)²] = Var x + Var ref), pulling every efficiency ratio towards 1; its expected
 share is subtracted, as `tessera bench convergence` does, and the "raw" columns keep the measured figure.

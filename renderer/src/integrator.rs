@@ -444,7 +444,7 @@ impl Path {
         let Some(hit) = hit else {
             if self.medium != Vec3::ZERO {
                 // An absorbing medium that never ends (an open mesh): nothing gets out.
-                self.beta *= Vec3::select(self.medium.cmpgt(Vec3::ZERO), Vec3::ZERO, Vec3::ONE);
+                self.beta *= transmittance(self.medium, f32::INFINITY);
             }
             if let Some(env) = &scene.lights.environment {
                 match (settings.integrator, self.prev) {
@@ -632,16 +632,9 @@ impl Path {
                 if ls.le != Vec3::ZERO && (above || below) {
                     let (f, bsdf_pdf) = bsdf.eval_pdf(wo, wi);
                     let origin = if above { origin } else { scene.spawn_origin(p, -ng, plane_error) };
-                    // The medium the shadow ray crosses is that of the side it leaves by: the
-                    // path's own on the side it came from; through the surface, this mesh's
-                    // inside when entering it and none when leaving (as the path's own medium
-                    // changes when it transmits, below). Glass stops shadow rays, so the ray
-                    // stays in that one medium up to the light.
-                    let medium = match (above, ng_winding.dot(wo_world) > 0.0) {
-                        (true, _) => self.medium,
-                        (false, true) => absorption,
-                        (false, false) => Vec3::ZERO,
-                    };
+                    // The medium the shadow ray crosses: that of the side it leaves by (glass stops
+                    // shadow rays, so it stays in that one medium up to the light).
+                    let medium = medium_beyond(self.medium, below, ng_winding.dot(wo_world) > 0.0, absorption);
                     if f != Vec3::ZERO {
                         *rays += 1;
                         let to_light = if ls.delta && ls.dist.is_finite() {
@@ -715,8 +708,7 @@ impl Path {
         }
         if transmitted {
             self.eta_scale *= bsdf.eta * bsdf.eta;
-            // Entering through the front (winding) face: into this mesh's medium; else out of it.
-            self.medium = if ng_winding.dot(wo_world) > 0.0 { absorption } else { Vec3::ZERO };
+            self.medium = medium_beyond(self.medium, true, ng_winding.dot(wo_world) > 0.0, absorption);
         }
         self.prev = if bs.delta { None } else { Some((p, ns, bs.pdf)) };
         self.o = if transmitted { scene.spawn_origin(p, -ng, plane_error) } else { origin };
@@ -751,6 +743,19 @@ pub(crate) fn normal_mapped(ns: Vec3, t: crate::math::Vec4, n_ts: Vec3) -> Vec3 
         mapped
     } else {
         ns
+    }
+}
+
+/// The medium on the side a direction leaving a vertex goes to: the path's own (`current`) on
+/// the side it arrived from; through the surface (`through`), the mesh's inside (`absorption`)
+/// when `entering` (it arrived on the front, winding face) and none when leaving. The path's
+/// medium after a transmission and a light sample's shadow ray both take it (the kernel too).
+#[inline(always)]
+pub(crate) fn medium_beyond(current: Vec3, through: bool, entering: bool, absorption: Vec3) -> Vec3 {
+    match (through, entering) {
+        (false, _) => current,
+        (true, true) => absorption,
+        (true, false) => Vec3::ZERO,
     }
 }
 

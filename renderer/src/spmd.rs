@@ -348,31 +348,24 @@ fn in_medium_lanes(beta: V8, medium: &[Vec3; LANES], lanes: u32, factor: impl Fn
 }
 
 /// Each lane of `shadow`'s transmittance along its shadow ray (`Path::finish`'s
-/// `ShadowRay::medium`): the medium of the side the ray leaves by — the lane's own on its
-/// side, through the surface (`below`) the mesh's inside when `side(k)` says the path enters
-/// it (its absorption second) and none when it leaves — over the light sample's distance
-/// `dist(k)`; None for a lane whose ray crosses no medium, and None in all when no lane's does.
+/// `ShadowRay::medium`): the medium of the side the ray leaves by
+/// ([`crate::integrator::medium_beyond`]: through the surface where `below`, into the mesh's
+/// `absorption(k)` where `entering`) over the light sample's distance `dist(k)`; None for a lane
+/// whose ray crosses no medium, and None in all when no lane's does.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[cold]
 #[inline(never)]
 fn shadow_transmittance(
     medium: &[Vec3; LANES],
-    shadow: u32,
-    below: u32,
-    side: impl Fn(usize) -> (bool, Vec3),
+    (shadow, below, entering): (u32, u32, u32),
+    absorption: impl Fn(usize) -> Vec3,
     dist: impl Fn(usize) -> f32,
 ) -> Option<[Option<Vec3>; LANES]> {
     let mut t = [None; LANES];
     let mut any = false;
     for k in lanes_of(shadow) {
-        let m = if below & (1 << k) == 0 {
-            medium[k]
-        } else {
-            match side(k) {
-                (true, absorption) => absorption,
-                (false, _) => Vec3::ZERO,
-            }
-        };
+        let bit = |b: u32| b & (1 << k) != 0;
+        let m = crate::integrator::medium_beyond(medium[k], bit(below), bit(entering), absorption(k));
         if m != Vec3::ZERO {
             t[k] = Some(crate::integrator::transmittance(m, dist(k)));
             any = true;
@@ -955,9 +948,7 @@ pub fn radiance8<const DETAIL: bool>(
         // `Path::shade`'s escape from an absorbing medium that never ends (an open mesh): nothing
         // gets out.
         if absorbs && escaped != 0 {
-            beta = in_medium_lanes(beta, &medium, escaped, |_, m| {
-                Vec3::select(m.cmpgt(Vec3::ZERO), Vec3::ZERO, Vec3::ONE)
-            });
+            beta = in_medium_lanes(beta, &medium, escaped, |_, m| crate::integrator::transmittance(m, f32::INFINITY));
         }
         // Nothing hit (a background): no surface point to build, the path ends here.
         if hit_bits == 0 {
@@ -1082,7 +1073,10 @@ pub fn radiance8<const DETAIL: bool>(
             nsv = V8::from_lanes(&ns);
         }
         // Seen from the back face: also where glass's relative index inverts.
-        let back_face = ngv.dot(wo_world).lt(zero);
+        let ng_wo = ngv.dot(wo_world);
+        let back_face = ng_wo.lt(zero);
+        // Arrived on the front (winding) face: a transmission enters the mesh's medium.
+        let entering = ng_wo.gt(zero).bits();
         ngv = V8::select(back_face, ngv.neg(), ngv);
         let flip = nsv.dot(ngv).lt(zero);
         nsv = V8::select(flip, nsv.neg(), nsv);
@@ -1526,14 +1520,8 @@ pub fn radiance8<const DETAIL: bool>(
                     let dist = areas.map(|a| a.6.to_array());
                     shadow_transmittance(
                         &medium,
-                        shadow.bits(),
-                        below.bits(),
-                        |k| {
-                            // Through the surface: into this mesh's medium when entering it, out of
-                            // any when leaving (`Path::finish`).
-                            let entering = sp_ng[k].dot(-dirs[k]) > 0.0;
-                            (entering, materials[mat_id[k]].absorption)
-                        },
+                        (shadow.bits(), below.bits(), entering),
+                        |k| materials[mat_id[k]].absorption,
                         |k| if other.bits() & (1 << k) != 0 { odist[k] } else { dist.map_or(0.0, |d| d[k]) },
                     )
                 } else {
@@ -1569,11 +1557,11 @@ pub fn radiance8<const DETAIL: bool>(
         if let (true, Some(g)) = (through.any(), &glass8) {
             eta_scale = select(through, eta_scale * (g.eta * g.eta), eta_scale);
             if absorbs {
-                // Entering through the front (winding) face: into this mesh's medium; else out
-                // of it (`Path::finish`).
+                // Into the mesh's medium or out of it (`Path::finish`).
                 for k in lanes_of(through.bits()) {
-                    let entering = sp_ng[k].dot(-dirs[k]) > 0.0;
-                    medium[k] = if entering { materials[mat_id[k]].absorption } else { Vec3::ZERO };
+                    let into = entering & (1 << k) != 0;
+                    medium[k] =
+                        crate::integrator::medium_beyond(medium[k], true, into, materials[mat_id[k]].absorption);
                 }
             }
         }

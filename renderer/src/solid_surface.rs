@@ -15,10 +15,10 @@
 //! BVH's corners of the triangle bit for bit (kept in the facet's record), and the answer is
 //! taken only where no rounding could have let another facet report a hit first: the exit point
 //! well inside its facet (every barycentric coordinate at least [`MARGIN`]) and the ray not
-//! grazing it (the cosine with its normal at least [`MIN_COS`]). Elsewhere, or where the walk does not settle within [`MAX_STEPS`], the caller
-//! walks the solid's BVH as before. The solid's convexity is only tested to 10⁻⁶ of its size
-//! (`convex_solid::convex_hull`); the margins are far above that on any facet that is not
-//! itself that small.
+//! grazing it (the cosine with its normal at least [`MIN_COS`]). Elsewhere, or where the walk
+//! does not settle within [`MAX_STEPS`], the caller walks the solid's BVH as before. The solid's
+//! convexity is only tested to 10⁻⁶ of its size (`convex_solid::convex_hull`); the margins are
+//! far above that on any facet that is not itself that small.
 
 use crate::accel::{Accel, Hit, NO_INSTANCE};
 use crate::convex_solid::key;

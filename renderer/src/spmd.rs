@@ -1111,24 +1111,22 @@ pub fn radiance8<const DETAIL: bool>(
         });
         let albedo = V8::from_lanes(&albedo);
         let f_lambert = V8::zero().add(albedo.scale(F8::splat(INV_PI)));
-        // The lanes' materials, where some lane needs more than its albedo.
-        let m = (general | glass_bits != 0).then(|| {
-            let mut m = mat_id.map(|i| materials[i]);
-            if let Some(d) = detail.as_ref().filter(|_| DETAIL) {
-                for k in lanes_of(d.textured) {
-                    m[k] = d.m[k];
-                }
-            }
-            m
-        });
+        // Lane k's material: its hit's own where a texture resolved it, else the table's. Read a
+        // field at a time where some lane needs more than its albedo (gathering whole materials
+        // copied eight 60-byte records a bounce, 1.3 % of glass's instructions).
+        let lane_material = |k: usize| match detail.as_ref().filter(|_| DETAIL) {
+            Some(d) if d.textured & (1 << k) != 0 => &d.m[k],
+            _ => &materials[mat_id[k]],
+        };
+        let field = |f: fn(&LaneMaterial) -> f32| F8::from_array(std::array::from_fn(|k| f(lane_material(k))));
         // Where some lane is not plain Lambert, every lane takes the general opaque BSDF (whose
         // numbers are the Lambert shortcut's on a Lambert lane: `bsdf.rs`'s test).
-        let bsdf = m.filter(|_| general != 0).map(|m| OpaqueBsdf8 {
+        let bsdf = (general != 0).then(|| OpaqueBsdf8 {
             base: albedo,
-            metallic: F8::from_array(m.map(|m| m.metallic)),
-            specular: F8::from_array(m.map(|m| m.specular)),
-            f0: V8::from_lanes(&m.map(|m| m.f0)),
-            alpha: F8::from_array(m.map(|m| m.alpha)),
+            metallic: field(|m| m.metallic),
+            specular: field(|m| m.specular),
+            f0: V8::from_lanes(&std::array::from_fn(|k| lane_material(k).f0)),
+            alpha: field(|m| m.alpha),
         });
 
         // The NEE lanes' light choices together (a light tree's walks interleaved), as
@@ -1189,9 +1187,9 @@ pub fn radiance8<const DETAIL: bool>(
             }
             Some(b) => b.sample(wo, u_lobe, u_dir.0, u_dir.1, cosine),
         };
-        let glass8 = m.filter(|_| glass_bits != 0).map(|m| {
-            let eta = F8::from_array(m.map(|m| m.eta));
-            Glass8 { eta: select(back_face, one / eta, eta), alpha: F8::from_array(m.map(|m| m.alpha)), tint: albedo }
+        let glass8 = (glass_bits != 0).then(|| {
+            let eta = field(|m| m.eta);
+            Glass8 { eta: select(back_face, one / eta, eta), alpha: field(|m| m.alpha), tint: albedo }
         });
         let next = match &glass8 {
             None => next,

@@ -337,7 +337,7 @@ pub(crate) struct Glass8 {
 impl Glass8 {
     /// `Dielectric::is_delta`.
     #[inline(always)]
-    fn is_delta(&self) -> M8 {
+    pub fn is_delta(&self) -> M8 {
         Ggx8 { alpha: self.alpha }.is_delta() | self.eta.eq(F8::splat(1.0))
     }
 

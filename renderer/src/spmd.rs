@@ -1432,10 +1432,13 @@ pub fn radiance8<const DETAIL: bool>(
             };
             let (f, f_pdf) = match &glass8 {
                 None => (f, f_pdf),
-                Some(g) => {
+                // Smooth glass has no f towards a light (`Dielectric::eval_pdf`: zero), so only a
+                // rough glass lane that samples one needs the evaluation.
+                Some(g) if (glass & ok).and_not(g.is_delta()).any() => {
                     let (gf, gp) = g.eval_pdf(wo, wil);
                     (V8::select(glass, gf, f), select(glass, gp, f_pdf))
                 }
+                Some(_) => (V8::select(glass, V8::zero(), f), select(glass, zero, f_pdf)),
             };
             let ok = ok & f.ne_zero();
             if ok.any() {

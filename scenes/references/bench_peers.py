@@ -30,7 +30,9 @@ a tenth of the measured one. Efficiency = 1 / (relMSE · seconds): equal
 efficiency means equal error in equal time; the ratio column is each renderer's efficiency over
 Tessera's (above 1: better than Tessera). The summary also gives each paths/s ratio paired run by run
 (the median over runs of the peer's time over Tessera's in that run, and their range), which a slow
-spell of a shared machine moves less than the ratio of the medians.
+spell of a shared machine moves less than the ratio of the medians, and the range of the efficiency
+ratio run by run ("runs a–b": each run's own time and net relMSE on both sides), how far a single
+run's answer can stray where fireflies make the relMSE heavy-tailed.
 """
 import argparse
 import os
@@ -146,6 +148,8 @@ def main():
                  f"scenes are {sorted(mr.SCENES)}")
     summary = []
     run_times = {}
+    run_errs = {}
+    own_of = {}
     for name in a.scenes:
         rel, w, h = mr.SCENES[name]
         mi.set_variant("scalar_rgb")
@@ -203,6 +207,9 @@ def main():
             # both sides of a pair, where it can fall on one side only of the ratio of medians.
             run_times[name] = {label: list(t) for label, (_, t, _e) in zip(["tessera", "tessera before"], builds)}
             run_times[name].update({f"mitsuba {v}": list(t) for v, _, t, _e in peers})
+            run_errs[name] = {label: list(e) for label, (_, _t, e) in zip(["tessera", "tessera before"], builds)}
+            run_errs[name].update({f"mitsuba {v}": list(e) for v, _, _t, e in peers})
+            own_of[name] = own
             del peers
         # Efficiency from the relMSE less the reference's own (floored at a tenth of the measured
         # figure: a render as noisy as the reference cannot be resolved by it) and, raw, as measured.
@@ -232,12 +239,23 @@ def main():
           "(the reference's own noise subtracted; raw: as measured; by mean errors: each renderer's "
           "relMSE averaged over the runs, the estimate of its expected error, instead of their median); "
           "paired: the median over runs of the peer's time over Tessera's in the same run, with the "
-          "runs' range")
+          "runs' range; runs: the range of the efficiency ratio run by run (each run's own time and "
+          "error on both sides), how far one run's answer can stray")
 
     def paired(name, label):
         # The same spp and size on both sides, so a time ratio is the paths/s ratio.
         ratios = [b / t for t, b in zip(run_times[name]["tessera"], run_times[name][label])]
         return statistics.median(ratios), min(ratios), max(ratios)
+
+    def per_run_efficiency(name, label):
+        # The peer's efficiency over Tessera's from each run's own figures (net of the reference's
+        # noise, as above): a heavy-tailed relMSE makes this spread wide where fireflies are.
+        own = own_of[name]
+        net = lambda e: max(e - own, 0.1 * e)  # noqa: E731
+        ours = zip(run_times[name]["tessera"], run_errs[name]["tessera"])
+        peer = zip(run_times[name][label], run_errs[name][label])
+        ratios = [(t * net(e)) / (pt * net(pe)) for (t, e), (pt, pe) in zip(ours, peer)]
+        return min(ratios), max(ratios)
     for name in a.scenes:
         mine = [s for s in summary if s[0] == name and s[1] == "tessera"]
         before = [s for s in summary if s[0] == name and s[1] == "tessera before"]
@@ -249,11 +267,13 @@ def main():
                     then = (f"   (before: paths/s ratio {before[0][3] / s[3]:.2f}, peer efficiency ratio "
                             f"{s[5] / before[0][5]:.2f}, by mean errors {s[7] / before[0][7]:.2f})")
                 pm, lo, hi = paired(name, s[1])
+                elo, ehi = per_run_efficiency(name, s[1])
                 if before:
                     bm, blo, bhi = paired(name, "tessera before")
                     then += f"   (this build over the one before, paired: {bm:.2f}, {blo:.2f}–{bhi:.2f})"
                 print(f"{name:<14} vs {s[1]:<22} paths/s ratio {mine[0][3] / s[3]:>6.2f} (paired {pm:.2f}, "
-                      f"{lo:.2f}–{hi:.2f})   peer efficiency ratio {s[5]:>6.2f}   raw {s[6]:>6.2f}   "
+                      f"{lo:.2f}–{hi:.2f})   peer efficiency ratio {s[5]:>6.2f} (runs {elo:.2f}–{ehi:.2f})   "
+                      f"raw {s[6]:>6.2f}   "
                       f"by mean errors {s[7]:>6.2f}{then}")
 
 

@@ -632,9 +632,6 @@ impl Path {
                 if ls.le != Vec3::ZERO && (above || below) {
                     let (f, bsdf_pdf) = bsdf.eval_pdf(wo, wi);
                     let origin = if above { origin } else { scene.spawn_origin(p, -ng, plane_error) };
-                    // The medium the shadow ray crosses: that of the side it leaves by (glass stops
-                    // shadow rays, so it stays in that one medium up to the light).
-                    let medium = medium_beyond(self.medium, below, ng_winding.dot(wo_world) > 0.0, absorption);
                     if f != Vec3::ZERO {
                         *rays += 1;
                         let to_light = if ls.delta && ls.dist.is_finite() {
@@ -673,6 +670,11 @@ impl Path {
                                     }
                                     _ => 1.0,
                                 };
+                                // The medium the shadow ray crosses: that of the side it leaves
+                                // by (glass stops shadow rays, so it stays in that one medium up
+                                // to the light).
+                                let entering = ng_winding.dot(wo_world) > 0.0;
+                                let medium = medium_beyond(self.medium, below, entering, absorption);
                                 let ray = ShadowRay {
                                     o,
                                     d,

@@ -408,18 +408,11 @@ fn eight_lanes_match_with_a_lamp_inside_absorbing_glass() {
         b.look_at(Vec3::new(0.0, 0.6, 3.0), Vec3::ZERO, 40.0);
         b.build()
     };
+    let base = RenderSettings { width: 24, height: 18, spp: 13, seed: 21, ..RenderSettings::default() };
     for (what, bulb) in [("lamp", false), ("bulb", true)] {
         let mut scene = scene(bulb);
         for (max_depth, rr_depth) in [(4, 5), (16, 2)] {
-            let s = RenderSettings {
-                width: 24,
-                height: 18,
-                spp: 13,
-                seed: 21,
-                max_depth,
-                rr_depth,
-                ..RenderSettings::default()
-            };
+            let s = RenderSettings { max_depth, rr_depth, ..base.clone() };
             same_with_lanes_or_not(&mut scene, &s, &format!("{what} inside absorbing glass, depth {max_depth}"));
         }
     }
@@ -462,17 +455,10 @@ fn eight_lanes_match_under_an_open_absorbing_sheet() {
             direction: Vec3::new(0.2, -1.0, -0.3).normalize(),
         },
     ]);
+    let base = RenderSettings { width: 24, height: 18, spp: 13, seed: 8, max_depth: 8, ..RenderSettings::default() };
     for kind in [LightSamplerKind::Power, LightSamplerKind::Tree] {
         scene.set_light_sampler(kind);
-        let s = RenderSettings {
-            width: 24,
-            height: 18,
-            spp: 13,
-            seed: 8,
-            max_depth: 8,
-            light_sampler: kind,
-            ..RenderSettings::default()
-        };
+        let s = RenderSettings { light_sampler: kind, ..base.clone() };
         same_with_lanes_or_not(&mut scene, &s, &format!("open absorbing sheet, {kind:?}"));
     }
 }

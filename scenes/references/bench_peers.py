@@ -62,6 +62,12 @@ def reference_own_rel_mse(ref_rgb, variance):
     return float(np.mean(np.where(np.isfinite(own), own, 0.0)))
 
 
+def net_rel_mse(e, own):
+    """A measured relMSE less the reference's own share `own`, floored at a tenth of the measured
+    figure (a render as noisy as the reference cannot be resolved by it)."""
+    return max(e - own, 0.1 * e)
+
+
 def main():
     import mitsuba as mi
     ap = argparse.ArgumentParser()
@@ -148,8 +154,7 @@ def main():
                  f"scenes are {sorted(mr.SCENES)}")
     summary = []
     run_times = {}
-    run_errs = {}
-    own_of = {}
+    run_efficiency = {}
     for name in a.scenes:
         rel, w, h = mr.SCENES[name]
         mi.set_variant("scalar_rgb")
@@ -207,14 +212,17 @@ def main():
             # both sides of a pair, where it can fall on one side only of the ratio of medians.
             run_times[name] = {label: list(t) for label, (_, t, _e) in zip(["tessera", "tessera before"], builds)}
             run_times[name].update({f"mitsuba {v}": list(t) for v, _, t, _e in peers})
-            run_errs[name] = {label: list(e) for label, (_, _t, e) in zip(["tessera", "tessera before"], builds)}
-            run_errs[name].update({f"mitsuba {v}": list(e) for v, _, _t, e in peers})
-            own_of[name] = own
+            # Each peer's efficiency over Tessera's run by run, from each run's own time and net
+            # error on both sides: a heavy-tailed relMSE spreads these wide where fireflies are.
+            _, ours_t, ours_e = builds[0]
+            run_efficiency[name] = {
+                f"mitsuba {v}": [(t * net_rel_mse(e, own)) / (pt * net_rel_mse(pe, own))
+                                 for t, e, pt, pe in zip(ours_t, ours_e, ptimes, perrs)]
+                for v, _, ptimes, perrs in peers}
             del peers
-        # Efficiency from the relMSE less the reference's own (floored at a tenth of the measured
-        # figure: a render as noisy as the reference cannot be resolved by it) and, raw, as measured.
+        # Efficiency from the relMSE less the reference's own (`net_rel_mse`) and, raw, as measured.
         def net(e):
-            return max(e - own, 0.1 * e)
+            return net_rel_mse(e, own)
         base = 1.0 / (rows[0][1] * net(rows[0][2]))
         base_raw = 1.0 / (rows[0][1] * rows[0][2])
         base_mean = 1.0 / (rows[0][1] * net(rows[0][3]))
@@ -246,16 +254,6 @@ def main():
         # The same spp and size on both sides, so a time ratio is the paths/s ratio.
         ratios = [b / t for t, b in zip(run_times[name]["tessera"], run_times[name][label])]
         return statistics.median(ratios), min(ratios), max(ratios)
-
-    def per_run_efficiency(name, label):
-        # The peer's efficiency over Tessera's from each run's own figures (net of the reference's
-        # noise, as above): a heavy-tailed relMSE makes this spread wide where fireflies are.
-        own = own_of[name]
-        net = lambda e: max(e - own, 0.1 * e)  # noqa: E731
-        ours = zip(run_times[name]["tessera"], run_errs[name]["tessera"])
-        peer = zip(run_times[name][label], run_errs[name][label])
-        ratios = [(t * net(e)) / (pt * net(pe)) for (t, e), (pt, pe) in zip(ours, peer)]
-        return min(ratios), max(ratios)
     for name in a.scenes:
         mine = [s for s in summary if s[0] == name and s[1] == "tessera"]
         before = [s for s in summary if s[0] == name and s[1] == "tessera before"]
@@ -267,7 +265,7 @@ def main():
                     then = (f"   (before: paths/s ratio {before[0][3] / s[3]:.2f}, peer efficiency ratio "
                             f"{s[5] / before[0][5]:.2f}, by mean errors {s[7] / before[0][7]:.2f})")
                 pm, lo, hi = paired(name, s[1])
-                elo, ehi = per_run_efficiency(name, s[1])
+                elo, ehi = min(run_efficiency[name][s[1]]), max(run_efficiency[name][s[1]])
                 if before:
                     bm, blo, bhi = paired(name, "tessera before")
                     then += f"   (this build over the one before, paired: {bm:.2f}, {blo:.2f}–{bhi:.2f})"

@@ -113,15 +113,7 @@ fn through_rough_box(absorption: Vec3, integrator: IntegratorKind, seed: u64) ->
     cube(&mut b, Vec3::new(0.0, 0.0, -1.0), Vec3::new(3.0, 3.0, 0.5), g);
     b.look_at(Vec3::new(0.0, 0.0, 2.0), Vec3::new(0.0, 0.0, -1.0), 4.0);
     let scene = b.build();
-    let s = RenderSettings {
-        width: 16,
-        height: 16,
-        spp: 256,
-        integrator,
-        seed,
-        max_depth: 12,
-        ..RenderSettings::default()
-    };
+    let s = RenderSettings { width: 16, height: 16, spp: 256, integrator, seed, max_depth: 12, ..Default::default() };
     let sums = render_tile(&scene, &s, Rect { x0: 0, y0: 0, width: 16, height: 16 }, 0..s.spp);
     let y: Vec<f64> =
         (0..sums.rect.pixels()).map(|i| renderer::math::luminance(Vec3::from(sums.mean(i))) as f64).collect();

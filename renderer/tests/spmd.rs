@@ -380,6 +380,12 @@ fn eight_lanes_match_through_glass_at_the_extremes() {
     }
 }
 
+/// All glass of the default index and `roughness`, absorbing `absorption` inside
+/// (KHR_materials_volume).
+fn absorbing_glass(roughness: f32, absorption: Vec3) -> Material {
+    Material { transmission: 1.0, metallic: 0.0, absorption, ..metal(Vec3::ONE, roughness) }
+}
+
 /// A lamp inside an absorbing glass ball (rough, so light samples are taken at its inner
 /// surface): paths inside the medium reach the lamp by light samples on their own side, which
 /// the medium attenuates, and by hitting it; paths outside see it through the glass.
@@ -390,12 +396,7 @@ fn eight_lanes_match_with_a_lamp_inside_absorbing_glass() {
     let scene = |bulb: bool| {
         let mut b = SceneBuilder::default();
         let floor = b.material(lambert(Vec3::splat(0.6)));
-        let ball = b.material(Material {
-            transmission: 1.0,
-            metallic: 0.0,
-            absorption: Vec3::new(1.5, 0.4, 0.0),
-            ..metal(Vec3::ONE, 0.3)
-        });
+        let ball = b.material(absorbing_glass(0.3, Vec3::new(1.5, 0.4, 0.0)));
         let e = b.material(emitter(Vec3::splat(30.0)));
         b.quad(Vec3::new(0.0, -1.0, 0.0), Vec3::X * 3.0, Vec3::NEG_Z * 3.0, floor);
         b.sphere(Vec3::ZERO, 0.7, 2, false, ball);
@@ -427,12 +428,7 @@ fn eight_lanes_match_with_a_lamp_inside_absorbing_glass() {
 fn eight_lanes_match_under_an_open_absorbing_sheet() {
     let mut b = SceneBuilder::default();
     let floor = b.material(lambert(Vec3::splat(0.6)));
-    let sheet = b.material(Material {
-        transmission: 1.0,
-        metallic: 0.0,
-        absorption: Vec3::new(0.8, 0.0, 2.5),
-        ..metal(Vec3::ONE, 0.4)
-    });
+    let sheet = b.material(absorbing_glass(0.4, Vec3::new(0.8, 0.0, 2.5)));
     let e = b.material(emitter(Vec3::splat(6.0)));
     b.quad(Vec3::ZERO, Vec3::X * 3.0, Vec3::NEG_Z * 3.0, floor);
     // Facing the camera and the sky (+y and +z tilt): the camera's rays enter its medium.

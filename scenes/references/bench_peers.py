@@ -5,6 +5,8 @@
     apt-get install libllvm19    # for Mitsuba's vectorised CPU backend (llvm_ad_rgb)
     python3 scenes/references/bench_peers.py [--spp 64] [--runs 3] [--variants scalar_rgb llvm_ad_rgb] [scenes...]
     python3 scenes/references/bench_peers.py --before /tmp/tessera-before ...   # before and after in one command
+    python3 scenes/references/bench_peers.py --before target/release/tessera --before-args '--rr-depth 2' ...
+        # one build against itself with another setting ('tessera before' is then the other setting)
     python3 scenes/references/bench_peers.py --threads 1 ...   # per core: one thread for every renderer
     python3 scenes/references/bench_peers.py --equal-strategy ...   # the same paths: light choice by power, no roulette
 
@@ -80,6 +82,10 @@ def main():
                     help="another tessera build (e.g. the commit before a change), run in the same "
                          "alternation with the same seeds: a 'tessera before' row and before/after ratios, "
                          "so a noisy machine's slow spells fall on both builds alike")
+    ap.add_argument("--before-args", default="", metavar="FLAGS",
+                    help="extra flags for the --before build alone (quoted), after --tessera-args: one build "
+                         "against itself with other settings in one command, e.g. --before target/release/tessera "
+                         "--before-args '--rr-depth 2' (the 'tessera before' row is then the other setting)")
     ap.add_argument("--vector-width", type=int, choices=[4, 8, 16],
                     help="Dr.Jit's LLVM vector width for the llvm variants (default: the host's widest)")
     ap.add_argument("--threads", type=int, metavar="N",
@@ -182,15 +188,15 @@ def main():
                     peers.append((variant, scene, [], []))
                 except Exception as e:  # a missing libLLVM says so and the others still run
                     print(f"{name}: {variant} unavailable: {e}", file=sys.stderr)
-            builds = [(TESSERA, [], [])] + ([(a.before, [], [])] if a.before else [])
+            builds = [(TESSERA, [], [], [])] + ([(a.before, a.before_args.split(), [], [])] if a.before else [])
             for r in range(a.runs):
                 out = os.path.join(tmp, "t.exr")
                 # The two builds swap places every run: whichever follows a peer's render (whose
                 # threads may still be winding down) is not always the same one.
-                for binary, times, errs in (builds if r % 2 == 0 else builds[::-1]):
+                for binary, extra, times, errs in (builds if r % 2 == 0 else builds[::-1]):
                     p = subprocess.run([binary, "render", os.path.join(mr.ROOT, rel), "-o", out, "--spp", str(a.spp),
                                         "--width", str(w), "--height", str(h), "--seed", str(r), *env_args,
-                                        *a.tessera_args.split()], check=True, stderr=subprocess.PIPE, text=True)
+                                        *a.tessera_args.split(), *extra], check=True, stderr=subprocess.PIPE, text=True)
                     times.append(float(p.stderr.split(" in ")[1].split("s ")[0]))
                     errs.append(rel_mse(np.array(mi.Bitmap(out), dtype=np.float64)[:, :, :3], ref))
                 for variant, scene, ptimes, perrs in peers:
@@ -204,17 +210,17 @@ def main():
             # expectation, which the mean estimates without bias and a median of few runs
             # underestimates wherever the tail is long.
             rows = [(label, statistics.median(t), statistics.median(e), statistics.fmean(e), min(e), max(e))
-                    for label, (_, t, e) in zip(["tessera", "tessera before"], builds)]
+                    for label, (_, _x, t, e) in zip(["tessera", "tessera before"], builds)]
             rows += [(f"mitsuba {v}", statistics.median(t), statistics.median(e), statistics.fmean(e), min(e), max(e))
                      for v, _, t, e in peers]
             # Each renderer's time in every run, for ratios paired run by run: a run's renders
             # follow one another within seconds, so a slow spell of a shared machine falls on
             # both sides of a pair, where it can fall on one side only of the ratio of medians.
-            run_times[name] = {label: list(t) for label, (_, t, _e) in zip(["tessera", "tessera before"], builds)}
+            run_times[name] = {label: list(t) for label, (_, _x, t, _e) in zip(["tessera", "tessera before"], builds)}
             run_times[name].update({f"mitsuba {v}": list(t) for v, _, t, _e in peers})
             # Each peer's efficiency over Tessera's run by run, from each run's own time and net
             # error on both sides: a heavy-tailed relMSE spreads these wide where fireflies are.
-            _, ours_t, ours_e = builds[0]
+            _, _x, ours_t, ours_e = builds[0]
             run_efficiency[name] = {
                 f"mitsuba {v}": [(t * net_rel_mse(e, own)) / (pt * net_rel_mse(pe, own))
                                  for t, e, pt, pe in zip(ours_t, ours_e, ptimes, perrs)]

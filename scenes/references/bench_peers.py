@@ -37,6 +37,7 @@ ratio run by run ("runs a–b": each run's own time and net relMSE on both sides
 run's answer can stray where fireflies make the relMSE heavy-tailed.
 """
 import argparse
+import collections
 import os
 import statistics
 import subprocess
@@ -62,6 +63,9 @@ def reference_own_rel_mse(ref_rgb, variance):
     y = ref_rgb @ np.array([0.2126, 0.7152, 0.0722])
     own = variance / (y * y + 1e-2)
     return float(np.mean(np.where(np.isfinite(own), own, 0.0)))
+
+
+Build = collections.namedtuple("Build", "label binary extra times errs")
 
 
 def net_rel_mse(e, own):
@@ -188,17 +192,20 @@ def main():
                     peers.append((variant, scene, [], []))
                 except Exception as e:  # a missing libLLVM says so and the others still run
                     print(f"{name}: {variant} unavailable: {e}", file=sys.stderr)
-            builds = [(TESSERA, [], [], [])] + ([(a.before, a.before_args.split(), [], [])] if a.before else [])
+            # Each Tessera build's row label, binary, extra flags, and its times and errors run by run.
+            builds = [Build("tessera", TESSERA, [], [], [])]
+            if a.before:
+                builds.append(Build("tessera before", a.before, a.before_args.split(), [], []))
             for r in range(a.runs):
                 out = os.path.join(tmp, "t.exr")
                 # The two builds swap places every run: whichever follows a peer's render (whose
                 # threads may still be winding down) is not always the same one.
-                for binary, extra, times, errs in (builds if r % 2 == 0 else builds[::-1]):
-                    p = subprocess.run([binary, "render", os.path.join(mr.ROOT, rel), "-o", out, "--spp", str(a.spp),
+                for b in (builds if r % 2 == 0 else builds[::-1]):
+                    p = subprocess.run([b.binary, "render", os.path.join(mr.ROOT, rel), "-o", out, "--spp", str(a.spp),
                                         "--width", str(w), "--height", str(h), "--seed", str(r), *env_args,
-                                        *a.tessera_args.split(), *extra], check=True, stderr=subprocess.PIPE, text=True)
-                    times.append(float(p.stderr.split(" in ")[1].split("s ")[0]))
-                    errs.append(rel_mse(np.array(mi.Bitmap(out), dtype=np.float64)[:, :, :3], ref))
+                                        *a.tessera_args.split(), *b.extra], check=True, stderr=subprocess.PIPE, text=True)
+                    b.times.append(float(p.stderr.split(" in ")[1].split("s ")[0]))
+                    b.errs.append(rel_mse(np.array(mi.Bitmap(out), dtype=np.float64)[:, :, :3], ref))
                 for variant, scene, ptimes, perrs in peers:
                     mi.set_variant(variant)
                     img, seconds = peer_render(scene, 1000 + r)
@@ -209,21 +216,20 @@ def main():
             # or two can double it), and what equal error in equal time asks about is its
             # expectation, which the mean estimates without bias and a median of few runs
             # underestimates wherever the tail is long.
-            rows = [(label, statistics.median(t), statistics.median(e), statistics.fmean(e), min(e), max(e))
-                    for label, (_, _x, t, e) in zip(["tessera", "tessera before"], builds)]
+            rows = [(b.label, statistics.median(b.times), statistics.median(b.errs), statistics.fmean(b.errs),
+                     min(b.errs), max(b.errs)) for b in builds]
             rows += [(f"mitsuba {v}", statistics.median(t), statistics.median(e), statistics.fmean(e), min(e), max(e))
                      for v, _, t, e in peers]
             # Each renderer's time in every run, for ratios paired run by run: a run's renders
             # follow one another within seconds, so a slow spell of a shared machine falls on
             # both sides of a pair, where it can fall on one side only of the ratio of medians.
-            run_times[name] = {label: list(t) for label, (_, _x, t, _e) in zip(["tessera", "tessera before"], builds)}
+            run_times[name] = {b.label: list(b.times) for b in builds}
             run_times[name].update({f"mitsuba {v}": list(t) for v, _, t, _e in peers})
             # Each peer's efficiency over Tessera's run by run, from each run's own time and net
             # error on both sides: a heavy-tailed relMSE spreads these wide where fireflies are.
-            _, _x, ours_t, ours_e = builds[0]
             run_efficiency[name] = {
                 f"mitsuba {v}": [(t * net_rel_mse(e, own)) / (pt * net_rel_mse(pe, own))
-                                 for t, e, pt, pe in zip(ours_t, ours_e, ptimes, perrs)]
+                                 for t, e, pt, pe in zip(builds[0].times, builds[0].errs, ptimes, perrs)]
                 for v, _, ptimes, perrs in peers}
             del peers
         # Efficiency from the relMSE less the reference's own (`net_rel_mse`) and, raw, as measured.

@@ -728,7 +728,7 @@ pub const FAST_CANDIDATE_UP_TO: usize = 1 << 21;
 /// over the nodes, of their area ratios (a node test each) and, over the leaf children, of theirs
 /// (a leaf's triangles are tested eight at a time: one window each, whatever its count up to three).
 /// A node test and a window are weighed alike: about 108 and 90 instructions on the suite's scenes
-/// (ARCHITECTURE.md, "Where the gap to Mitsuba lies on Zen 5"). A BVH without nodes costs 0.
+/// (docs/performance-journal.md, "Where the gap to Mitsuba lies on Zen 5"). A BVH without nodes costs 0.
 pub fn sah_cost(bvh: &CwBvh) -> f64 {
     fn area(b: obvhs::aabb::Aabb) -> f64 {
         let e = (b.max - b.min).max(Vec3A::ZERO);
@@ -1111,7 +1111,7 @@ impl Accel {
     /// other node is visited in the order the full walk visits it, so where the full walk meets
     /// nothing of the solid, the hit is the same bits, ties included. Rays leaving a glass
     /// sphere started inside its boxes and cost 1 282 instructions each against 500 for the
-    /// scene's other rays (ARCHITECTURE.md, eighteenth round). Unmarked, it is the full walk.
+    /// scene's other rays (docs/performance-journal.md, eighteenth round). Unmarked, it is the full walk.
     pub fn intersect_leaving(&self, o: Vec3, d: Vec3, solid: u32) -> Option<Hit> {
         if self.solid_of_node.is_empty() {
             return self.intersect(o, d, f32::INFINITY);
@@ -1956,7 +1956,7 @@ impl Accel {
     /// (Cornell: 1.45 nodes and 1.36 triangle blocks, 534 instructions), and the calls from the
     /// kernel down to each walk cost some 80 instructions more a ray (the scene's and the
     /// BVH's checks, a call with its frame and saved registers each). Here they are paid once
-    /// for all the rays (ARCHITECTURE.md, twenty-second round).
+    /// for all the rays (docs/performance-journal.md, twenty-second round).
     pub fn intersect_lanes(&self, o: &[Vec3], d: &[Vec3], out: &mut [Option<Hit>]) {
         let n = o.len().min(d.len()).min(out.len());
         self.intersect_lanes_of(&o[..n], &d[..n], 0..n, &mut out[..n]);
@@ -1965,7 +1965,7 @@ impl Accel {
     /// [`Self::intersect_lanes`] for the rays whose bits are set in `lanes` (bit k: ray k, below
     /// `o.len()` and the other slices' lengths), into their entries of `out`; the other entries
     /// are not touched. For the SPMD kernel, whose rays stay in their lanes rather than being
-    /// packed into a batch and unpacked again (ARCHITECTURE.md, thirty-third round).
+    /// packed into a batch and unpacked again (docs/performance-journal.md, thirty-third round).
     pub fn intersect_lanes_where(&self, o: &[Vec3], d: &[Vec3], lanes: u32, out: &mut [Option<Hit>]) {
         let n = o.len().min(d.len()).min(out.len()).min(32);
         self.intersect_lanes_of(o, d, bits_of(lanes & low_bits(n)), out);

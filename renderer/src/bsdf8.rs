@@ -382,7 +382,7 @@ impl Glass8 {
     /// the lanes `lanes` are read (the caller's glass lanes; the others' answers are meaningless):
     /// where none of them is rough, the rough sample is not computed, and where none is smooth,
     /// the smooth one (a scene's other surfaces left the rough path running wherever one glass
-    /// lane was smooth: ARCHITECTURE.md, thirty-fourth round).
+    /// lane was smooth: docs/performance-journal.md, thirty-fourth round).
     #[inline(always)]
     pub fn sample(&self, lanes: M8, wo: V8, u_lobe: F8, ux: F8, uy: F8) -> Sample8 {
         let (zero, one) = (F8::zero(), F8::splat(1.0));

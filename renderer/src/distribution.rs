@@ -43,7 +43,7 @@ fn build(func: &[f32]) -> Built {
 /// The guide table's size G for a table of `n` bins (it has G + 1 entries): `n` rounded up to a
 /// power of two, at most 2^20. With a slot per bin, a u's search range is a bin or two wherever
 /// the function is bright (a bright bin spans several slots), which is where samples land; half
-/// as many slots (the size until the fortieth round, ARCHITECTURE.md) left a binary search of a
+/// as many slots (the size until the fortieth round, docs/performance-journal.md) left a binary search of a
 /// few steps, each a dependent load (envlit: 0.950 and 0.975 of the time in two series of
 /// alternating renders, 0.3 % fewer instructions). The guide is 4 bytes a bin beside the
 /// entries' 8.

@@ -22,7 +22,7 @@ use crate::settings::{IntegratorKind, MisHeuristic, RenderSettings};
 /// rendering). pbrt-v4 and Mitsuba play below throughput 1: in a bright scene the paths they kill
 /// there still carry much of the image, and their survivors' boost (up to 1/throughput) was where
 /// our deep paths' noise was. Unbiased whatever the value (survivors are divided by their
-/// survival probability); 1/4 is the measured choice (ARCHITECTURE.md, thirteenth round:
+/// survival probability); 1/4 is the measured choice (docs/performance-journal.md, thirteenth round:
 /// `bench_peers.py --variants none --before <previous build>`). The SPMD kernel uses the same
 /// constant in the same arithmetic.
 pub const RR_THRESHOLD: f32 = 0.25;
@@ -413,7 +413,7 @@ impl Path {
         // The bounce's two 4D sets, drawn before its ray is traced although only the vertex it
         // finds uses them: they do not depend on the hit, and each is a chain of hashes that can
         // then overlap the traversal instead of holding up the shading (Cornell box 3–4 % faster,
-        // same bits; ARCHITECTURE.md). A path that ends at this hit wastes them, so the camera
+        // same bits). A path that ends at this hit wastes them, so the camera
         // ray's, which in an open scene may hit nothing, wait for its hit (`holds_sets`).
         if !self.holds_sets(scene) {
             self.draw_sets(sampler);

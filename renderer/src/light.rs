@@ -537,7 +537,7 @@ impl LightSet {
     /// table: [`AliasTable::sample_eight`]), into `out` lane for lane; false, with nothing
     /// written, where it does not (a tree, uniform choice, no light). For the SPMD kernel, whose
     /// lanes then choose where they lie, not packed into [`Self::select_batch`]'s slices and
-    /// unpacked again (ARCHITECTURE.md, thirty-fourth round).
+    /// unpacked again (docs/performance-journal.md, thirty-fourth round).
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     #[inline(always)]
     pub fn select_by_table_lanes(&self, u: &[f32; 8], out: &mut [(usize, f32); 8]) -> bool {

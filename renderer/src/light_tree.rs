@@ -641,7 +641,7 @@ impl LightTree {
     /// above `u · total` and the slot's share are the same additions, compares and division
     /// lane for lane, so every lane's slot and share are `choose`'s bit for bit. (For the
     /// many-node trees' walks the same at their root cost more than it saved: many_lights
-    /// 85.15 → 87.31 M instructions, ARCHITECTURE.md's thirty-fifth round.)
+    /// 85.15 → 87.31 M instructions, docs/performance-journal.md's thirty-fifth round.)
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma"))]
     #[inline(always)]
     fn root_lanes(&self, p: &[Vec3; 8], n: &[Vec3; 8], u: &[f32; 8]) -> RootLanes {

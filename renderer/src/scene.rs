@@ -498,7 +498,7 @@ impl Scene {
     /// texture or the vertex colour, so the two are the same bits
     /// (`base_coloured_bsdf_is_the_materials_own`), without `Material::bsdf`'s clamps, roughness
     /// mapping and F0 division at every hit (`BoxTextured.glb`: 2.1 % fewer instructions a
-    /// render; ARCHITECTURE.md, thirty-second round).
+    /// render; docs/performance-journal.md, thirty-second round).
     #[inline]
     pub fn bsdf_at(
         &self,
@@ -737,7 +737,7 @@ impl Scene {
     /// `from[k]`, k below 32 and every slice's length), into their entries of `out`. A ray inside
     /// a glass solid or leaving one is answered as `intersect_surface` answers it; the others'
     /// walks go one after another in one call ([`Accel::intersect_lanes_where`]): on a small
-    /// BVH a call and a walk's setup cost more than most walks' own work (ARCHITECTURE.md,
+    /// BVH a call and a walk's setup cost more than most walks' own work (docs/performance-journal.md,
     /// thirty-third and thirty-fourth rounds).
     #[inline(always)]
     pub fn intersect_lanes_where(&self, o: &[Vec3], d: &[Vec3], from: &[u32], lanes: u32, out: &mut [Option<Hit>]) {

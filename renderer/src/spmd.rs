@@ -679,7 +679,7 @@ pub const STREAM: usize = 256;
 /// vertices on surfaces it does not shade to the scalar path (`shade_handed_lanes`); the caller
 /// takes it where the scene's [`LaneTable::hit_detail`] says so. Without it, it is the kernel as
 /// it was before that code existed, which every scene of the benchmark suite runs
-/// (ARCHITECTURE.md, thirty-first round: +0.7 % instructions on cornell remain).
+/// (docs/performance-journal.md, thirty-first round: +0.7 % instructions on cornell remain).
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[allow(clippy::too_many_arguments)]
 pub fn radiance8<const DETAIL: bool>(

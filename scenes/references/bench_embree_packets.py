@@ -18,7 +18,7 @@ figure, and `bench_mitsuba_rays.py` times Mitsuba's wavefront, which adds Dr.Jit
 Embree alone. On rays this incoherent, Embree's packets of 8 run its hybrid kernel's one-ray walk
 (`perf` shows `BVHNIntersectorKHybrid::intersect1`), so the packet-of-8 column is Embree's one-ray
 walk without `rtcIntersect1`'s per-call cost: the figure for Tessera's own one-ray walk to meet
-(ARCHITECTURE.md, ninth round).
+(docs/performance-journal.md, ninth round).
 """
 import argparse
 import os

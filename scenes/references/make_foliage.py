@@ -9,7 +9,7 @@ that the two modes render the same image), or OPAQUE with `--opaque` (every quad
     python3 scenes/references/make_foliage.py --leaves 3000 -o /tmp/foliage.gltf
     tessera render /tmp/foliage.gltf --width 128 --height 96 --spp 256 --threads 1
 
-(ARCHITECTURE.md, thirty-ninth round, quotes renders of 3 000 and 40 000 leaves.)
+(docs/performance-journal.md, thirty-ninth round, quotes renders of 3 000 and 40 000 leaves.)
 """
 import argparse
 import base64

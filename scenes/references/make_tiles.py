@@ -3,7 +3,7 @@
 
     python3 scenes/references/make_tiles.py OUT.gltf [--grid 100] [--tilt 0.0]
 
-The scene `accel::tests::floor_and_tiles` builds in memory (ARCHITECTURE.md, thirtieth round): a
+The scene `accel::tests::floor_and_tiles` builds in memory (docs/performance-journal.md, thirtieth round): a
 20 × 20 floor of two triangles facing up, and `grid`² tiles, each two triangles facing down, at
 height 3 + tilt·((7i + 3j) mod 5). It is the shape of scene (a ground under many small objects)
 where obvhs' medium PLOC build makes a poor tree and another build's is clearly cheaper by the

@@ -201,7 +201,7 @@ def main():
     ap.add_argument("scenes", nargs="*", default=list(mr.SCENES))
     a = ap.parse_args()
     # Whether the user asked for other Tessera settings (the flags below are added to these).
-    a.tessera_args_given = a.tessera_args.strip() != ""
+    own_tessera_args = a.tessera_args.strip() != ""
     if a.equal_strategy:
         if any(arg.split("=")[0] == "--light-sampler" for arg in a.tessera_args.split()):
             ap.error("--equal-strategy sets Tessera's --light-sampler itself")
@@ -246,11 +246,11 @@ def main():
     if unknown:
         ap.error(f"unknown Mitsuba variant(s) {unknown} (this Mitsuba has {mi.variants()}); "
                  f"scenes are {sorted(mr.SCENES)}")
-    print(f"host: {host_description()}", file=sys.stderr)
+    host = host_description()
+    print(f"host: {host}", file=sys.stderr)
     summary = []
-    run_times = {}
-    run_efficiency = {}
-    run_pairs = {}
+    # Per scene: the reference's own relMSE share, and each renderer's (time, relMSE) run by run.
+    runs = {}
     for name in a.scenes:
         rel, w, h = mr.SCENES[name]
         mi.set_variant("scalar_rgb")
@@ -306,21 +306,13 @@ def main():
                      min(b.errs), max(b.errs)) for b in builds]
             rows += [(f"mitsuba {v}", statistics.median(t), statistics.median(e), statistics.fmean(e), min(e), max(e))
                      for v, _, t, e in peers]
-            # Each renderer's time in every run, for ratios paired run by run: a run's renders
-            # follow one another within seconds, so a slow spell of a shared machine falls on
-            # both sides of a pair, where it can fall on one side only of the ratio of medians.
-            run_times[name] = {b.label: list(b.times) for b in builds}
-            run_times[name].update({f"mitsuba {v}": list(t) for v, _, t, _e in peers})
-            # Each side's (time, relMSE) run by run, and the reference's own share, for the goals'
-            # bootstrap intervals.
-            run_pairs[name] = (own, list(zip(builds[0].times, builds[0].errs)),
-                               {f"mitsuba {v}": list(zip(ptimes, perrs)) for v, _, ptimes, perrs in peers})
-            # Each peer's efficiency over Tessera's run by run, from each run's own time and net
-            # error on both sides: a heavy-tailed relMSE spreads these wide where fireflies are.
-            run_efficiency[name] = {
-                f"mitsuba {v}": [(t * net_rel_mse(e, own)) / (pt * net_rel_mse(pe, own))
-                                 for t, e, pt, pe in zip(builds[0].times, builds[0].errs, ptimes, perrs)]
-                for v, _, ptimes, perrs in peers}
+            # Each renderer's (time, relMSE) in every run, for the figures paired run by run: a
+            # run's renders follow one another within seconds, so a slow spell of a shared machine
+            # falls on both sides of a pair, where it can fall on one side only of the ratio of
+            # medians.
+            by_label = {b.label: list(zip(b.times, b.errs)) for b in builds}
+            by_label.update({f"mitsuba {v}": list(zip(t, e)) for v, _, t, e in peers})
+            runs[name] = (own, by_label)
             del peers
         # Efficiency from the relMSE less the reference's own (`net_rel_mse`) and, raw, as measured.
         def net(e):
@@ -352,12 +344,20 @@ def main():
           "runs' range; runs: the range of the efficiency ratio run by run (each run's own time and "
           "error on both sides), how far one run's answer can stray")
 
-    print(f"host: {host_description()}")
+    print(f"host: {host}")
 
     def paired(name, label):
         # The same spp and size on both sides, so a time ratio is the paths/s ratio.
-        ratios = [b / t for t, b in zip(run_times[name]["tessera"], run_times[name][label])]
+        _, by_label = runs[name]
+        ratios = [pt / t for (t, _), (pt, _) in zip(by_label["tessera"], by_label[label])]
         return statistics.median(ratios), min(ratios), max(ratios)
+
+    def efficiency_by_run(name, label):
+        # The peer's efficiency over Tessera's run by run, from each run's own time and net error
+        # on both sides: a heavy-tailed relMSE spreads these wide where fireflies are.
+        own, by_label = runs[name]
+        return [(t * net_rel_mse(e, own)) / (pt * net_rel_mse(pe, own))
+                for (t, e), (pt, pe) in zip(by_label["tessera"], by_label[label])]
     goals = []
     for name in a.scenes:
         mine = [s for s in summary if s[0] == name and s[1] == "tessera"]
@@ -370,7 +370,8 @@ def main():
                     then = (f"   (before: paths/s ratio {before[0][3] / s[3]:.2f}, peer efficiency ratio "
                             f"{s[5] / before[0][5]:.2f}, by mean errors {s[7] / before[0][7]:.2f})")
                 pm, lo, hi = paired(name, s[1])
-                elo, ehi = min(run_efficiency[name][s[1]]), max(run_efficiency[name][s[1]])
+                by_run = efficiency_by_run(name, s[1])
+                elo, ehi = min(by_run), max(by_run)
                 if before:
                     bm, blo, bhi = paired(name, "tessera before")
                     then += f"   (this build over the one before, paired: {bm:.2f}, {blo:.2f}–{bhi:.2f})"
@@ -379,15 +380,19 @@ def main():
                       f"raw {s[6]:>6.2f}   "
                       f"by mean errors {s[7]:>6.2f}{then}")
                 if s[1] == "mitsuba llvm_ad_rgb":
-                    own_share, ours, peer = run_pairs[name]
-                    paths_ci, efficiency_ci = goal_interval(ours, peer[s[1]], own_share)
-                    goals.append((name, pm, paths_ci, s[7], efficiency_ci))
+                    # The figures (the summary line's paired and by-mean-errors ones) and their
+                    # intervals from one function.
+                    own_share, by_label = runs[name]
+                    ours, peer = by_label["tessera"], by_label[s[1]]
+                    paths, efficiency = goal_ratios(ours, peer, own_share)
+                    paths_ci, efficiency_ci = goal_interval(ours, peer, own_share)
+                    goals.append((name, paths, paths_ci, efficiency, efficiency_ci))
     if goals:
         lines, met_all, clear_all = goal_verdicts(goals)
         changed = [f for f, on in (("--equal-strategy", a.equal_strategy), ("--rr-depth", a.rr_depth is not None),
                                    ("--max-depth", a.max_depth is not None),
                                    ("--vector-width", a.vector_width is not None),
-                                   ("--tessera-args", bool(a.tessera_args_given))) if on]
+                                   ("--tessera-args", own_tessera_args)) if on]
         print("\ngoals (issue 15: paths/s paired >= 1, Mitsuba llvm_ad_rgb's efficiency by mean errors <= 0.5; "
               "90 %: bootstrap interval over the runs; 'at the line': the figure meets the goal, the interval "
               "crosses it)"
@@ -396,7 +401,7 @@ def main():
             print(line)
         print(f"every scene met both goals: {'yes' if met_all else 'no'}"
               f"{', some at the line' if met_all and not clear_all else ''} ({len(goals)} scenes, {a.runs} runs, "
-              f"{a.spp} spp; host: {host_description()})")
+              f"{a.spp} spp; host: {host})")
 
 
 if __name__ == "__main__":

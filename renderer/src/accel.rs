@@ -1021,7 +1021,9 @@ impl Accel {
                 continue;
             }
             let Some(&bx) = proto_boxes.get(inst.prototype as usize) else { continue };
-            let (lo, hi) = Mesh::instance_box(inst, bx);
+            // An empty prototype or a placement past the usable range: such a box broke the
+            // builder (it indexed out of bounds: `tests/mutation_fuzz.rs`).
+            let Some((lo, hi)) = Mesh::instance_box(inst, bx) else { continue };
             boxes.push(obvhs::aabb::Aabb { min: lo.into(), max: hi.into() });
             prims.push(TopPrim::Instance {
                 index: k as u32,

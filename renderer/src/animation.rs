@@ -287,6 +287,15 @@ impl Animator {
                 }
             }
         }
+        // A pose that carries an instance past the usable range hides it, as a singular one does.
+        if !self.instance_nodes.is_empty() {
+            let boxes = mesh.prototype_bounds();
+            for inst in mesh.instances.iter_mut().take(self.instance_nodes.len()) {
+                if boxes.get(inst.prototype as usize).is_some_and(|&bx| Mesh::instance_box(inst, bx).is_none()) {
+                    inst.visible = false;
+                }
+            }
+        }
         for p in &self.posed {
             self.apply_posed(p, &pose, mesh);
         }
@@ -361,7 +370,9 @@ impl Animator {
             };
             let out = p.first + i;
             let wp = m.transform_point3(pos[i]);
-            if wp.is_finite() {
+            // A pose that throws a vertex past the usable range keeps its last position (as a
+            // non-finite one does): the BVH and the lights' areas need bounded coordinates.
+            if crate::mesh::is_usable_position(wp) {
                 mesh.positions[out] = wp;
             }
             if !nrm.is_empty() || !tan.is_empty() {

@@ -123,6 +123,10 @@ pub fn load_from_bytes(path: &Path, bytes: &[u8]) -> Result<Scene, SceneError> {
 /// The gltf crate's validation, minus one finding the spec allows: an accessor of a
 /// KHR_draco_mesh_compression primitive has no bufferView (its data is in the Draco stream).
 fn validate(root: gltf::json::Root) -> Result<gltf::Document, gltf::Error> {
+    let holes = validation_holes(&root);
+    if !holes.is_empty() {
+        return Err(gltf::Error::Validation(holes));
+    }
     let draco_accessors: std::collections::HashSet<String> = root
         .meshes
         .iter()
@@ -151,6 +155,65 @@ fn validate(root: gltf::json::Root) -> Result<gltf::Document, gltf::Error> {
         }
         Err(e) => Err(e),
     }
+}
+
+/// What the gltf crate's validation (1.4) does not check, though its accessors rely on it and panic
+/// otherwise: a primitive's accessor indices (its validation hook indexes the POSITION accessor
+/// before anything checks the index) and an animation channel's target (node index and path, which
+/// `Animation::validate` skips), and an image's source. Found by `tests/mutation_fuzz.rs`.
+fn validation_holes(root: &gltf::json::Root) -> Vec<(gltf::json::Path, gltf::json::validation::Error)> {
+    use gltf::json::validation::{Checked, Error};
+    use gltf::json::Path;
+    let mut holes = Vec::new();
+    let accessors = root.accessors.len();
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (p, prim) in mesh.primitives.iter().enumerate() {
+            let at = || Path::new().field("meshes").index(m).field("primitives").index(p);
+            for (semantic, index) in &prim.attributes {
+                if index.value() >= accessors {
+                    let name = match semantic {
+                        Checked::Valid(s) => s.to_string(),
+                        Checked::Invalid => "?".to_string(),
+                    };
+                    holes.push((at().field("attributes").key(&name), Error::IndexOutOfBounds));
+                }
+            }
+            if prim.indices.as_ref().is_some_and(|i| i.value() >= accessors) {
+                holes.push((at().field("indices"), Error::IndexOutOfBounds));
+            }
+            for (t, target) in prim.targets.iter().flatten().enumerate() {
+                let fields =
+                    [("POSITION", &target.positions), ("NORMAL", &target.normals), ("TANGENT", &target.tangents)];
+                for (name, index) in fields {
+                    if index.as_ref().is_some_and(|i| i.value() >= accessors) {
+                        holes.push((at().field("targets").index(t).key(name), Error::IndexOutOfBounds));
+                    }
+                }
+            }
+        }
+    }
+    // An image is a URI or a buffer view with its MIME type (glTF 2.0 §5.18); the crate's
+    // `Image::source` unwraps both without its validation having checked either.
+    for (i, image) in root.images.iter().enumerate() {
+        let at = || Path::new().field("images").index(i);
+        match (&image.uri, &image.buffer_view, &image.mime_type) {
+            (None, None, _) => holes.push((at().field("uri"), Error::Missing)),
+            (_, Some(_), None) => holes.push((at().field("mimeType"), Error::Missing)),
+            _ => {}
+        }
+    }
+    for (a, animation) in root.animations.iter().enumerate() {
+        for (c, channel) in animation.channels.iter().enumerate() {
+            let at = || Path::new().field("animations").index(a).field("channels").index(c).field("target");
+            if channel.target.node.value() >= root.nodes.len() {
+                holes.push((at().field("node"), Error::IndexOutOfBounds));
+            }
+            if matches!(channel.target.path, Checked::Invalid) {
+                holes.push((at().field("path"), Error::Invalid));
+            }
+        }
+    }
+    holes
 }
 
 /// One component of a vertex attribute as f32 (glTF 2.0 §3.6.2.3, KHR_mesh_quantization):
@@ -643,6 +706,18 @@ impl Loader {
             }
             mesh.drop_flat_normals(first..mesh.triangles.len());
         }
+        // As a world vertex past the usable range is refused above, so is an instance placed there.
+        let proto_boxes = mesh.prototype_bounds();
+        for inst in &mesh.instances {
+            let Some(&bx) = proto_boxes.get(inst.prototype as usize) else { continue };
+            if bx.0.cmple(bx.1).all() && Mesh::instance_box(inst, bx).is_none() {
+                return Err(self.invalid(format!(
+                    "an instance of mesh prototype {} reaches past ±{:e} (or is not finite) once placed by its node transforms",
+                    inst.prototype,
+                    crate::mesh::MAX_COORDINATE
+                )));
+            }
+        }
         if mesh.triangles.len() > MAX_TRIANGLES {
             return Err(self.invalid(format!("{} triangles (the limit is {MAX_TRIANGLES})", mesh.triangles.len())));
         }
@@ -726,10 +801,12 @@ impl Loader {
         let base = mesh.positions.len() as u32;
         let first_world = mesh.positions.len();
         mesh.positions.extend(positions.iter().map(|p| world.transform_point3(Vec3::from(*p))));
-        if let Some(i) = mesh.positions[first_world..].iter().position(|p| !p.is_finite()) {
+        if let Some(i) = mesh.positions[first_world..].iter().position(|&p| !crate::mesh::is_usable_position(p)) {
             return Err(self.invalid(format!(
-                "{what}: vertex {i} {:?} is not finite once placed by its node transforms (overflow)",
-                positions[i]
+                "{what}: vertex {i} {:?} is at {}: not finite once placed by its node transforms, or past ±{:e}",
+                positions[i],
+                mesh.positions[first_world + i],
+                crate::mesh::MAX_COORDINATE
             )));
         }
         // Vertex attributes other than POSITION are stored only once some primitive has them
@@ -828,10 +905,13 @@ impl Loader {
         let n = positions.len();
         // A NaN or infinite vertex would poison the BVH bounds and every ray near it: refuse it,
         // naming where it is (issue 10; the glTF spec requires finite positions).
-        if let Some((i, p)) = positions.iter().enumerate().find(|(_, p)| !p.iter().all(|c| c.is_finite())) {
+        if let Some((i, p)) =
+            positions.iter().enumerate().find(|(_, p)| !crate::mesh::is_usable_position(Vec3::from(**p)))
+        {
             return Err(self.invalid(format!(
-                "{what}: POSITION accessor {} vertex {i} is {p:?}, not a finite position",
-                pos_acc.index()
+                "{what}: POSITION accessor {} vertex {i} is {p:?}, not a finite position within ±{:e}",
+                pos_acc.index(),
+                crate::mesh::MAX_COORDINATE
             )));
         }
         let normals: Option<Vec<[f32; 3]>> = match prim.get(&gltf::Semantic::Normals) {

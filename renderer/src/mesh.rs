@@ -19,6 +19,19 @@ pub mod flags {
     pub const OBJECT_SPACE: u8 = 32;
 }
 
+/// The largest coordinate (in either sign, world or object space) a vertex may have. The renderer's
+/// arithmetic multiplies up to four coordinates together (a triangle's area is the length of a
+/// cross product of edges, the squared length of a product of two): at 10⁹ that is 10³⁶, inside
+/// f32's 3.4·10³⁸, while a vertex at 3·10³⁸ (finite, but past every such product) made the BVH
+/// builder index out of bounds. 10⁹ m is a million kilometres: no scene a camera frames needs
+/// more, and beyond it an f32 position is coarser than 64 m anyway.
+pub const MAX_COORDINATE: f32 = 1e9;
+
+/// True when `p` is finite and within [`MAX_COORDINATE`] on every axis.
+pub fn is_usable_position(p: Vec3) -> bool {
+    p.is_finite() && p.abs().max_element() <= MAX_COORDINATE
+}
+
 /// One placement of a prototype (`Mesh::prototypes[prototype]`).
 #[derive(Clone, Copy, Debug)]
 pub struct Instance {
@@ -278,10 +291,12 @@ impl Mesh {
 
     /// World-space box of an instance whose prototype's object box is `(a, b)`: the box around
     /// its 8 transformed corners (conservative, and 8 transforms instead of one per vertex).
-    pub fn instance_box(inst: &Instance, (a, b): (Vec3, Vec3)) -> (Vec3, Vec3) {
+    /// None when the prototype is empty (an inverted box) or the placement reaches past
+    /// [`MAX_COORDINATE`]: such an instance has nothing a ray can hit, and is not traced.
+    pub fn instance_box(inst: &Instance, (a, b): (Vec3, Vec3)) -> Option<(Vec3, Vec3)> {
         let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-        if a.x > b.x {
-            return (lo, hi);
+        if !(a.cmple(b).all()) {
+            return None;
         }
         for k in 0..8 {
             let c = Vec3::new(
@@ -293,7 +308,7 @@ impl Mesh {
             lo = lo.min(w);
             hi = hi.max(w);
         }
-        (lo, hi)
+        (is_usable_position(lo) && is_usable_position(hi)).then_some((lo, hi))
     }
 
     /// World-space bounds of everything: world triangles and every instance.
@@ -311,7 +326,7 @@ impl Mesh {
         let boxes = self.prototype_bounds();
         for inst in self.instances.iter().filter(|i| i.visible) {
             let Some(&bx) = boxes.get(inst.prototype as usize) else { continue };
-            let (a, b) = Self::instance_box(inst, bx);
+            let Some((a, b)) = Self::instance_box(inst, bx) else { continue };
             lo = lo.min(a);
             hi = hi.max(b);
         }

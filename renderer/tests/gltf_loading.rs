@@ -252,6 +252,52 @@ fn non_finite_vertices_are_refused_naming_mesh_accessor_and_vertex() {
     assert!(e.contains("not finite once placed"), "{e}");
 }
 
+/// Findings of `tests/mutation_fuzz.rs`, each of which panicked: references the gltf crate's
+/// validation leaves unchecked, and geometry finite but too far out for the BVH builder.
+#[test]
+fn references_the_gltf_crate_leaves_unchecked_and_far_out_geometry_get_errors() {
+    let one = r#"[{"mesh":0}]"#;
+    // A primitive's POSITION accessor out of range (the crate's validation hook indexed it).
+    expect_err(&gltf_json(one, "", true).replace(r#""POSITION":0"#, r#""POSITION":7"#), "POSITION");
+    // Indices out of range.
+    expect_err(&gltf_json(one, "", true).replace(r#""indices":1"#, r#""indices":9"#), "indices");
+    // An animation channel aimed at a node that does not exist, or at no known property.
+    let anim = |node: u32, path: &str| {
+        format!(
+            r#","animations":[{{"channels":[{{"sampler":0,"target":{{"node":{node},"path":"{path}"}}}}],
+            "samplers":[{{"input":1,"output":0}}]}}]"#
+        )
+    };
+    expect_err(&gltf_json(one, &anim(5, "translation"), true), "animations[0].channels[0].target.node");
+    expect_err(&gltf_json(one, &anim(0, "MAT4"), true), "animations[0].channels[0].target.path");
+    // An image with no source, and one in a buffer view with no MIME type.
+    expect_err(&gltf_json(one, r#","images":[{}]"#, true), "images[0].uri");
+    expect_err(&gltf_json(one, r#","images":[{"bufferView":0}]"#, true), "images[0].mimeType");
+    // A vertex finite but far past any scene (3e38 made the BVH builder index out of bounds).
+    let json = gltf_json_with([[0.0, 0.0, 0.0], [1.0, 3e38, 0.0], [0.0, 1.0, 0.0]], one, "", true);
+    expect_err(&json, "POSITION accessor 0 vertex 1");
+    let e = load_str(&gltf_json(one.replace("0}", r#"0,"translation":[0,2e9,0]}"#).as_str(), "", true))
+        .err()
+        .expect("a vertex placed past the limit is refused")
+        .to_string();
+    assert!(e.contains("past ±1e9"), "{e}");
+    // The same mesh placed twice (an instanced prototype: it does not emit), once far out:
+    // refused by name.
+    let dark =
+        |nodes: &str| gltf_json(nodes, "", true).replace(r#""emissiveFactor":[1,1,1]"#, r#""emissiveFactor":[0,0,0]"#);
+    let twice = r#"[{"mesh":0,"children":[1]},{"mesh":0,"translation":[0,0,5e9]}]"#;
+    expect_err(&dark(twice), "an instance of mesh prototype 0 reaches past");
+    // Placed twice with no triangles (two indices: no whole triangle): an empty prototype, whose
+    // inverted box broke the top-level build. It loads, and renders black.
+    let empty = dark(r#"[{"mesh":0,"children":[1]},{"mesh":0,"translation":[0,0,5]}]"#)
+        .replace(r#""componentType":5125,"count":3"#, r#""componentType":5125,"count":2"#);
+    let scene = load_str(&empty).expect("an empty instanced mesh loads");
+    assert_eq!((scene.mesh.instances.len(), scene.mesh.triangles.len()), (2, 0));
+    let settings = renderer::RenderSettings { width: 4, height: 4, spp: 1, ..Default::default() };
+    let r = renderer::render::render(&scene, &settings, &renderer::render::Counters::default());
+    assert!((0..16).all(|i| r.image.mean(i) == [0.0; 3]));
+}
+
 /// Issue 12's policy: an unmodelled extension the file *requires* is refused by name; one it only
 /// *uses* renders without it and is named in `Scene::warnings` (and from there in the CLI output,
 /// the EXR header and the REST job). KHR_texture_transform is modelled (Blender writes it as

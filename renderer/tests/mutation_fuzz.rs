@@ -1,0 +1,419 @@
+//! Mutation fuzzing of the glTF loader and the render behind it: the repository's scenes, each
+//! changed in one place (a number set to an extreme, a value of the wrong type, a key or an array
+//! entry removed, an enum swapped, bytes of a buffer overwritten), must load or fail with an
+//! error, never panic; what loads must render a small image (both the scalar path and the
+//! eight-lane kernel, animated scenes at a later frame too) to finite values, never panic.
+//!
+//! The mutations are a function of the case number, so a failure names the case that reproduces
+//! it: `TESSERA_FUZZ_CASE=N cargo test --release -p tessera-renderer --test mutation_fuzz`.
+//! `TESSERA_FUZZ_CASES` sets how many cases run (default 240: a few seconds).
+
+use base64::Engine;
+use renderer::gltf_loader::load_from_bytes;
+use renderer::render::{render, Counters};
+use renderer::settings::IntegratorKind;
+use renderer::RenderSettings;
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// The scenes mutated: self-contained files (data URIs or GLB), covering meshes, textures,
+/// KHR material extensions from Blender, punctual lights, cameras, skins and animation.
+const CORPUS: &[&str] = &[
+    "scenes/cornell/cornell.gltf",
+    "scenes/cornell/cornell.glb",
+    "scenes/glass_absorb/glass_absorb.gltf",
+    "scenes/envlit/envlit.gltf",
+    "scenes/animation/moving_light.gltf",
+    "scenes/animation/rig.glb",
+    "scenes/blender/lights.glb",
+    "scenes/blender/materials.glb",
+    "scenes/khronos/Box.glb",
+    "scenes/khronos/BoxTextured.glb",
+];
+
+/// SplitMix64 (Steele, Lea and Flood 2014): the case's random choices.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+
+    fn below(&mut self, n: usize) -> usize {
+        (self.next() % n.max(1) as u64) as usize
+    }
+}
+
+/// A GLB split into its JSON and its binary chunk.
+struct Glb {
+    json: Value,
+    bin: Option<Vec<u8>>,
+}
+
+fn parse_glb(bytes: &[u8]) -> Glb {
+    let u32_at = |o: usize| u32::from_le_bytes([bytes[o], bytes[o + 1], bytes[o + 2], bytes[o + 3]]) as usize;
+    assert_eq!(&bytes[..4], b"glTF", "the corpus's GLB files are GLB");
+    let json_len = u32_at(12);
+    let json = serde_json::from_slice(&bytes[20..20 + json_len]).expect("the corpus's JSON parses");
+    let at = 20 + json_len;
+    let bin = (at + 8 <= bytes.len()).then(|| bytes[at + 8..at + 8 + u32_at(at)].to_vec());
+    Glb { json, bin }
+}
+
+fn write_glb(glb: &Glb) -> Vec<u8> {
+    let mut json = serde_json::to_vec(&glb.json).expect("JSON serialises");
+    while !json.len().is_multiple_of(4) {
+        json.push(b' ');
+    }
+    let mut out = Vec::new();
+    out.extend_from_slice(b"glTF");
+    out.extend_from_slice(&2u32.to_le_bytes());
+    out.extend_from_slice(&0u32.to_le_bytes()); // total length, set below
+    out.extend_from_slice(&(json.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"JSON");
+    out.extend_from_slice(&json);
+    if let Some(bin) = &glb.bin {
+        let mut bin = bin.clone();
+        while !bin.len().is_multiple_of(4) {
+            bin.push(0);
+        }
+        out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
+        out.extend_from_slice(b"BIN\0");
+        out.extend_from_slice(&bin);
+    }
+    let total = out.len() as u32;
+    out[8..12].copy_from_slice(&total.to_le_bytes());
+    out
+}
+
+/// Every path to a value in `v` (object keys and array indices), depth first.
+fn paths(v: &Value, prefix: &mut Vec<PathStep>, out: &mut Vec<Vec<PathStep>>) {
+    out.push(prefix.clone());
+    match v {
+        Value::Object(m) => {
+            for (k, c) in m {
+                prefix.push(PathStep::Key(k.clone()));
+                paths(c, prefix, out);
+                prefix.pop();
+            }
+        }
+        Value::Array(a) => {
+            for (i, c) in a.iter().enumerate() {
+                prefix.push(PathStep::Index(i));
+                paths(c, prefix, out);
+                prefix.pop();
+            }
+        }
+        _ => {}
+    }
+}
+
+#[derive(Clone, Debug)]
+enum PathStep {
+    Key(String),
+    Index(usize),
+}
+
+fn at_mut<'a>(v: &'a mut Value, path: &[PathStep]) -> &'a mut Value {
+    path.iter().fold(v, |v, s| match s {
+        PathStep::Key(k) => &mut v[k.as_str()],
+        PathStep::Index(i) => &mut v[*i],
+    })
+}
+
+const EXTREMES: &[f64] = &[
+    0.0,
+    -1.0,
+    1.0,
+    2.0,
+    3.0,
+    7.0,
+    255.0,
+    65535.0,
+    65536.0,
+    2147483647.0,
+    4294967295.0,
+    4294967296.0,
+    1e12,
+    -1e12,
+    1e30,
+    3.4e38,
+    -3.4e38,
+    1e-40,
+    0.5,
+    -0.5,
+    1.5,
+];
+
+const WORDS: &[&str] = &[
+    "SCALAR",
+    "VEC2",
+    "VEC3",
+    "VEC4",
+    "MAT2",
+    "MAT4",
+    "MASK",
+    "BLEND",
+    "OPAQUE",
+    "STEP",
+    "LINEAR",
+    "CUBICSPLINE",
+    "translation",
+    "rotation",
+    "scale",
+    "weights",
+    "spot",
+    "point",
+    "directional",
+    "orthographic",
+    "perspective",
+    "",
+];
+
+/// One mutation of the JSON; returns what it did.
+fn mutate_json(json: &mut Value, rng: &mut Rng) -> String {
+    let mut all = Vec::new();
+    paths(json, &mut Vec::new(), &mut all);
+    // Skip the root and the data URIs' long strings (a changed base64 payload is a bytes mutation).
+    let path = all[1 + rng.below(all.len() - 1)].clone();
+    let target = at_mut(json, &path);
+    let what = match rng.below(10) {
+        0..=3 if target.is_number() || rng.below(3) == 0 => {
+            let x = EXTREMES[rng.below(EXTREMES.len())];
+            *target = serde_json::Number::from_f64(x).map_or(Value::Null, Value::Number);
+            if x.fract() == 0.0 && x.abs() < 9e15 {
+                *target = Value::from(x as i64);
+            }
+            format!("= {x}")
+        }
+        4 => {
+            let (v, name) = match rng.below(5) {
+                0 => (Value::Null, "null"),
+                1 => (Value::from("x"), "\"x\""),
+                2 => (Value::Array(vec![]), "[]"),
+                3 => (Value::Object(Default::default()), "{}"),
+                _ => (Value::from(true), "true"),
+            };
+            *target = v;
+            format!("= {name}")
+        }
+        5 if target.is_string() => {
+            let w = WORDS[rng.below(WORDS.len())];
+            *target = Value::from(w);
+            format!("= \"{w}\"")
+        }
+        6 | 5 => {
+            // Remove this key or array entry from its parent.
+            let Some((last, parent)) = path.split_last() else { return "nothing".into() };
+            match (at_mut(json, parent), last) {
+                (Value::Object(m), PathStep::Key(k)) => {
+                    m.remove(k);
+                }
+                (Value::Array(a), PathStep::Index(i)) => {
+                    a.remove(*i);
+                }
+                _ => {}
+            }
+            "removed".into()
+        }
+        7 => {
+            // Duplicate an array entry (or the value into a one-entry array).
+            match target {
+                Value::Array(a) if !a.is_empty() => {
+                    let i = rng.below(a.len());
+                    let c = a[i].clone();
+                    a.push(c);
+                    "array entry duplicated".into()
+                }
+                _ => {
+                    let c = target.clone();
+                    *target = Value::Array(vec![c]);
+                    "wrapped in an array".into()
+                }
+            }
+        }
+        _ => {
+            // An integer nudged by a small amount (indices one past the end, counts off by one).
+            match target.as_i64() {
+                Some(n) => {
+                    let d = [-1i64, 1, 2, -2, 1000][rng.below(5)];
+                    *target = Value::from(n.saturating_add(d));
+                    format!("{n} + {d}")
+                }
+                None => {
+                    *target = Value::from(-1);
+                    "= -1".into()
+                }
+            }
+        }
+    };
+    format!("{} {what}", path_name(&path))
+}
+
+fn path_name(path: &[PathStep]) -> String {
+    path.iter()
+        .map(|s| match s {
+            PathStep::Key(k) => format!("/{k}"),
+            PathStep::Index(i) => format!("/{i}"),
+        })
+        .collect()
+}
+
+/// Overwrites a few 4-byte words of a buffer with values that break floats and indices.
+fn mutate_bytes(bin: &mut [u8], rng: &mut Rng) -> String {
+    if bin.len() < 4 {
+        return "buffer too short".into();
+    }
+    let words: [u32; 8] = [
+        f32::NAN.to_bits(),
+        f32::INFINITY.to_bits(),
+        f32::NEG_INFINITY.to_bits(),
+        3.0e38f32.to_bits(),
+        1.0e-42f32.to_bits(),
+        0xFFFF_FFFF,
+        0x0000_FFFF,
+        0x8000_0000,
+    ];
+    let n = 1 + rng.below(8);
+    let mut at = Vec::new();
+    for _ in 0..n {
+        let o = rng.below(bin.len() / 4) * 4;
+        let w = words[rng.below(words.len())];
+        bin[o..o + 4].copy_from_slice(&w.to_le_bytes());
+        at.push(format!("{o}={w:#x}"));
+    }
+    format!("buffer words {}", at.join(","))
+}
+
+/// The `.gltf`'s first data-URI buffer, decoded.
+fn data_uri_buffer(json: &Value) -> Option<(usize, Vec<u8>)> {
+    let buffers = json.get("buffers")?.as_array()?;
+    buffers.iter().enumerate().find_map(|(i, b)| {
+        let uri = b.get("uri")?.as_str()?;
+        let comma = uri.find(";base64,")? + 8;
+        Some((i, base64::engine::general_purpose::STANDARD.decode(&uri[comma..]).ok()?))
+    })
+}
+
+/// Case `n`: a scene of the corpus with one or two mutations, as (file name, bytes, description).
+fn case(n: u64) -> (String, Vec<u8>, String) {
+    let mut rng = Rng(n.wrapping_mul(0x2545_f491_4f6c_dd1d) ^ 0x5eed);
+    let file = CORPUS[rng.below(CORPUS.len())];
+    let bytes = std::fs::read(root().join(file)).expect("corpus file");
+    let is_glb = file.ends_with(".glb");
+    let mut glb = if is_glb {
+        parse_glb(&bytes)
+    } else {
+        Glb { json: serde_json::from_slice(&bytes).expect("corpus JSON"), bin: None }
+    };
+    let mut did = Vec::new();
+    for _ in 0..1 + rng.below(2) {
+        if rng.below(4) == 0 {
+            if is_glb {
+                if let Some(bin) = glb.bin.as_mut() {
+                    did.push(mutate_bytes(bin, &mut rng));
+                }
+            } else if let Some((i, mut bin)) = data_uri_buffer(&glb.json) {
+                did.push(mutate_bytes(&mut bin, &mut rng));
+                let uri = format!(
+                    "data:application/octet-stream;base64,{}",
+                    base64::engine::general_purpose::STANDARD.encode(&bin)
+                );
+                glb.json["buffers"][i]["uri"] = Value::from(uri);
+            }
+        } else {
+            did.push(mutate_json(&mut glb.json, &mut rng));
+        }
+    }
+    let out = if is_glb { write_glb(&glb) } else { serde_json::to_vec(&glb.json).expect("JSON serialises") };
+    let name = Path::new(file).file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default();
+    (name, out, format!("{file}: {}", did.join("; ")))
+}
+
+/// Loads and renders case `n`; Err with a description when it panicked or rendered non-finite
+/// values.
+fn run_case(n: u64) -> Result<(), String> {
+    let (name, bytes, what) = case(n);
+    let outcome = std::panic::catch_unwind(|| -> Result<(), String> {
+        let Ok(mut scene) = load_from_bytes(Path::new(&name), &bytes) else { return Ok(()) };
+        for integrator in [IntegratorKind::Mis, IntegratorKind::Nee] {
+            let mut settings =
+                RenderSettings { width: 12, height: 8, spp: 2, pass_spp: 2, integrator, ..Default::default() };
+            for frame in [0u32, 7] {
+                settings.frame = frame;
+                if frame > 0 && !scene.is_animated() {
+                    continue;
+                }
+                if scene.set_frame(&settings, frame).is_err() {
+                    continue;
+                }
+                let r = render(&scene, &settings, &Counters::default());
+                let rect = r.image.rect;
+                for i in 0..rect.pixels() {
+                    let m = r.image.mean(i);
+                    if !m.iter().all(|c| c.is_finite()) {
+                        return Err(format!("pixel {i} is {m:?} ({integrator:?}, frame {frame})"));
+                    }
+                }
+            }
+        }
+        Ok(())
+    });
+    match outcome {
+        Ok(Ok(())) => Ok(()),
+        Ok(Err(e)) => Err(format!("case {n} ({what}): {e}")),
+        Err(p) => {
+            let msg = p
+                .downcast_ref::<String>()
+                .cloned()
+                .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+                .unwrap_or_default();
+            Err(format!("case {n} ({what}): panicked: {msg}"))
+        }
+    }
+}
+
+/// Cases that panicked before their fixes (2026-12-01, 40 000 cases), run every time: a vertex at
+/// 3e38 (266), POSITION and indices accessors out of range (720, 1011), an animation target's
+/// path invalid (860) or node out of range (2706), an empty instanced mesh (7310, 39850), an
+/// image with no source (20885) or no MIME type (38903).
+const FOUND: &[u64] = &[266, 720, 860, 1011, 2706, 7310, 20885, 38903, 39850];
+
+#[test]
+fn mutated_scenes_load_or_fail_cleanly_and_render_finite_images() {
+    let cases: Vec<u64> = match std::env::var("TESSERA_FUZZ_CASE") {
+        Ok(c) => vec![c.parse().expect("TESSERA_FUZZ_CASE is a number")],
+        Err(_) => {
+            let n = std::env::var("TESSERA_FUZZ_CASES").ok().and_then(|s| s.parse().ok()).unwrap_or(240u64);
+            (0..n).chain(FOUND.iter().copied()).collect()
+        }
+    };
+    let failures: Vec<String> = cases.iter().filter_map(|&n| run_case(n).err()).collect();
+    assert!(failures.is_empty(), "{} of {} cases failed:\n{}", failures.len(), cases.len(), failures.join("\n"));
+}
+
+#[test]
+fn the_mutations_change_the_scenes() {
+    // A fuzzer whose mutations were no-ops would pass whatever the loader did.
+    let mut changed = 0;
+    for n in 0..40 {
+        let (name, bytes, _) = case(n);
+        let file = CORPUS.iter().find(|f| f.ends_with(&name)).expect("corpus file");
+        let original = std::fs::read(root().join(file)).expect("corpus file");
+        let reparsed = if name.ends_with(".glb") {
+            write_glb(&parse_glb(&original))
+        } else {
+            serde_json::to_vec(&serde_json::from_slice::<Value>(&original).expect("JSON")).expect("JSON")
+        };
+        changed += usize::from(bytes != reparsed);
+    }
+    assert!(changed >= 36, "only {changed} of 40 cases changed their scene");
+}

@@ -251,8 +251,29 @@ pub fn read_exr(path: &Path) -> std::result::Result<ExrChannels, RenderError> {
     read_exr_bytes(&bytes).map_err(err)
 }
 
+/// The most channels [`read_exr_bytes`] reads (a Tessera EXR has five).
+const MAX_EXR_CHANNELS: usize = 16;
+
 /// [`read_exr`] of a file's bytes.
 pub fn read_exr_bytes(bytes: &[u8]) -> std::result::Result<ExrChannels, String> {
+    // The header's sizes are the file's word: bound them before the reader allocates for them (a
+    // flipped byte in a data window asked for 49 GB, and a failed allocation aborts the process:
+    // `tests/mutation_fuzz.rs`).
+    let meta =
+        exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false).map_err(|e| e.to_string())?;
+    let max_side = crate::settings::MAX_IMAGE_SIDE as usize;
+    for header in &meta.headers {
+        let (w, h) = (header.layer_size.width(), header.layer_size.height());
+        if w > max_side || h > max_side {
+            return Err(format!("a {w}x{h} EXR exceeds the limit of {max_side} per side"));
+        }
+        if header.channels.list.len() > MAX_EXR_CHANNELS {
+            return Err(format!(
+                "the EXR has {} channels (the limit is {MAX_EXR_CHANNELS})",
+                header.channels.list.len()
+            ));
+        }
+    }
     let image = read()
         .no_deep_data()
         .largest_resolution_level()
@@ -272,7 +293,11 @@ pub fn read_exr_bytes(bytes: &[u8]) -> std::result::Result<ExrChannels, String> 
         .list
         .iter()
         .map(|c| (c.name.to_string(), c.sample_data.values_as_f32().collect::<Vec<f32>>()))
-        .collect();
+        .collect::<Vec<_>>();
+    // Every reader indexes the channels by pixel: a subsampled channel (fewer values) is refused.
+    if let Some((name, v)) = channels.iter().find(|(_, v)| v.len() != w * h) {
+        return Err(format!("the EXR's channel {name} holds {} values for {w}x{h} pixels (subsampled?)", v.len()));
+    }
     Ok(ExrChannels { width: w as u32, height: h as u32, channels, tessera })
 }
 

@@ -417,3 +417,129 @@ fn the_mutations_change_the_scenes() {
     }
     assert!(changed >= 36, "only {changed} of 40 cases changed their scene");
 }
+
+/// Small EXRs in each compression `Environment::load` decodes (half floats, so B44 applies), scan
+/// lines and tiles, plus the repository's DWAB map (refused by name unless a mutation makes its
+/// header name another compression).
+fn exr_corpus() -> Vec<(String, Vec<u8>)> {
+    use exr::prelude::*;
+    let mut out = Vec::new();
+    let compressions = [
+        Compression::Uncompressed,
+        Compression::RLE,
+        Compression::ZIP1,
+        Compression::ZIP16,
+        Compression::PIZ,
+        Compression::PXR24,
+        Compression::B44,
+        Compression::B44A,
+    ];
+    for (k, compression) in compressions.into_iter().enumerate() {
+        let (w, h) = (24usize, 10usize);
+        let plane = |c: usize| {
+            FlatSamples::F16((0..w * h).map(|i| f16::from_f32(((i * 7 + c * 13) % 17) as f32 * 0.25)).collect())
+        };
+        let channels = AnyChannels::sort(SmallVec::from_vec(vec![
+            AnyChannel::new("R", plane(0)),
+            AnyChannel::new("G", plane(1)),
+            AnyChannel::new("B", plane(2)),
+        ]));
+        let blocks = if k % 2 == 0 { Blocks::ScanLines } else { Blocks::Tiles(Vec2(8, 4)) };
+        let encoding = Encoding { compression, blocks, line_order: LineOrder::Increasing };
+        let layer = Layer::new((w, h), LayerAttributes::named("fuzz"), encoding, channels);
+        let mut bytes = Vec::new();
+        Image::from_layer(layer)
+            .write()
+            .to_buffered(std::io::Cursor::new(&mut bytes))
+            .expect("the corpus EXR is written");
+        out.push((format!("{compression:?}-{blocks:?}"), bytes));
+    }
+    let dwab = std::fs::read(root().join("scenes/env/sunset-dwab-compressed.exr")).expect("the DWAB map");
+    out.push(("sunset-dwab-compressed.exr".into(), dwab));
+    out
+}
+
+/// Case `n` of the EXR corpus: a few bytes overwritten, mostly in the header (where sizes,
+/// channel lists, compression and the offset table are), sometimes cut short, as (bytes,
+/// description).
+fn exr_case(n: u64, corpus: &[(String, Vec<u8>)]) -> (Vec<u8>, String) {
+    let mut rng = Rng(n.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ 0xe8);
+    let (name, bytes) = &corpus[rng.below(corpus.len())];
+    let mut bytes = bytes.clone();
+    let mut did = Vec::new();
+    for _ in 0..1 + rng.below(4) {
+        let span = if rng.below(4) == 0 { bytes.len() } else { bytes.len().min(600) };
+        let at = rng.below(span);
+        let value: u8 = match rng.below(4) {
+            0 => 0,
+            1 => 0xff,
+            2 => bytes[at] ^ (1 << rng.below(8)),
+            _ => rng.next() as u8,
+        };
+        bytes[at] = value;
+        did.push(format!("{at}={value:#x}"));
+    }
+    if rng.below(8) == 0 {
+        let cut = rng.below(bytes.len());
+        bytes.truncate(cut);
+        did.push(format!("cut at {cut}"));
+    }
+    (bytes, format!("{name}: {}", did.join(",")))
+}
+
+#[test]
+fn mutated_exr_files_load_or_fail_cleanly() {
+    let corpus = exr_corpus();
+    let n: u64 = std::env::var("TESSERA_FUZZ_CASES").ok().and_then(|s| s.parse().ok()).unwrap_or(240);
+    let dir = std::env::temp_dir().join(format!("tessera-exr-fuzz-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let path = dir.join("map.exr");
+    let mut failures = Vec::new();
+    let mut loaded = 0;
+    let cases: Vec<u64> = match std::env::var("TESSERA_FUZZ_CASE") {
+        Ok(c) => vec![c.parse().expect("TESSERA_FUZZ_CASE is a number")],
+        Err(_) => (0..n).chain(FOUND_EXR.iter().copied()).collect(),
+    };
+    for &case in &cases {
+        let (bytes, what) = exr_case(case, &corpus);
+        std::fs::write(&path, &bytes).expect("temp file");
+        let outcome = std::panic::catch_unwind(|| {
+            let env = renderer::environment::Environment::load(&path, 1.0, 0.0, true, true);
+            let back = renderer::image_io::read_exr_bytes(&bytes).is_ok();
+            (env.is_ok(), back)
+        });
+        match outcome {
+            Ok((env, _)) => loaded += usize::from(env),
+            Err(p) => {
+                let msg = p
+                    .downcast_ref::<String>()
+                    .cloned()
+                    .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+                    .unwrap_or_default();
+                failures.push(format!("case {case} ({what}): panicked: {msg}"));
+            }
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(failures.is_empty(), "{} of {} cases failed:\n{}", failures.len(), cases.len(), failures.join("\n"));
+    // Most mutations leave a loadable map (a texel changed): the loader was exercised, not just
+    // refusing everything at the magic number.
+    assert!(cases.len() < 20 || loaded * 10 > cases.len(), "only {loaded} of {} mutated maps loaded", cases.len());
+}
+
+/// EXR cases that failed before their fixes (2026-12-01, 20 000 cases): a data window made
+/// larger by one byte (252; the reader's 49 GB allocation aborted the process).
+const FOUND_EXR: &[u64] = &[252];
+
+/// The EXR finding as a plain test: a header whose data window claims 200 000 × 10 pixels is
+/// refused by name before anything is allocated for it (it aborted the process).
+#[test]
+fn an_exr_claiming_a_huge_data_window_is_refused_before_allocating() {
+    let (_, mut bytes) = exr_corpus().swap_remove(0);
+    let key = b"dataWindow\0box2i\0";
+    let at = bytes.windows(key.len()).position(|w| w == key).expect("a data window") + key.len() + 4;
+    // box2i: x_min, y_min, x_max, y_max.
+    bytes[at + 8..at + 12].copy_from_slice(&199_999i32.to_le_bytes());
+    let e = renderer::image_io::read_exr_bytes(&bytes).err().expect("refused");
+    assert!(e.contains("200000x10") && e.contains("exceeds the limit"), "{e}");
+}

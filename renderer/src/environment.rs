@@ -504,7 +504,9 @@ impl Environment {
 /// Reads R, G, B of an EXR's first layer, refusing compressions the reader cannot decode by name.
 fn read_exr_rgb(path: &Path) -> Result<(usize, usize, Vec<Vec3>), RenderError> {
     let err = |message: String| RenderError::Read { path: path.into(), message };
-    let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| err(e.to_string()))?;
+    let meta =
+        crate::image_io::decoder_guard(|| exr::meta::MetaData::read_from_file(path, false).map_err(|e| e.to_string()))
+            .map_err(err)?;
     let header = meta.headers.first().ok_or_else(|| err("no image layer".into()))?;
     let size = header.layer_size;
     if size.width() > MAX_ENV_SIDE || size.height() > MAX_ENV_SIDE {

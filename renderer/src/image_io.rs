@@ -256,6 +256,26 @@ const MAX_EXR_CHANNELS: usize = 16;
 
 /// [`read_exr`] of a file's bytes.
 pub fn read_exr_bytes(bytes: &[u8]) -> std::result::Result<ExrChannels, String> {
+    decoder_guard(|| read_exr_bytes_unguarded(bytes))
+}
+
+/// Runs a third-party decoder on untrusted bytes, turning a panic inside it into an error. The
+/// `exr` crate's B44 decoder subtracts with overflow on a damaged block (a panic in a debug build,
+/// garbage in a release one: `tests/mutation_fuzz.rs`), and a panic on one of its own rayon
+/// threads aborted the process, so its blocks are decoded on the calling thread
+/// (`non_parallel`), where this guard sees them.
+pub fn decoder_guard<T>(f: impl FnOnce() -> std::result::Result<T, String>) -> std::result::Result<T, String> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).unwrap_or_else(|p| {
+        let why = p
+            .downcast_ref::<String>()
+            .map(String::as_str)
+            .or_else(|| p.downcast_ref::<&str>().copied())
+            .unwrap_or("no message");
+        Err(format!("the EXR decoder failed on this file ({why})"))
+    })
+}
+
+fn read_exr_bytes_unguarded(bytes: &[u8]) -> std::result::Result<ExrChannels, String> {
     // The header's sizes are the file's word: bound them before the reader allocates for them (a
     // flipped byte in a data window asked for 49 GB, and a failed allocation aborts the process:
     // `tests/mutation_fuzz.rs`).
@@ -280,6 +300,7 @@ pub fn read_exr_bytes(bytes: &[u8]) -> std::result::Result<ExrChannels, String> 
         .all_channels()
         .first_valid_layer()
         .all_attributes()
+        .non_parallel()
         .from_buffered(std::io::Cursor::new(bytes))
         .map_err(|e| e.to_string())?;
     let layer = image.layer_data;

@@ -518,90 +518,10 @@ fn quantized_attributes_vertex_colors_and_material_extensions_load() {
     }
 }
 
-/// A displaced 12×9 grid, written once plainly and once with EXT_meshopt_compression (positions
-/// as a plain ATTRIBUTES stream, normals octahedral-filtered to bytes, indices as TRIANGLES), with
-/// the compressed streams made here by meshoptimizer's encoders.
-fn meshopt_grid(compressed: bool) -> String {
-    let (cols, rows) = (12u32, 9u32);
-    let mut pos: Vec<[f32; 3]> = Vec::new();
-    let mut nrm: Vec<[f32; 4]> = Vec::new();
-    for j in 0..rows {
-        for i in 0..cols {
-            let (x, z) = (i as f32 * 0.3, j as f32 * 0.3);
-            pos.push([x, 0.2 * (x * 2.0).sin() * z.cos(), z]);
-            let n = renderer::math::Vec3::new(-0.4 * (x * 2.0).cos() * z.cos(), 1.0, 0.2 * (x * 2.0).sin() * z.sin())
-                .normalize();
-            nrm.push([n.x, n.y, n.z, 0.0]);
-        }
-    }
-    let mut idx: Vec<u32> = Vec::new();
-    for j in 0..rows - 1 {
-        for i in 0..cols - 1 {
-            let a = j * cols + i;
-            idx.extend_from_slice(&[a, a + cols, a + 1, a + 1, a + cols, a + cols + 1]);
-        }
-    }
-    let oct: Vec<[i8; 4]> = meshopt::encode_filter_oct(&nrm, 8);
-    let raw_pos: Vec<u8> = pos.iter().flatten().flat_map(|c| c.to_le_bytes()).collect();
-    // The plain file holds what the filter decodes to (meshoptimizer's decoder, applied here).
-    let mut decoded_oct = oct.clone();
-    meshopt::decode_filter_oct(&mut decoded_oct);
-    let raw_nrm: Vec<u8> = decoded_oct.iter().flat_map(|o| o.map(|b| b as u8)).collect();
-    let raw_idx: Vec<u8> = idx.iter().flat_map(|i| i.to_le_bytes()).collect();
-    let (np, nn, ni) = (raw_pos.len(), raw_nrm.len(), raw_idx.len());
-    let b64 = |b: &[u8]| {
-        format!("data:application/octet-stream;base64,{}", base64::engine::general_purpose::STANDARD.encode(b))
-    };
-    let (views, buffers, ext) = if compressed {
-        let cp = meshopt::encode_vertex_buffer(&pos).expect("encode positions");
-        let cn = meshopt::encode_vertex_buffer(&oct).expect("encode normals");
-        let ci = meshopt::encode_index_buffer(&idx, pos.len()).expect("encode indices");
-        let (lp, ln, li) = (cp.len(), cn.len(), ci.len());
-        let data = [cp, cn, ci].concat();
-        let n = pos.len();
-        (
-            format!(
-                r#"[{{"buffer":1,"byteOffset":0,"byteLength":{np},"byteStride":12,"extensions":{{"EXT_meshopt_compression":{{"buffer":0,"byteOffset":0,"byteLength":{lp},"byteStride":12,"count":{n},"mode":"ATTRIBUTES"}}}}}},
-                   {{"buffer":1,"byteOffset":{np},"byteLength":{nn},"byteStride":4,"extensions":{{"EXT_meshopt_compression":{{"buffer":0,"byteOffset":{lp},"byteLength":{ln},"byteStride":4,"count":{n},"mode":"ATTRIBUTES","filter":"OCTAHEDRAL"}}}}}},
-                   {{"buffer":1,"byteOffset":{},"byteLength":{ni},"extensions":{{"EXT_meshopt_compression":{{"buffer":0,"byteOffset":{},"byteLength":{li},"byteStride":4,"count":{},"mode":"TRIANGLES"}}}}}}]"#,
-                np + nn,
-                lp + ln,
-                idx.len()
-            ),
-            format!(
-                r#"[{{"byteLength":{},"uri":"{}"}},{{"byteLength":{},"extensions":{{"EXT_meshopt_compression":{{"fallback":true}}}}}}]"#,
-                data.len(),
-                b64(&data),
-                np + nn + ni
-            ),
-            r#","extensionsUsed":["EXT_meshopt_compression"],"extensionsRequired":["EXT_meshopt_compression"]"#,
-        )
-    } else {
-        (
-            format!(
-                r#"[{{"buffer":0,"byteOffset":0,"byteLength":{np},"byteStride":12}},{{"buffer":0,"byteOffset":{np},"byteLength":{nn},"byteStride":4}},{{"buffer":0,"byteOffset":{},"byteLength":{ni}}}]"#,
-                np + nn
-            ),
-            format!(r#"[{{"byteLength":{},"uri":"{}"}}]"#, np + nn + ni, b64(&[raw_pos, raw_nrm, raw_idx].concat())),
-            "",
-        )
-    };
-    format!(
-        r#"{{"asset":{{"version":"2.0"}}{ext},"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0}}],
-        "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0,"NORMAL":1}},"indices":2}}]}}],
-        "accessors":[{{"bufferView":0,"componentType":5126,"count":{n},"type":"VEC3","min":[0,-1,0],"max":[4,1,3]}},
-                     {{"bufferView":1,"componentType":5120,"normalized":true,"count":{n},"type":"VEC3"}},
-                     {{"bufferView":2,"componentType":5125,"count":{},"type":"SCALAR"}}],
-        "bufferViews":{views},"buffers":{buffers}}}"#,
-        idx.len(),
-        n = pos.len()
-    )
-}
-
 #[test]
 fn meshopt_compressed_views_decode_to_the_plain_data() {
-    let plain = load_str(&meshopt_grid(false)).expect("plain grid");
-    let packed = load_str(&meshopt_grid(true)).expect("meshopt grid");
+    let plain = load_str(&renderer::testing::meshopt_grid_gltf(false)).expect("plain grid");
+    let packed = load_str(&renderer::testing::meshopt_grid_gltf(true)).expect("meshopt grid");
     assert!(packed.warnings.is_empty(), "{:?}", packed.warnings);
     assert_eq!(plain.mesh.positions, packed.mesh.positions, "the vertex codec is lossless");
     assert_eq!(
@@ -611,8 +531,12 @@ fn meshopt_compressed_views_decode_to_the_plain_data() {
     assert_eq!(plain.mesh.normals, packed.mesh.normals, "the same octahedral bytes decode to the same normals");
     assert!(packed.mesh.normals.iter().all(|n| (n.length() - 1.0).abs() < 1e-3 && n.y > 0.5));
     // Bad streams are errors naming the view and the extension.
-    let bad = meshopt_grid(true).replace("\"filter\":\"OCTAHEDRAL\"", "\"filter\":\"SPIRAL\"");
+    let bad = renderer::testing::meshopt_grid_gltf(true).replace("\"filter\":\"OCTAHEDRAL\"", "\"filter\":\"SPIRAL\"");
     expect_err(&bad, "unknown filter SPIRAL");
-    let cut = meshopt_grid(true).replacen("\"byteStride\":12,\"count\"", "\"byteStride\":16,\"count\"", 1);
+    let cut = renderer::testing::meshopt_grid_gltf(true).replacen(
+        "\"byteStride\":12,\"count\"",
+        "\"byteStride\":16,\"count\"",
+        1,
+    );
     expect_err(&cut, "EXT_meshopt_compression");
 }

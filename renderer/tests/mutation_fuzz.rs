@@ -20,8 +20,9 @@ fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-/// The scenes mutated: self-contained files (data URIs or GLB), covering meshes, textures,
-/// KHR material extensions from Blender, punctual lights, cameras, skins and animation.
+/// The scene files mutated: self-contained (data URIs or GLB), covering meshes, Draco (the two
+/// Khronos boxes), textures, KHR material extensions from Blender, punctual lights, cameras, skins
+/// and animation.
 const CORPUS: &[&str] = &[
     "scenes/cornell/cornell.gltf",
     "scenes/cornell/cornell.glb",
@@ -34,6 +35,22 @@ const CORPUS: &[&str] = &[
     "scenes/khronos/Box.glb",
     "scenes/khronos/BoxTextured.glb",
 ];
+
+/// [`CORPUS`]' files as (name, bytes).
+fn files() -> &'static [(String, Vec<u8>)] {
+    static FILES: std::sync::OnceLock<Vec<(String, Vec<u8>)>> = std::sync::OnceLock::new();
+    FILES.get_or_init(|| {
+        CORPUS.iter().map(|f| (f.to_string(), std::fs::read(root().join(f)).expect("corpus file"))).collect()
+    })
+}
+
+/// Scenes made here, a corpus of their own so that adding one does not change which file a case
+/// of [`files`] mutates: a grid in EXT_meshopt_compression (meshoptimizer's C++ decoders on
+/// mutated streams).
+fn generated() -> &'static [(String, Vec<u8>)] {
+    static MADE: std::sync::OnceLock<Vec<(String, Vec<u8>)>> = std::sync::OnceLock::new();
+    MADE.get_or_init(|| vec![("meshopt_grid.gltf".into(), renderer::testing::meshopt_grid_gltf(true).into_bytes())])
+}
 
 /// SplitMix64 (Steele, Lea and Flood 2014): the case's random choices.
 struct Rng(u64);
@@ -303,16 +320,16 @@ fn data_uri_buffer(json: &Value) -> Option<(usize, Vec<u8>)> {
     })
 }
 
-/// Case `n`: a scene of the corpus with one or two mutations, as (file name, bytes, description).
-fn case(n: u64) -> (String, Vec<u8>, String) {
+/// Case `n` of `corpus`: one of its scenes with one or two mutations, as (file name, bytes,
+/// description).
+fn case(n: u64, corpus: &[(String, Vec<u8>)]) -> (String, Vec<u8>, String) {
     let mut rng = Rng(n.wrapping_mul(0x2545_f491_4f6c_dd1d) ^ 0x5eed);
-    let file = CORPUS[rng.below(CORPUS.len())];
-    let bytes = std::fs::read(root().join(file)).expect("corpus file");
+    let (file, bytes) = &corpus[rng.below(corpus.len())];
     let is_glb = file.ends_with(".glb");
     let mut glb = if is_glb {
-        parse_glb(&bytes)
+        parse_glb(bytes)
     } else {
-        Glb { json: serde_json::from_slice(&bytes).expect("corpus JSON"), bin: None }
+        Glb { json: serde_json::from_slice(bytes).expect("corpus JSON"), bin: None }
     };
     let mut did = Vec::new();
     for _ in 0..1 + rng.below(2) {
@@ -340,8 +357,8 @@ fn case(n: u64) -> (String, Vec<u8>, String) {
 
 /// Loads and renders case `n`; Err with a description when it panicked or rendered non-finite
 /// values.
-fn run_case(n: u64) -> Result<(), String> {
-    let (name, bytes, what) = case(n);
+fn run_case(n: u64, corpus: &[(String, Vec<u8>)]) -> Result<(), String> {
+    let (name, bytes, what) = case(n, corpus);
     let outcome = std::panic::catch_unwind(|| -> Result<(), String> {
         let Ok(mut scene) = load_from_bytes(Path::new(&name), &bytes) else { return Ok(()) };
         for integrator in [IntegratorKind::Mis, IntegratorKind::Nee] {
@@ -389,15 +406,20 @@ const FOUND: &[u64] = &[266, 720, 860, 1011, 2706, 7310, 20885, 38903, 39850];
 
 #[test]
 fn mutated_scenes_load_or_fail_cleanly_and_render_finite_images() {
-    let cases: Vec<u64> = match std::env::var("TESSERA_FUZZ_CASE") {
-        Ok(c) => vec![c.parse().expect("TESSERA_FUZZ_CASE is a number")],
-        Err(_) => {
-            let n = std::env::var("TESSERA_FUZZ_CASES").ok().and_then(|s| s.parse().ok()).unwrap_or(240u64);
-            (0..n).chain(FOUND.iter().copied()).collect()
-        }
-    };
-    let failures: Vec<String> = cases.iter().filter_map(|&n| run_case(n).err()).collect();
-    assert!(failures.is_empty(), "{} of {} cases failed:\n{}", failures.len(), cases.len(), failures.join("\n"));
+    let n = std::env::var("TESSERA_FUZZ_CASES").ok().and_then(|s| s.parse().ok()).unwrap_or(240u64);
+    let one: Option<u64> = std::env::var("TESSERA_FUZZ_CASE").ok().map(|c| c.parse().expect("a case number"));
+    let mut failures = Vec::new();
+    let mut count = 0;
+    // The files, and a quarter as many cases of the generated scenes (one scene, not ten).
+    for (corpus, cases, found, label) in [(files(), n, FOUND, "file"), (generated(), n / 4, &[][..], "generated")] {
+        let list: Vec<u64> = match one {
+            Some(c) => vec![c],
+            None => (0..cases).chain(found.iter().copied()).collect(),
+        };
+        count += list.len();
+        failures.extend(list.iter().filter_map(|&c| run_case(c, corpus).err()).map(|e| format!("{label} {e}")));
+    }
+    assert!(failures.is_empty(), "{} of {count} cases failed:\n{}", failures.len(), failures.join("\n"));
 }
 
 #[test]
@@ -405,13 +427,12 @@ fn the_mutations_change_the_scenes() {
     // A fuzzer whose mutations were no-ops would pass whatever the loader did.
     let mut changed = 0;
     for n in 0..40 {
-        let (name, bytes, _) = case(n);
-        let file = CORPUS.iter().find(|f| f.ends_with(&name)).expect("corpus file");
-        let original = std::fs::read(root().join(file)).expect("corpus file");
+        let (name, bytes, _) = case(n, files());
+        let (_, original) = files().iter().find(|(f, _)| f.ends_with(&name)).expect("corpus file");
         let reparsed = if name.ends_with(".glb") {
-            write_glb(&parse_glb(&original))
+            write_glb(&parse_glb(original))
         } else {
-            serde_json::to_vec(&serde_json::from_slice::<Value>(&original).expect("JSON")).expect("JSON")
+            serde_json::to_vec(&serde_json::from_slice::<Value>(original).expect("JSON")).expect("JSON")
         };
         changed += usize::from(bytes != reparsed);
     }

@@ -261,9 +261,9 @@ pub fn read_exr_bytes(bytes: &[u8]) -> std::result::Result<ExrChannels, String> 
 
 /// Runs a third-party decoder on untrusted bytes, turning a panic inside it into an error. The
 /// `exr` crate's B44 decoder subtracts with overflow on a damaged block (a panic in a debug build,
-/// garbage in a release one: `tests/mutation_fuzz.rs`), and a panic on one of its own rayon
-/// threads aborted the process, so its blocks are decoded on the calling thread
-/// (`non_parallel`), where this guard sees them.
+/// garbage in a release one: `tests/mutation_fuzz.rs`), and that panic, on one of the crate's own
+/// rayon threads, aborted the process; so its blocks are decoded on the calling thread
+/// (`non_parallel`), where this guard sees any panic of the decoder's.
 pub fn decoder_guard<T>(f: impl FnOnce() -> std::result::Result<T, String>) -> std::result::Result<T, String> {
     std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).unwrap_or_else(|p| {
         let why = p

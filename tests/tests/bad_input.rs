@@ -11,6 +11,14 @@ fn cornell_bytes() -> Vec<u8> {
     std::fs::read(repo_root().join("scenes/cornell/cornell.glb")).unwrap()
 }
 
+/// The Cornell box's JSON with its first primitive's POSITION accessor index set to `index`.
+fn cornell_gltf_with_position(index: u32) -> Vec<u8> {
+    let text = std::fs::read_to_string(repo_root().join("scenes/cornell/cornell.gltf")).unwrap();
+    let mut json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    json["meshes"][0]["primitives"][0]["attributes"]["POSITION"] = index.into();
+    serde_json::to_vec(&json).unwrap()
+}
+
 #[test]
 fn bad_requests_get_clear_4xx_answers_and_the_coordinator_keeps_serving() {
     let farm = Farm::start("bad-input", &[("TESSERA_TOKEN", "let-me-in"), ("TESSERA_WORKER_SECRET", "workers-only")]);
@@ -35,6 +43,15 @@ fn bad_requests_get_clear_4xx_answers_and_the_coordinator_keeps_serving() {
         ),
         ("no scene file", tok, vec![("notes.txt", b"hi".to_vec())], "{}", 422, ".gltf or .glb"),
         ("escaping file name", tok, vec![("c.glb", glb.clone()), ("../evil.bin", vec![1])], "{}", 422, "not allowed"),
+        // The gltf crate's validation panicked on it (a 500 from the coordinator's loading task).
+        (
+            "POSITION accessor out of range",
+            tok,
+            vec![("refs.gltf", cornell_gltf_with_position(999))],
+            "{}",
+            422,
+            "POSITION",
+        ),
     ];
     for (what, token, files, settings, status, needle) in cases {
         let files: Vec<(&str, &[u8])> = files.iter().map(|(n, d)| (*n, d.as_slice())).collect();

@@ -294,6 +294,10 @@ fn read_exr_bytes_unguarded(bytes: &[u8]) -> std::result::Result<ExrChannels, St
             ));
         }
     }
+    use exr::compression::Compression::{DWAA, DWAB};
+    if meta.headers.iter().any(|h| matches!(h.compression, DWAA(_) | DWAB(_))) {
+        check_dwa_blocks(bytes, &meta.headers)?;
+    }
     let image = read()
         .no_deep_data()
         .largest_resolution_level()
@@ -320,6 +324,71 @@ fn read_exr_bytes_unguarded(bytes: &[u8]) -> std::result::Result<ExrChannels, St
         return Err(format!("the EXR's channel {name} holds {} values for {w}x{h} pixels (subsampled?)", v.len()));
     }
     Ok(ExrChannels { width: w as u32, height: h as u32, channels, tessera })
+}
+
+/// Holds each DWA block's leading counters to what its pixels can need, before the `exr` crate
+/// sizes its buffers from them. A DWA block (DWAA, DWAB) starts with eleven little-endian u64
+/// counters (OpenEXR's `DataSizesSingle`, `internal_dwa_compressor.h`): version; the unknown
+/// section's inflated size; four compressed sizes; the RLE section's inflated and raw sizes; the
+/// AC and DC coefficient counts; the AC coder. The crate checks the compressed sizes against the
+/// block's bytes but allocates the inflated sizes and counts as read: one flipped byte asked for
+/// 358 TB, and a failed allocation aborts the process (`tests/mutation_fuzz.rs`). Bounds, for a
+/// block of `w × h` pixels, `c` channels and `b` bytes uncompressed: the unknown and the raw RLE
+/// data are channel bytes (≤ b), RLE tokens add a count byte to at most 127 literal bytes
+/// (≤ 2b + 64), and a lossy channel has one DC and at most 63 AC values (64 with the end-of-block
+/// mark) per 8 × 8 block (≤ c·⌈w/8⌉·⌈h/8⌉ and 64 times that).
+fn check_dwa_blocks(bytes: &[u8], headers: &[exr::meta::header::Header]) -> std::result::Result<(), String> {
+    use exr::block::chunk::CompressedBlock;
+    use exr::compression::Compression::{DWAA, DWAB};
+    let chunks = exr::block::read(std::io::Cursor::new(bytes), false)
+        .and_then(|r| r.all_chunks(false))
+        .map_err(|e| e.to_string())?;
+    for chunk in chunks {
+        let chunk = chunk.map_err(|e| e.to_string())?;
+        let Some(header) = headers.get(chunk.layer_index) else {
+            return Err(format!("an EXR block names layer {}, which the file does not have", chunk.layer_index));
+        };
+        if !matches!(header.compression, DWAA(_) | DWAB(_)) {
+            continue;
+        }
+        let data = match &chunk.compressed_block {
+            CompressedBlock::ScanLine(b) => &b.compressed_pixels_le,
+            CompressedBlock::Tile(b) => &b.compressed_pixels_le,
+            // Deep data: the reader refuses it by name.
+            _ => continue,
+        };
+        let rect = header
+            .get_block_data_indices(&chunk.compressed_block)
+            .and_then(|t| header.get_absolute_block_pixel_coordinates(t))
+            .map_err(|e| e.to_string())?;
+        let (w, h) = (rect.size.width() as u64, rect.size.height() as u64);
+        let raw = w * h * header.channels.bytes_per_pixel as u64;
+        // Empty, or stored raw (compression did not help), or too short for the counters (the
+        // crate's own "truncated DWA header"): nothing is sized from counters.
+        if data.is_empty() || data.len() as u64 == raw || data.len() < 88 {
+            continue;
+        }
+        let mut counter = [0u64; 11];
+        for (c, b) in counter.iter_mut().zip(data.chunks_exact(8)) {
+            *c = u64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]]);
+        }
+        let blocks = header.channels.list.len() as u64 * w.div_ceil(8) * h.div_ceil(8);
+        let limits = [
+            ("unknown section's size", counter[1], raw),
+            ("RLE section's size", counter[6], 2 * raw + 64),
+            ("RLE section's raw size", counter[7], raw),
+            ("AC coefficient count", counter[8], 64 * blocks),
+            ("DC coefficient count", counter[9], blocks),
+        ];
+        for (what, value, limit) in limits {
+            if value > limit {
+                return Err(format!(
+                    "a DWA block of {w}x{h} pixels claims a {what} of {value} (at most {limit} for its pixels)"
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Sorts the header attributes of a single-part EXR by name, in place. The `exr` crate keeps

@@ -6,7 +6,10 @@
 //!
 //! The mutations are a function of the case number, so a failure names the case that reproduces
 //! it: `TESSERA_FUZZ_CASE=N cargo test --release -p tessera-renderer --test mutation_fuzz`.
-//! `TESSERA_FUZZ_CASES` sets how many cases run (default 240: a few seconds).
+//! `TESSERA_FUZZ_CASES` sets how many cases run (default 240: a few seconds). An abort (a failed
+//! allocation, a panic on another thread) ends the process before any report: with
+//! `TESSERA_FUZZ_TRACE=1` (and `--nocapture`) each case is printed before it runs, so the last one
+//! printed is the culprit.
 
 use base64::Engine;
 use renderer::gltf_loader::load_from_bytes;
@@ -357,8 +360,16 @@ fn case(n: u64, corpus: &[(String, Vec<u8>)]) -> (String, Vec<u8>, String) {
 
 /// Loads and renders case `n`; Err with a description when it panicked or rendered non-finite
 /// values.
+/// Prints a case before it runs when `TESSERA_FUZZ_TRACE` is set (see the module's doc).
+fn trace(case: u64, what: &str) {
+    if std::env::var_os("TESSERA_FUZZ_TRACE").is_some() {
+        eprintln!("case {case}: {what}");
+    }
+}
+
 fn run_case(n: u64, corpus: &[(String, Vec<u8>)]) -> Result<(), String> {
     let (name, bytes, what) = case(n, corpus);
+    trace(n, &what);
     let outcome = std::panic::catch_unwind(|| -> Result<(), String> {
         let Ok(mut scene) = load_from_bytes(Path::new(&name), &bytes) else { return Ok(()) };
         for integrator in [IntegratorKind::Mis, IntegratorKind::Nee] {
@@ -523,6 +534,7 @@ fn mutated_exr_files_load_or_fail_cleanly() {
     };
     for &case in &cases {
         let (bytes, what) = exr_case(case, &corpus);
+        trace(case, &what);
         std::fs::write(&path, &bytes).expect("temp file");
         let outcome = std::panic::catch_unwind(|| {
             let env = renderer::environment::Environment::load(&path, 1.0, 0.0, true, true);
@@ -548,9 +560,11 @@ fn mutated_exr_files_load_or_fail_cleanly() {
     assert!(cases.len() < 20 || loaded * 10 > cases.len(), "only {loaded} of {} mutated maps loaded", cases.len());
 }
 
-/// EXR cases that failed before their fixes (2026-12-01, 20 000 cases): a data window made
-/// larger by one byte (252; the reader's 49 GB allocation aborted the process).
-const FOUND_EXR: &[u64] = &[252];
+/// EXR cases that failed before their fixes: a data window made larger by one byte (252, of
+/// 20 000 cases on 2026-12-01; the reader's 49 GB allocation aborted the process); a DWAB block's
+/// counter (109742, of 200 000 on 2026-12-02; the crate asked for 358 TB, and the process
+/// aborted).
+const FOUND_EXR: &[u64] = &[252, 109_742];
 
 /// The EXR finding as a plain test: a header whose data window claims 200 000 × 10 pixels is
 /// refused by name before anything is allocated for it (it aborted the process).
@@ -563,4 +577,59 @@ fn an_exr_claiming_a_huge_data_window_is_refused_before_allocating() {
     bytes[at + 8..at + 12].copy_from_slice(&199_999i32.to_le_bytes());
     let e = renderer::image_io::read_exr_bytes(&bytes).err().expect("refused");
     assert!(e.contains("200000x10") && e.contains("exceeds the limit"), "{e}");
+}
+
+/// Where the first block of a single-part EXR starts: past the magic number and version, the
+/// header's attributes (name\0 type\0 size:i32 value, ending in \0) and the offset table, whose
+/// first entry is the block's position (OpenEXR's file layout).
+fn first_block_offset(bytes: &[u8]) -> usize {
+    let mut at = 8;
+    while bytes[at] != 0 {
+        for _ in 0..2 {
+            at += bytes[at..].iter().position(|&b| b == 0).expect("a name ends") + 1;
+        }
+        let size = i32::from_le_bytes(bytes[at..at + 4].try_into().expect("4 bytes")) as usize;
+        at += 4 + size;
+    }
+    u64::from_le_bytes(bytes[at + 1..at + 9].try_into().expect("8 bytes")) as usize
+}
+
+/// The DWA finding as a plain test: a DWAB block whose DC coefficient count claims 2^45 values
+/// (the crate sized a buffer from it, and the failed allocation aborted the process) is refused
+/// by name; a DWAA and a DWAB file as the crate writes them, and the repository's DWAB map, read.
+#[test]
+fn a_dwa_block_claiming_a_huge_count_is_refused_before_allocating() {
+    use exr::prelude::*;
+    let write = |compression: Compression| {
+        let (w, h) = (40usize, 20usize);
+        let plane = |c: usize| {
+            FlatSamples::F16((0..w * h).map(|i| f16::from_f32(((i * 7 + c * 13) % 17) as f32 * 0.25 + 0.1)).collect())
+        };
+        let channels = AnyChannels::sort(SmallVec::from_vec(vec![
+            AnyChannel::new("R", plane(0)),
+            AnyChannel::new("G", plane(1)),
+            AnyChannel::new("B", plane(2)),
+        ]));
+        let encoding = Encoding { compression, blocks: Blocks::ScanLines, line_order: LineOrder::Increasing };
+        let mut bytes = Vec::new();
+        Image::from_layer(Layer::new((w, h), LayerAttributes::named("dwa"), encoding, channels))
+            .write()
+            .to_buffered(std::io::Cursor::new(&mut bytes))
+            .expect("written");
+        bytes
+    };
+    let map = std::fs::read(root().join("scenes/env/sunset-dwab-compressed.exr")).expect("the DWAB map");
+    for (what, bytes) in
+        [("DWAA", write(Compression::DWAA(None))), ("DWAB", write(Compression::DWAB(None))), ("map", map)]
+    {
+        renderer::image_io::read_exr_bytes(&bytes).unwrap_or_else(|e| panic!("{what}: {e}"));
+    }
+    let mut bytes = write(Compression::DWAB(None));
+    // The block: y (i32), its size (i32), then the eleven counters; the DC count is the tenth.
+    let dc = first_block_offset(&bytes) + 8 + 9 * 8;
+    let count = u64::from_le_bytes(bytes[dc..dc + 8].try_into().expect("8 bytes"));
+    assert!(count > 0 && count <= 3 * 5 * 3, "the block's DC count {count} is where it should be");
+    bytes[dc..dc + 8].copy_from_slice(&(1u64 << 45).to_le_bytes());
+    let e = renderer::image_io::read_exr_bytes(&bytes).err().expect("refused");
+    assert!(e.contains("DC coefficient count of 35184372088832"), "{e}");
 }

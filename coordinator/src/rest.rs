@@ -4,7 +4,9 @@ use crate::service::ServiceError;
 use crate::state::{Job, JobSpec, JobState};
 use crate::{lock, now_ms, Shared};
 use axum::body::Bytes;
-use axum::extract::{DefaultBodyLimit, Multipart, Path, Query, State};
+use axum::extract::multipart::MultipartRejection;
+use axum::extract::{DefaultBodyLimit, FromRequestParts, Multipart, Path, Query, State};
+use axum::http::request::Parts;
 use axum::http::{header, StatusCode};
 use axum::response::{Html, IntoResponse, Response};
 use axum::routing::{get, post};
@@ -35,6 +37,36 @@ impl IntoResponse for ApiError {
 
 fn err(status: StatusCode, msg: impl Into<String>) -> ApiError {
     ApiError(status, msg.into())
+}
+
+/// axum's `Query`, with a malformed query string refused as every other request is: 400 and a
+/// JSON `{"error"}` naming the parameter (axum's own answer is plain text, which a client that
+/// reads `error` from every refusal cannot show; found by schemathesis against `openapi.json`).
+struct ApiQuery<T>(T);
+
+impl<T: serde::de::DeserializeOwned, St: Send + Sync> FromRequestParts<St> for ApiQuery<T> {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut Parts, state: &St) -> Result<Self, ApiError> {
+        match Query::<T>::from_request_parts(parts, state).await {
+            Ok(Query(q)) => Ok(ApiQuery(q)),
+            Err(e) => Err(err(StatusCode::BAD_REQUEST, e.body_text())),
+        }
+    }
+}
+
+/// axum's `Path`, refused as [`ApiQuery`] is (a segment whose percent-encoding is not UTF-8).
+struct ApiPath<T>(T);
+
+impl<T: serde::de::DeserializeOwned + Send, St: Send + Sync> FromRequestParts<St> for ApiPath<T> {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut Parts, state: &St) -> Result<Self, ApiError> {
+        match Path::<T>::from_request_parts(parts, state).await {
+            Ok(Path(p)) => Ok(ApiPath(p)),
+            Err(e) => Err(err(StatusCode::BAD_REQUEST, e.body_text())),
+        }
+    }
 }
 
 pub fn router(shared: Arc<Shared>) -> Router {
@@ -109,7 +141,12 @@ async fn auth(State(s): S, req: axum::extract::Request, next: axum::middleware::
     next.run(req).await
 }
 
-async fn submit(State(s): S, mut form: Multipart) -> Result<(StatusCode, Json<Value>), ApiError> {
+async fn submit(
+    State(s): S,
+    form: Result<Multipart, MultipartRejection>,
+) -> Result<(StatusCode, Json<Value>), ApiError> {
+    // Not multipart, or no boundary: refused in JSON like the rest (axum's answer is plain text).
+    let mut form = form.map_err(|e| err(StatusCode::BAD_REQUEST, e.body_text()))?;
     let limits = s.config.limits.clone();
     if lock(&s.farm).queued_jobs() >= limits.max_queued_jobs {
         return Err(err(
@@ -462,13 +499,13 @@ fn jobs_list(s: &Shared) -> Value {
     json!({ "jobs": out })
 }
 
-async fn get_job(State(s): S, Path(id): Path<String>) -> Result<Json<Value>, ApiError> {
+async fn get_job(State(s): S, ApiPath(id): ApiPath<String>) -> Result<Json<Value>, ApiError> {
     let farm = lock(&s.farm);
     entity_json(&farm, &id, true).map(Json).ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no job '{id}'")))
 }
 
 /// `GET /jobs/{id}/frames/{n}.exr`: one finished frame of a shot (frame 0 of a single job too).
-async fn frame_image(State(s): S, Path((id, file)): Path<(String, String)>) -> Result<Response, ApiError> {
+async fn frame_image(State(s): S, ApiPath((id, file)): ApiPath<(String, String)>) -> Result<Response, ApiError> {
     let n: u32 = file
         .strip_suffix(".exr")
         .and_then(|n| n.parse().ok())
@@ -482,12 +519,12 @@ async fn frame_image(State(s): S, Path((id, file)): Path<(String, String)>) -> R
         };
         job.map(|j| j.id.clone()).ok_or_else(|| err(StatusCode::NOT_FOUND, format!("'{id}' has no frame {n}")))?
     };
-    download(State(s), Path(job_id)).await
+    download(State(s), ApiPath(job_id)).await
 }
 
 /// `GET /jobs/{id}/frames.tar`: every finished frame of a shot as `frame.NNNN.exr` in one tar,
 /// streamed a frame at a time (a long shot never sits in memory whole).
-async fn frames_archive(State(s): S, Path(id): Path<String>) -> Result<Response, ApiError> {
+async fn frames_archive(State(s): S, ApiPath(id): ApiPath<String>) -> Result<Response, ApiError> {
     let frames: Vec<(u32, String)> = {
         let farm = lock(&s.farm);
         let list = farm.shot_frames(&id);
@@ -537,7 +574,7 @@ async fn frames_archive(State(s): S, Path(id): Path<String>) -> Result<Response,
         .into_response())
 }
 
-async fn cancel_job(State(s): S, Path(id): Path<String>) -> Result<Json<Value>, ApiError> {
+async fn cancel_job(State(s): S, ApiPath(id): ApiPath<String>) -> Result<Json<Value>, ApiError> {
     let ids = s.jobs_named(&id);
     if ids.is_empty() {
         return Err(err(StatusCode::NOT_FOUND, format!("no job '{id}'")));
@@ -554,7 +591,7 @@ async fn cancel_job(State(s): S, Path(id): Path<String>) -> Result<Json<Value>, 
 }
 
 /// `DELETE /jobs/{id}`: removes the job and its data (cancelling it first if it still runs).
-async fn delete_job(State(s): S, Path(id): Path<String>) -> Result<Json<Value>, ApiError> {
+async fn delete_job(State(s): S, ApiPath(id): ApiPath<String>) -> Result<Json<Value>, ApiError> {
     let ids = s.jobs_named(&id);
     if ids.is_empty() {
         return Err(err(StatusCode::NOT_FOUND, format!("no job '{id}'")));
@@ -572,7 +609,7 @@ async fn delete_job(State(s): S, Path(id): Path<String>) -> Result<Json<Value>, 
     Ok(Json(json!({ "id": id, "deleted": true })))
 }
 
-async fn download(State(s): S, Path(id): Path<String>) -> Result<Response, ApiError> {
+async fn download(State(s): S, ApiPath(id): ApiPath<String>) -> Result<Response, ApiError> {
     let state = {
         let farm = lock(&s.farm);
         if !farm.jobs.contains_key(&id) && !farm.shot_frames(&id).is_empty() {
@@ -610,7 +647,11 @@ struct PreviewQuery {
     width: Option<u32>,
 }
 
-async fn preview(State(s): S, Path(id): Path<String>, Query(q): Query<PreviewQuery>) -> Result<Response, ApiError> {
+async fn preview(
+    State(s): S,
+    ApiPath(id): ApiPath<String>,
+    ApiQuery(q): ApiQuery<PreviewQuery>,
+) -> Result<Response, ApiError> {
     let exposure = q.exposure.unwrap_or(0.0);
     if !(-20.0..=20.0).contains(&exposure) {
         return Err(err(
@@ -668,8 +709,8 @@ struct EventsQuery {
 
 async fn job_events(
     State(s): S,
-    Path(id): Path<String>,
-    Query(q): Query<EventsQuery>,
+    ApiPath(id): ApiPath<String>,
+    ApiQuery(q): ApiQuery<EventsQuery>,
 ) -> Result<Json<Value>, ApiError> {
     let ids = s.jobs_named(&id);
     if ids.is_empty() {
@@ -701,7 +742,7 @@ async fn job_events(
 /// `POST /jobs/{id}/resubmit`: a new job with the same scene, settings and priority (retry a
 /// failed job, render a cancelled one again, or repeat a finished one under a new seed by editing
 /// nothing: the settings are copied as they are, so the result is the same image).
-async fn resubmit_job(State(s): S, Path(id): Path<String>) -> Result<(StatusCode, Json<Value>), ApiError> {
+async fn resubmit_job(State(s): S, ApiPath(id): ApiPath<String>) -> Result<(StatusCode, Json<Value>), ApiError> {
     let spec = {
         let farm = lock(&s.farm);
         match farm.jobs.get(&id) {
@@ -889,11 +930,11 @@ fn set_draining(s: &Shared, id: &str, draining: bool) -> Result<Json<Value>, Api
     Ok(Json(json!({ "id": id, "draining": draining })))
 }
 
-async fn drain_worker(State(s): S, Path(id): Path<String>) -> Result<Json<Value>, ApiError> {
+async fn drain_worker(State(s): S, ApiPath(id): ApiPath<String>) -> Result<Json<Value>, ApiError> {
     set_draining(&s, &id, true)
 }
 
-async fn resume_worker(State(s): S, Path(id): Path<String>) -> Result<Json<Value>, ApiError> {
+async fn resume_worker(State(s): S, ApiPath(id): ApiPath<String>) -> Result<Json<Value>, ApiError> {
     let r = set_draining(&s, &id, false);
     s.work_available.notify_waiters();
     r
@@ -1013,6 +1054,26 @@ mod tests {
             assert_eq!(p["minimum"].as_f64(), Some(f.min), "{}: minimum", f.name);
             assert_eq!(p["maximum"].as_f64(), Some(f.max), "{}: maximum", f.name);
             assert_eq!(p.get("default").and_then(Value::as_f64), f.default, "{}: default", f.name);
+        }
+    }
+
+    /// Every token-guarded operation documents its 401, and every one with a query parameter its
+    /// 400 (`ApiQuery`), each with the JSON error body the coordinator sends.
+    #[test]
+    fn openapi_documents_the_refusals_every_route_can_give() {
+        let doc: Value = serde_json::from_str(super::OPENAPI).expect("openapi.json parses");
+        let error = serde_json::json!({ "application/json": { "schema": { "$ref": "#/components/schemas/Error" } } });
+        for (path, ops) in doc["paths"].as_object().expect("paths") {
+            for (method, op) in ops.as_object().expect("operations").iter().filter(|(m, _)| *m != "parameters") {
+                let responses = &op["responses"];
+                if !path.ends_with("openapi.json") {
+                    assert_eq!(responses["401"]["content"], error, "{method} {path}: 401");
+                }
+                let queries = op["parameters"].as_array().into_iter().flatten().filter(|p| p["in"] == "query");
+                if queries.count() > 0 {
+                    assert_eq!(responses["400"]["content"], error, "{method} {path}: 400");
+                }
+            }
         }
     }
 }

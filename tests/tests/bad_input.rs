@@ -94,6 +94,38 @@ fn bad_requests_get_clear_4xx_answers_and_the_coordinator_keeps_serving() {
     assert_eq!(got, 201, "{body}");
 }
 
+/// Malformed query strings and a POST that is not multipart are refused like every other request:
+/// 400 with a JSON `{"error"}` naming what is wrong. axum's own answers were plain text (found
+/// by schemathesis against `openapi.json`, which now documents the 400s).
+#[test]
+fn malformed_queries_and_bodies_get_json_errors() {
+    let farm = Farm::start("bad-queries", &[("TESSERA_TOKEN", "let-me-in")]);
+    let agent: ureq::Agent = ureq::Agent::config_builder().http_status_as_error(false).build().into();
+    let cases = [
+        ("GET", "/api/v1/jobs/nope/preview.png?width=wide", "width"),
+        ("GET", "/api/v1/jobs/nope/preview.png?width=99999999999", "width"),
+        ("GET", "/api/v1/jobs/nope/preview.png?exposure=bright", "exposure"),
+        ("GET", "/api/v1/jobs/nope/events?after=soon", "after"),
+        ("POST", "/api/v1/jobs", "boundary"),
+    ];
+    for (method, path, needle) in cases {
+        let url = format!("{}{path}", farm.url);
+        let auth = "Bearer let-me-in";
+        let resp = match method {
+            "POST" => agent.post(&url).header("Authorization", auth).send(&b"spp=4"[..]),
+            _ => agent.get(&url).header("Authorization", auth).call(),
+        };
+        let mut resp = resp.expect("request");
+        let ctype = resp.headers().get("content-type").and_then(|v| v.to_str().ok()).unwrap_or("").to_string();
+        let text = resp.body_mut().read_to_string().unwrap_or_default();
+        assert_eq!(resp.status().as_u16(), 400, "{method} {path}: {text}");
+        assert!(ctype.starts_with("application/json"), "{method} {path}: content type {ctype}: {text}");
+        let body: serde_json::Value = serde_json::from_str(&text).unwrap_or_default();
+        let msg = body["error"].as_str().unwrap_or_default();
+        assert!(msg.contains(needle), "{method} {path}: '{text}' should name '{needle}'");
+    }
+}
+
 #[test]
 fn a_lying_worker_is_rejected_and_listed_and_the_job_still_completes_identically() {
     let mut farm = Farm::start("liar", &[]);

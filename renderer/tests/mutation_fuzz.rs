@@ -360,6 +360,11 @@ fn case(n: u64, corpus: &[(String, Vec<u8>)]) -> (String, Vec<u8>, String) {
 
 /// Loads and renders case `n`; Err with a description when it panicked or rendered non-finite
 /// values.
+/// A caught panic's message (a `String` or a `&str` payload).
+fn panic_message(p: &(dyn std::any::Any + Send)) -> String {
+    p.downcast_ref::<String>().cloned().or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string())).unwrap_or_default()
+}
+
 /// Prints a case before it runs when `TESSERA_FUZZ_TRACE` is set (see the module's doc).
 fn trace(case: u64, what: &str) {
     if std::env::var_os("TESSERA_FUZZ_TRACE").is_some() {
@@ -398,14 +403,7 @@ fn run_case(n: u64, corpus: &[(String, Vec<u8>)]) -> Result<(), String> {
     match outcome {
         Ok(Ok(())) => Ok(()),
         Ok(Err(e)) => Err(format!("case {n} ({what}): {e}")),
-        Err(p) => {
-            let msg = p
-                .downcast_ref::<String>()
-                .cloned()
-                .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
-                .unwrap_or_default();
-            Err(format!("case {n} ({what}): panicked: {msg}"))
-        }
+        Err(p) => Err(format!("case {n} ({what}): panicked: {}", panic_message(p.as_ref()))),
     }
 }
 
@@ -543,14 +541,7 @@ fn mutated_exr_files_load_or_fail_cleanly() {
         });
         match outcome {
             Ok((env, _)) => loaded += usize::from(env),
-            Err(p) => {
-                let msg = p
-                    .downcast_ref::<String>()
-                    .cloned()
-                    .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
-                    .unwrap_or_default();
-                failures.push(format!("case {case} ({what}): panicked: {msg}"));
-            }
+            Err(p) => failures.push(format!("case {case} ({what}): panicked: {}", panic_message(p.as_ref()))),
         }
     }
     let _ = std::fs::remove_dir_all(&dir);

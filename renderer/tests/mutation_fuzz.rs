@@ -624,3 +624,63 @@ fn a_dwa_block_claiming_a_huge_count_is_refused_before_allocating() {
     let e = renderer::image_io::read_exr_bytes(&bytes).err().expect("refused");
     assert!(e.contains("DC coefficient count of 35184372088832"), "{e}");
 }
+
+/// A 24 × 12 Radiance .hdr map (the environment loader's other format) as the image crate writes
+/// it: every texel `rgb`, or a pattern when `rgb` is None.
+fn hdr_map(rgb: Option<[f32; 3]>) -> Vec<u8> {
+    let (w, h) = (24usize, 12usize);
+    let texel = |i: usize| rgb.unwrap_or([(i % 7) as f32 * 0.5, (i % 5) as f32 * 0.25, 1.0 + (i % 3) as f32]);
+    let pixels: Vec<image::Rgb<f32>> = (0..w * h).map(|i| image::Rgb(texel(i))).collect();
+    let mut out = Vec::new();
+    image::codecs::hdr::HdrEncoder::new(&mut out).encode(&pixels, w, h).expect("the .hdr is written");
+    out
+}
+
+/// A .hdr map lights the scene with its texels (times the strength): a constant map evaluates to
+/// its colour in every direction, within RGBE's 8-bit mantissas; a cut file is an error.
+#[test]
+fn a_radiance_hdr_map_loads_its_texels() {
+    let dir = std::env::temp_dir().join(format!("tessera-hdr-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let path = dir.join("map.hdr");
+    std::fs::write(&path, hdr_map(Some([0.5, 1.0, 2.0]))).expect("temp file");
+    let env = renderer::environment::Environment::load(&path, 3.0, 0.0, true, true).expect("the .hdr loads");
+    for d in [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.3, -0.8, 0.5], [-0.2, 0.1, -0.97]] {
+        let d = renderer::math::Vec3::from(d).normalize();
+        let c = env.eval(d);
+        let want = renderer::math::Vec3::new(1.5, 3.0, 6.0);
+        assert!(((c - want) / want).abs().max_element() < 0.01, "{d:?}: {c:?}");
+    }
+    let whole = hdr_map(None);
+    std::fs::write(&path, &whole[..whole.len() / 2]).expect("temp file");
+    let e =
+        renderer::environment::Environment::load(&path, 1.0, 0.0, true, true).err().expect("a cut .hdr is an error");
+    assert!(e.to_string().contains("map.hdr"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Mutated .hdr maps (the EXR cases' mutations, on a map of its own so the EXR case numbers keep
+/// their meaning) load or fail with an error, never panic or abort; a quarter as many cases as
+/// `TESSERA_FUZZ_CASES`.
+#[test]
+fn mutated_hdr_maps_load_or_fail_cleanly() {
+    let corpus = vec![("map.hdr".to_string(), hdr_map(None))];
+    let n: u64 = std::env::var("TESSERA_FUZZ_CASES").ok().and_then(|s| s.parse().ok()).unwrap_or(240) / 4;
+    let dir = std::env::temp_dir().join(format!("tessera-hdr-fuzz-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let path = dir.join("map.hdr");
+    let (mut failures, mut loaded) = (Vec::new(), 0);
+    for case in 0..n {
+        let (bytes, what) = exr_case(case, &corpus);
+        trace(case, &what);
+        std::fs::write(&path, &bytes).expect("temp file");
+        match std::panic::catch_unwind(|| renderer::environment::Environment::load(&path, 1.0, 0.0, true, true).is_ok())
+        {
+            Ok(ok) => loaded += usize::from(ok),
+            Err(p) => failures.push(format!("case {case} ({what}): panicked: {}", panic_message(p.as_ref()))),
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(failures.is_empty(), "{} of {n} cases failed:\n{}", failures.len(), failures.join("\n"));
+    assert!(n < 20 || loaded * 10 > n as usize, "only {loaded} of {n} mutated maps loaded");
+}

@@ -39,33 +39,25 @@ fn err(status: StatusCode, msg: impl Into<String>) -> ApiError {
     ApiError(status, msg.into())
 }
 
-/// axum's `Query`, with a malformed query string refused as every other request is: 400 and a
-/// JSON `{"error"}` naming the parameter (axum's own answer is plain text, which a client that
-/// reads `error` from every refusal cannot show; found by schemathesis against `openapi.json`).
-struct ApiQuery<T>(T);
+/// An axum extractor (`Path`, `Query`) whose refusal is answered as every other refusal is: 400
+/// and a JSON `{"error"}` naming what is wrong, e.g. the query parameter that does not parse or a
+/// path segment that is not UTF-8. axum's own answers are plain text, which a client that reads
+/// `error` from every refusal cannot show (found by schemathesis against `openapi.json`).
+struct ApiExtract<E>(E);
 
-impl<T: serde::de::DeserializeOwned, St: Send + Sync> FromRequestParts<St> for ApiQuery<T> {
+impl<E, St> FromRequestParts<St> for ApiExtract<E>
+where
+    E: FromRequestParts<St>,
+    E::Rejection: std::fmt::Display,
+    St: Send + Sync,
+{
     type Rejection = ApiError;
 
     async fn from_request_parts(parts: &mut Parts, state: &St) -> Result<Self, ApiError> {
-        match Query::<T>::from_request_parts(parts, state).await {
-            Ok(Query(q)) => Ok(ApiQuery(q)),
-            Err(e) => Err(err(StatusCode::BAD_REQUEST, e.body_text())),
-        }
-    }
-}
-
-/// axum's `Path`, refused as [`ApiQuery`] is (a segment whose percent-encoding is not UTF-8).
-struct ApiPath<T>(T);
-
-impl<T: serde::de::DeserializeOwned + Send, St: Send + Sync> FromRequestParts<St> for ApiPath<T> {
-    type Rejection = ApiError;
-
-    async fn from_request_parts(parts: &mut Parts, state: &St) -> Result<Self, ApiError> {
-        match Path::<T>::from_request_parts(parts, state).await {
-            Ok(Path(p)) => Ok(ApiPath(p)),
-            Err(e) => Err(err(StatusCode::BAD_REQUEST, e.body_text())),
-        }
+        E::from_request_parts(parts, state)
+            .await
+            .map(ApiExtract)
+            .map_err(|e| err(StatusCode::BAD_REQUEST, e.to_string()))
     }
 }
 
@@ -145,8 +137,9 @@ async fn submit(
     State(s): S,
     form: Result<Multipart, MultipartRejection>,
 ) -> Result<(StatusCode, Json<Value>), ApiError> {
-    // Not multipart, or no boundary: refused in JSON like the rest (axum's answer is plain text).
-    let mut form = form.map_err(|e| err(StatusCode::BAD_REQUEST, e.body_text()))?;
+    // Not multipart, or no boundary: refused in JSON like the rest (as `ApiExtract` does for the
+    // extractors of a request's parts; axum's own answer is plain text).
+    let mut form = form.map_err(|e| err(StatusCode::BAD_REQUEST, e.to_string()))?;
     let limits = s.config.limits.clone();
     if lock(&s.farm).queued_jobs() >= limits.max_queued_jobs {
         return Err(err(
@@ -499,13 +492,16 @@ fn jobs_list(s: &Shared) -> Value {
     json!({ "jobs": out })
 }
 
-async fn get_job(State(s): S, ApiPath(id): ApiPath<String>) -> Result<Json<Value>, ApiError> {
+async fn get_job(State(s): S, ApiExtract(Path(id)): ApiExtract<Path<String>>) -> Result<Json<Value>, ApiError> {
     let farm = lock(&s.farm);
     entity_json(&farm, &id, true).map(Json).ok_or_else(|| err(StatusCode::NOT_FOUND, format!("no job '{id}'")))
 }
 
 /// `GET /jobs/{id}/frames/{n}.exr`: one finished frame of a shot (frame 0 of a single job too).
-async fn frame_image(State(s): S, ApiPath((id, file)): ApiPath<(String, String)>) -> Result<Response, ApiError> {
+async fn frame_image(
+    State(s): S,
+    ApiExtract(Path((id, file))): ApiExtract<Path<(String, String)>>,
+) -> Result<Response, ApiError> {
     let n: u32 = file
         .strip_suffix(".exr")
         .and_then(|n| n.parse().ok())
@@ -519,12 +515,12 @@ async fn frame_image(State(s): S, ApiPath((id, file)): ApiPath<(String, String)>
         };
         job.map(|j| j.id.clone()).ok_or_else(|| err(StatusCode::NOT_FOUND, format!("'{id}' has no frame {n}")))?
     };
-    download(State(s), ApiPath(job_id)).await
+    download(State(s), ApiExtract(Path(job_id))).await
 }
 
 /// `GET /jobs/{id}/frames.tar`: every finished frame of a shot as `frame.NNNN.exr` in one tar,
 /// streamed a frame at a time (a long shot never sits in memory whole).
-async fn frames_archive(State(s): S, ApiPath(id): ApiPath<String>) -> Result<Response, ApiError> {
+async fn frames_archive(State(s): S, ApiExtract(Path(id)): ApiExtract<Path<String>>) -> Result<Response, ApiError> {
     let frames: Vec<(u32, String)> = {
         let farm = lock(&s.farm);
         let list = farm.shot_frames(&id);
@@ -574,7 +570,7 @@ async fn frames_archive(State(s): S, ApiPath(id): ApiPath<String>) -> Result<Res
         .into_response())
 }
 
-async fn cancel_job(State(s): S, ApiPath(id): ApiPath<String>) -> Result<Json<Value>, ApiError> {
+async fn cancel_job(State(s): S, ApiExtract(Path(id)): ApiExtract<Path<String>>) -> Result<Json<Value>, ApiError> {
     let ids = s.jobs_named(&id);
     if ids.is_empty() {
         return Err(err(StatusCode::NOT_FOUND, format!("no job '{id}'")));
@@ -591,7 +587,7 @@ async fn cancel_job(State(s): S, ApiPath(id): ApiPath<String>) -> Result<Json<Va
 }
 
 /// `DELETE /jobs/{id}`: removes the job and its data (cancelling it first if it still runs).
-async fn delete_job(State(s): S, ApiPath(id): ApiPath<String>) -> Result<Json<Value>, ApiError> {
+async fn delete_job(State(s): S, ApiExtract(Path(id)): ApiExtract<Path<String>>) -> Result<Json<Value>, ApiError> {
     let ids = s.jobs_named(&id);
     if ids.is_empty() {
         return Err(err(StatusCode::NOT_FOUND, format!("no job '{id}'")));
@@ -609,7 +605,7 @@ async fn delete_job(State(s): S, ApiPath(id): ApiPath<String>) -> Result<Json<Va
     Ok(Json(json!({ "id": id, "deleted": true })))
 }
 
-async fn download(State(s): S, ApiPath(id): ApiPath<String>) -> Result<Response, ApiError> {
+async fn download(State(s): S, ApiExtract(Path(id)): ApiExtract<Path<String>>) -> Result<Response, ApiError> {
     let state = {
         let farm = lock(&s.farm);
         if !farm.jobs.contains_key(&id) && !farm.shot_frames(&id).is_empty() {
@@ -649,8 +645,8 @@ struct PreviewQuery {
 
 async fn preview(
     State(s): S,
-    ApiPath(id): ApiPath<String>,
-    ApiQuery(q): ApiQuery<PreviewQuery>,
+    ApiExtract(Path(id)): ApiExtract<Path<String>>,
+    ApiExtract(Query(q)): ApiExtract<Query<PreviewQuery>>,
 ) -> Result<Response, ApiError> {
     let exposure = q.exposure.unwrap_or(0.0);
     if !(-20.0..=20.0).contains(&exposure) {
@@ -709,8 +705,8 @@ struct EventsQuery {
 
 async fn job_events(
     State(s): S,
-    ApiPath(id): ApiPath<String>,
-    ApiQuery(q): ApiQuery<EventsQuery>,
+    ApiExtract(Path(id)): ApiExtract<Path<String>>,
+    ApiExtract(Query(q)): ApiExtract<Query<EventsQuery>>,
 ) -> Result<Json<Value>, ApiError> {
     let ids = s.jobs_named(&id);
     if ids.is_empty() {
@@ -742,7 +738,10 @@ async fn job_events(
 /// `POST /jobs/{id}/resubmit`: a new job with the same scene, settings and priority (retry a
 /// failed job, render a cancelled one again, or repeat a finished one under a new seed by editing
 /// nothing: the settings are copied as they are, so the result is the same image).
-async fn resubmit_job(State(s): S, ApiPath(id): ApiPath<String>) -> Result<(StatusCode, Json<Value>), ApiError> {
+async fn resubmit_job(
+    State(s): S,
+    ApiExtract(Path(id)): ApiExtract<Path<String>>,
+) -> Result<(StatusCode, Json<Value>), ApiError> {
     let spec = {
         let farm = lock(&s.farm);
         match farm.jobs.get(&id) {
@@ -930,11 +929,11 @@ fn set_draining(s: &Shared, id: &str, draining: bool) -> Result<Json<Value>, Api
     Ok(Json(json!({ "id": id, "draining": draining })))
 }
 
-async fn drain_worker(State(s): S, ApiPath(id): ApiPath<String>) -> Result<Json<Value>, ApiError> {
+async fn drain_worker(State(s): S, ApiExtract(Path(id)): ApiExtract<Path<String>>) -> Result<Json<Value>, ApiError> {
     set_draining(&s, &id, true)
 }
 
-async fn resume_worker(State(s): S, ApiPath(id): ApiPath<String>) -> Result<Json<Value>, ApiError> {
+async fn resume_worker(State(s): S, ApiExtract(Path(id)): ApiExtract<Path<String>>) -> Result<Json<Value>, ApiError> {
     let r = set_draining(&s, &id, false);
     s.work_available.notify_waiters();
     r
@@ -1058,7 +1057,7 @@ mod tests {
     }
 
     /// Every token-guarded operation documents its 401, and every one with a query parameter its
-    /// 400 (`ApiQuery`), each with the JSON error body the coordinator sends.
+    /// 400 (`ApiExtract`), each with the JSON error body the coordinator sends.
     #[test]
     fn openapi_documents_the_refusals_every_route_can_give() {
         let doc: Value = serde_json::from_str(super::OPENAPI).expect("openapi.json parses");

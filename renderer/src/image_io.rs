@@ -266,14 +266,27 @@ pub fn read_exr_bytes(bytes: &[u8]) -> std::result::Result<ExrChannels, String> 
 /// (`non_parallel`), where this guard sees any panic of the decoder's.
 pub fn decoder_guard<T>(f: impl FnOnce() -> std::result::Result<T, String>) -> std::result::Result<T, String> {
     std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).unwrap_or_else(|p| {
-        let why = p
-            .downcast_ref::<String>()
-            .map(String::as_str)
-            .or_else(|| p.downcast_ref::<&str>().copied())
-            .unwrap_or("no message");
-        Err(format!("the EXR decoder failed on this file ({why})"))
+        let why = panic_message(p.as_ref());
+        Err(format!("the EXR decoder failed on this file ({})", if why.is_empty() { "no message" } else { why }))
     })
 }
+
+/// A caught panic's message: its `String` or `&str` payload, empty for any other.
+pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> &str {
+    payload
+        .downcast_ref::<String>()
+        .map(String::as_str)
+        .or_else(|| payload.downcast_ref::<&str>().copied())
+        .unwrap_or("")
+}
+
+/// Whether a part is DWA-compressed (DWAA or DWAB), whose blocks [`check_dwa_blocks`] bounds.
+fn is_dwa(header: &exr::meta::header::Header) -> bool {
+    matches!(header.compression, exr::compression::Compression::DWAA(_) | exr::compression::Compression::DWAB(_))
+}
+
+/// The bytes of a DWA block's leading counters: eleven u64s.
+const DWA_COUNTERS_BYTES: usize = 11 * 8;
 
 fn read_exr_bytes_unguarded(bytes: &[u8]) -> std::result::Result<ExrChannels, String> {
     // The header's sizes are the file's word: bound them before the reader allocates for them (a
@@ -294,8 +307,7 @@ fn read_exr_bytes_unguarded(bytes: &[u8]) -> std::result::Result<ExrChannels, St
             ));
         }
     }
-    use exr::compression::Compression::{DWAA, DWAB};
-    if meta.headers.iter().any(|h| matches!(h.compression, DWAA(_) | DWAB(_))) {
+    if meta.headers.iter().any(is_dwa) {
         check_dwa_blocks(bytes, &meta.headers)?;
     }
     let image = read()
@@ -339,7 +351,6 @@ fn read_exr_bytes_unguarded(bytes: &[u8]) -> std::result::Result<ExrChannels, St
 /// mark) per 8 × 8 block (≤ c·⌈w/8⌉·⌈h/8⌉ and 64 times that).
 fn check_dwa_blocks(bytes: &[u8], headers: &[exr::meta::header::Header]) -> std::result::Result<(), String> {
     use exr::block::chunk::CompressedBlock;
-    use exr::compression::Compression::{DWAA, DWAB};
     let chunks = exr::block::read(std::io::Cursor::new(bytes), false)
         .and_then(|r| r.all_chunks(false))
         .map_err(|e| e.to_string())?;
@@ -348,7 +359,7 @@ fn check_dwa_blocks(bytes: &[u8], headers: &[exr::meta::header::Header]) -> std:
         let Some(header) = headers.get(chunk.layer_index) else {
             return Err(format!("an EXR block names layer {}, which the file does not have", chunk.layer_index));
         };
-        if !matches!(header.compression, DWAA(_) | DWAB(_)) {
+        if !is_dwa(header) {
             continue;
         }
         let data = match &chunk.compressed_block {
@@ -365,7 +376,7 @@ fn check_dwa_blocks(bytes: &[u8], headers: &[exr::meta::header::Header]) -> std:
         let raw = w * h * header.channels.bytes_per_pixel as u64;
         // Empty, or stored raw (compression did not help), or too short for the counters (the
         // crate's own "truncated DWA header"): nothing is sized from counters.
-        if data.is_empty() || data.len() as u64 == raw || data.len() < 88 {
+        if data.is_empty() || data.len() as u64 == raw || data.len() < DWA_COUNTERS_BYTES {
             continue;
         }
         let mut counter = [0u64; 11];

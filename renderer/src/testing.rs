@@ -423,3 +423,35 @@ pub fn meshopt_grid_gltf(compressed: bool) -> String {
         n = pos.len()
     )
 }
+
+/// Loads `bytes` as the scene file `name` and renders it small (12 × 8 pixels, 2 samples, both
+/// integrators, and a later frame of an animated scene) the way a farm would: Ok when the file is
+/// refused with an error (an answer, not a failure) or when every pixel of every render is finite;
+/// Err naming the first pixel that is not. Shared by `tests/mutation_fuzz.rs` and the cargo-fuzz
+/// target `fuzz/fuzz_targets/gltf_loader.rs`; a panic inside is the caller's to catch.
+pub fn loads_and_renders_finitely(name: &str, bytes: &[u8]) -> Result<(), String> {
+    use crate::render::{render, Counters};
+    use crate::settings::IntegratorKind;
+    let Ok(mut scene) = crate::gltf_loader::load_from_bytes(std::path::Path::new(name), bytes) else { return Ok(()) };
+    for integrator in [IntegratorKind::Mis, IntegratorKind::Nee] {
+        let mut settings =
+            crate::RenderSettings { width: 12, height: 8, spp: 2, pass_spp: 2, integrator, ..Default::default() };
+        for frame in [0u32, 7] {
+            settings.frame = frame;
+            if frame > 0 && !scene.is_animated() {
+                continue;
+            }
+            if scene.set_frame(&settings, frame).is_err() {
+                continue;
+            }
+            let image = render(&scene, &settings, &Counters::default()).image;
+            for i in 0..image.rect.pixels() {
+                let m = image.mean(i);
+                if !m.iter().all(|c| c.is_finite()) {
+                    return Err(format!("pixel {i} is {m:?} ({integrator:?}, frame {frame})"));
+                }
+            }
+        }
+    }
+    Ok(())
+}

@@ -12,10 +12,7 @@
 //! printed is the culprit.
 
 use base64::Engine;
-use renderer::gltf_loader::load_from_bytes;
-use renderer::render::{render, Counters};
-use renderer::settings::IntegratorKind;
-use renderer::RenderSettings;
+use renderer::image_io::panic_message;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 
@@ -358,13 +355,6 @@ fn case(n: u64, corpus: &[(String, Vec<u8>)]) -> (String, Vec<u8>, String) {
     (name, out, format!("{file}: {}", did.join("; ")))
 }
 
-/// Loads and renders case `n`; Err with a description when it panicked or rendered non-finite
-/// values.
-/// A caught panic's message (a `String` or a `&str` payload).
-fn panic_message(p: &(dyn std::any::Any + Send)) -> String {
-    p.downcast_ref::<String>().cloned().or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string())).unwrap_or_default()
-}
-
 /// Prints a case before it runs when `TESSERA_FUZZ_TRACE` is set (see the module's doc).
 fn trace(case: u64, what: &str) {
     if std::env::var_os("TESSERA_FUZZ_TRACE").is_some() {
@@ -372,35 +362,12 @@ fn trace(case: u64, what: &str) {
     }
 }
 
+/// Loads and renders case `n`; Err with a description when it panicked or rendered non-finite
+/// values.
 fn run_case(n: u64, corpus: &[(String, Vec<u8>)]) -> Result<(), String> {
     let (name, bytes, what) = case(n, corpus);
     trace(n, &what);
-    let outcome = std::panic::catch_unwind(|| -> Result<(), String> {
-        let Ok(mut scene) = load_from_bytes(Path::new(&name), &bytes) else { return Ok(()) };
-        for integrator in [IntegratorKind::Mis, IntegratorKind::Nee] {
-            let mut settings =
-                RenderSettings { width: 12, height: 8, spp: 2, pass_spp: 2, integrator, ..Default::default() };
-            for frame in [0u32, 7] {
-                settings.frame = frame;
-                if frame > 0 && !scene.is_animated() {
-                    continue;
-                }
-                if scene.set_frame(&settings, frame).is_err() {
-                    continue;
-                }
-                let r = render(&scene, &settings, &Counters::default());
-                let rect = r.image.rect;
-                for i in 0..rect.pixels() {
-                    let m = r.image.mean(i);
-                    if !m.iter().all(|c| c.is_finite()) {
-                        return Err(format!("pixel {i} is {m:?} ({integrator:?}, frame {frame})"));
-                    }
-                }
-            }
-        }
-        Ok(())
-    });
-    match outcome {
+    match std::panic::catch_unwind(|| renderer::testing::loads_and_renders_finitely(&name, &bytes)) {
         Ok(Ok(())) => Ok(()),
         Ok(Err(e)) => Err(format!("case {n} ({what}): {e}")),
         Err(p) => Err(format!("case {n} ({what}): panicked: {}", panic_message(p.as_ref()))),
@@ -489,10 +456,10 @@ fn exr_corpus() -> Vec<(String, Vec<u8>)> {
     out
 }
 
-/// Case `n` of the EXR corpus: a few bytes overwritten, mostly in the header (where sizes,
-/// channel lists, compression and the offset table are), sometimes cut short, as (bytes,
-/// description).
-fn exr_case(n: u64, corpus: &[(String, Vec<u8>)]) -> (Vec<u8>, String) {
+/// Case `n` of a corpus of binary files (the EXRs, the .hdr map): a few bytes overwritten, mostly
+/// in the first 600 (an EXR's header: sizes, channel lists, compression, the offset table),
+/// sometimes cut short, as (bytes, description).
+fn byte_case(n: u64, corpus: &[(String, Vec<u8>)]) -> (Vec<u8>, String) {
     let mut rng = Rng(n.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ 0xe8);
     let (name, bytes) = &corpus[rng.below(corpus.len())];
     let mut bytes = bytes.clone();
@@ -531,7 +498,7 @@ fn mutated_exr_files_load_or_fail_cleanly() {
         Err(_) => (0..n).chain(FOUND_EXR.iter().copied()).collect(),
     };
     for &case in &cases {
-        let (bytes, what) = exr_case(case, &corpus);
+        let (bytes, what) = byte_case(case, &corpus);
         trace(case, &what);
         std::fs::write(&path, &bytes).expect("temp file");
         let outcome = std::panic::catch_unwind(|| {
@@ -671,7 +638,7 @@ fn mutated_hdr_maps_load_or_fail_cleanly() {
     let path = dir.join("map.hdr");
     let (mut failures, mut loaded) = (Vec::new(), 0);
     for case in 0..n {
-        let (bytes, what) = exr_case(case, &corpus);
+        let (bytes, what) = byte_case(case, &corpus);
         trace(case, &what);
         std::fs::write(&path, &bytes).expect("temp file");
         match std::panic::catch_unwind(|| renderer::environment::Environment::load(&path, 1.0, 0.0, true, true).is_ok())
